@@ -1,0 +1,1 @@
+"""Camera calibration and stereo rectification (depends on ``core`` only)."""

@@ -1,0 +1,1 @@
+"""Types, geometry, configuration and errors shared by every stage."""

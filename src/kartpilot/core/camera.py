@@ -1,0 +1,145 @@
+"""Camera models: a pinhole camera with distortion and a rectified stereo rig.
+
+Pixel convention is OpenCV's: the centre of the top-left pixel is (0, 0).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from kartpilot.core.errors import CalibrationError
+from kartpilot.core.geometry import Array
+
+__all__ = ["PinholeCamera", "StereoRig"]
+
+
+@dataclass(frozen=True)
+class PinholeCamera:
+    """Intrinsics of one camera.
+
+    Attributes:
+        fx_px, fy_px: focal lengths in pixels.
+        cx_px, cy_px: principal point in pixels.
+        width_px, height_px: image size.
+        distortion: OpenCV coefficients (k1, k2, p1, p2[, k3...]); empty for none.
+        pose_body_cam: 4x4 camera-to-body transform (the camera's pose on the kart).
+    """
+
+    fx_px: float
+    fy_px: float
+    cx_px: float
+    cy_px: float
+    width_px: int
+    height_px: int
+    distortion: tuple[float, ...] = ()
+    pose_body_cam: tuple[tuple[float, ...], ...] = field(
+        default=((1.0, 0, 0, 0), (0, 1.0, 0, 0), (0, 0, 1.0, 0), (0, 0, 0, 1.0))
+    )
+
+    def __post_init__(self) -> None:
+        if not (self.fx_px > 0 and self.fy_px > 0):
+            raise CalibrationError(f"focal lengths must be positive, got {self.fx_px}, {self.fy_px}")
+        if self.width_px <= 0 or self.height_px <= 0:
+            raise CalibrationError(f"image size must be positive, got {self.width_px}x{self.height_px}")
+        if not (0 <= self.cx_px <= self.width_px and 0 <= self.cy_px <= self.height_px):
+            raise CalibrationError(
+                f"principal point ({self.cx_px}, {self.cy_px}) lies outside the "
+                f"{self.width_px}x{self.height_px} image"
+            )
+        if len(self.distortion) not in (0, 4, 5, 8, 12, 14):
+            raise CalibrationError(f"distortion needs 4, 5, 8, 12 or 14 values, got {len(self.distortion)}")
+
+    @classmethod
+    def from_matrix(
+        cls,
+        camera_matrix: Array,
+        size_wh: tuple[int, int],
+        distortion: Array | tuple[float, ...] = (),
+    ) -> PinholeCamera:
+        """Build from a 3x3 camera matrix and an image size (width, height)."""
+        K = np.asarray(camera_matrix, dtype=np.float64)
+        dist = tuple(float(d) for d in np.asarray(distortion, dtype=np.float64).ravel())
+        if dist and not any(dist):
+            dist = ()
+        return cls(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+                   int(size_wh[0]), int(size_wh[1]), dist)
+
+    @property
+    def matrix(self) -> Array:
+        """The 3x3 camera matrix K."""
+        return np.array([[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]])
+
+    @property
+    def distortion_array(self) -> Array:
+        """Distortion coefficients as an array for OpenCV (zeros when there are none)."""
+        return np.asarray(self.distortion if self.distortion else (0.0,) * 5, dtype=np.float64)
+
+    @property
+    def size_wh(self) -> tuple[int, int]:
+        return (self.width_px, self.height_px)
+
+    @property
+    def pose_body_cam_array(self) -> Array:
+        return np.asarray(self.pose_body_cam, dtype=np.float64)
+
+    def project(self, points_cam: Array) -> Array:
+        """Project (N, 3) points in the camera frame to (N, 2) pixels (no distortion)."""
+        points = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
+        z = points[:, 2]
+        return np.stack(
+            [self.fx_px * points[:, 0] / z + self.cx_px, self.fy_px * points[:, 1] / z + self.cy_px],
+            axis=1,
+        )
+
+
+@dataclass(frozen=True)
+class StereoRig:
+    """A rectified stereo pair: both images share K; the right camera sits ``baseline_m`` to the right.
+
+    ``P0 = K [I | 0]`` and ``P1 = K [I | (-baseline_m, 0, 0)]`` as in KITTI's calib.txt.
+    A point at depth Z has disparity ``d = fx * baseline / Z`` pixels.
+    """
+
+    camera: PinholeCamera
+    baseline_m: float
+
+    def __post_init__(self) -> None:
+        if not self.baseline_m > 0:
+            raise CalibrationError(
+                f"stereo baseline must be positive (right camera to the right), got {self.baseline_m} m"
+            )
+        if self.camera.distortion:
+            raise CalibrationError("a rectified stereo rig cannot carry lens distortion")
+
+    @classmethod
+    def from_projections(cls, P0: Array, P1: Array, size_wh: tuple[int, int]) -> StereoRig:
+        """Build from KITTI-style 3x4 projection matrices of the rectified left and right cameras."""
+        P0 = np.asarray(P0, dtype=np.float64).reshape(3, 4)
+        P1 = np.asarray(P1, dtype=np.float64).reshape(3, 4)
+        if not np.allclose(P0[:, :3], P1[:, :3], rtol=1e-6, atol=1e-6):
+            raise CalibrationError("P0 and P1 must share the same rectified camera matrix")
+        if abs(P0[2, 2] - 1.0) > 1e-9 or abs(P0[0, 1]) > 1e-9:
+            raise CalibrationError("P0 is not a rectified pinhole projection [K | 0]")
+        fx = P0[0, 0]
+        baseline = -(P1[0, 3] - P0[0, 3]) / fx
+        return cls(PinholeCamera.from_matrix(P0[:, :3], size_wh), float(baseline))
+
+    @property
+    def P0(self) -> Array:
+        projection = np.zeros((3, 4))
+        projection[:, :3] = self.camera.matrix
+        return projection
+
+    @property
+    def P1(self) -> Array:
+        projection = self.P0
+        projection[0, 3] = -self.camera.fx_px * self.baseline_m
+        return projection
+
+    def depth_from_disparity(self, disparity_px: Array) -> Array:
+        """Depth in metres for disparities in pixels (inf where the disparity is not positive)."""
+        disparity = np.asarray(disparity_px, dtype=np.float64)
+        with np.errstate(divide="ignore"):
+            return np.where(disparity > 0, self.camera.fx_px * self.baseline_m / disparity, np.inf)

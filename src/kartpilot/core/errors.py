@@ -1,0 +1,48 @@
+"""One root exception with a subclass per stage.
+
+The CLI turns any :class:`KartpilotError` into one line on stderr and a non-zero
+exit; anything else is a bug and keeps its traceback.
+"""
+
+__all__ = [
+    "CalibrationError",
+    "ConfigError",
+    "DataError",
+    "EvaluationError",
+    "KartpilotError",
+    "OdometryError",
+    "PerceptionError",
+    "RecordingError",
+]
+
+
+class KartpilotError(Exception):
+    """Root of every error kartpilot raises on purpose."""
+
+
+class ConfigError(KartpilotError):
+    """A configuration file or value is wrong (unknown key, wrong type, bad value)."""
+
+
+class DataError(KartpilotError):
+    """Input data is missing, unreadable, empty or inconsistent."""
+
+
+class CalibrationError(KartpilotError):
+    """A calibration is missing, malformed or physically implausible."""
+
+
+class PerceptionError(KartpilotError):
+    """A perception stage got input it cannot work on."""
+
+
+class OdometryError(KartpilotError):
+    """Visual odometry cannot go on (not raised for a single bad frame, which is bridged)."""
+
+
+class RecordingError(KartpilotError):
+    """A recording cannot be written or read."""
+
+
+class EvaluationError(KartpilotError):
+    """Trajectories or results cannot be compared."""

@@ -1,0 +1,87 @@
+"""SE(3) and SO(3) helpers on plain 4x4 / 3x3 NumPy arrays.
+
+Convention: ``T_a_b`` maps points from frame ``b`` into frame ``a``
+(``p_a = T_a_b @ p_b``). A camera pose ``T_world_cam`` is camera-to-world, as in
+KITTI's pose files. Camera frames are x right, y down, z forward.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+__all__ = [
+    "Array",
+    "invert_pose",
+    "pose_from_quaternion",
+    "pose_from_rotvec",
+    "pose_from_rt",
+    "quaternion_xyzw_from_pose",
+    "relative_pose",
+    "rotation_angle_rad",
+    "rotvec_from_pose",
+    "transform_points",
+]
+
+Array = NDArray[np.floating[Any]]
+
+
+def pose_from_rt(rotation: Array, translation: Array) -> Array:
+    """A 4x4 pose from a 3x3 rotation and a 3-vector translation."""
+    pose = np.eye(4)
+    pose[:3, :3] = rotation
+    pose[:3, 3] = np.asarray(translation, dtype=np.float64).reshape(3)
+    return pose
+
+
+def pose_from_rotvec(rotvec: Array, translation: Array) -> Array:
+    """A 4x4 pose from an axis-angle vector (rad) and a translation (m)."""
+    rotation = Rotation.from_rotvec(np.asarray(rotvec, dtype=np.float64).reshape(3)).as_matrix()
+    return pose_from_rt(rotation, translation)
+
+
+def rotvec_from_pose(pose: Array) -> Array:
+    """The axis-angle vector (rad) of a pose's rotation."""
+    return np.asarray(Rotation.from_matrix(pose[:3, :3]).as_rotvec(), dtype=np.float64)
+
+
+def pose_from_quaternion(quat_xyzw: Array, translation: Array) -> Array:
+    """A 4x4 pose from a unit quaternion in (x, y, z, w) order, as TUM files store it."""
+    rotation = Rotation.from_quat(np.asarray(quat_xyzw, dtype=np.float64)).as_matrix()
+    return pose_from_rt(rotation, translation)
+
+
+def quaternion_xyzw_from_pose(pose: Array) -> Array:
+    """The (x, y, z, w) unit quaternion of a pose's rotation, with w >= 0."""
+    quat = np.asarray(Rotation.from_matrix(pose[:3, :3]).as_quat(), dtype=np.float64)
+    return quat if quat[3] >= 0 else -quat
+
+
+def invert_pose(pose: Array) -> Array:
+    """The inverse of a rigid transform, without a general matrix inverse."""
+    inverse = np.eye(4)
+    rotation_t = pose[:3, :3].T
+    inverse[:3, :3] = rotation_t
+    inverse[:3, 3] = -rotation_t @ pose[:3, 3]
+    return inverse
+
+
+def relative_pose(pose_a: Array, pose_b: Array) -> Array:
+    """``T_a_b = inv(T_w_a) @ T_w_b``: pose ``b`` seen from pose ``a``."""
+    return invert_pose(pose_a) @ pose_b
+
+
+def rotation_angle_rad(pose_or_rotation: Array) -> float:
+    """The rotation angle (rad) of a pose or rotation matrix, in [0, pi]."""
+    rotation = pose_or_rotation[:3, :3]
+    cos_angle = (np.trace(rotation) - 1.0) / 2.0
+    return float(np.arccos(np.clip(cos_angle, -1.0, 1.0)))
+
+
+def transform_points(pose: Array, points: Array) -> Array:
+    """Apply a 4x4 pose to an (N, 3) array of points."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    return points @ pose[:3, :3].T + pose[:3, 3]

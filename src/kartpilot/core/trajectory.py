@@ -1,0 +1,139 @@
+"""A timestamped trajectory of 4x4 poses, read and written in KITTI and TUM formats.
+
+KITTI: one line per pose, the 12 values of the top 3x4 of a camera-to-world
+pose, row-major, no timestamps (``times.txt`` holds them separately).
+TUM: ``timestamp tx ty tz qx qy qz qw`` per line, ``#`` comments allowed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from kartpilot.core.errors import DataError
+from kartpilot.core.geometry import Array, pose_from_quaternion, quaternion_xyzw_from_pose
+
+__all__ = [
+    "Trajectory",
+    "TrajectoryFormat",
+    "guess_format",
+    "read_kitti_poses",
+    "read_trajectory",
+    "read_tum",
+    "write_kitti_poses",
+    "write_trajectory",
+    "write_tum",
+]
+
+TrajectoryFormat = Literal["kitti", "tum"]
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Poses ``T_world_cam`` (N, 4, 4) at times ``stamps_s`` (N,), seconds."""
+
+    stamps_s: Array
+    poses: Array
+
+    def __post_init__(self) -> None:
+        if self.poses.ndim != 3 or self.poses.shape[1:] != (4, 4):
+            raise DataError(f"poses must have shape (N, 4, 4), got {self.poses.shape}")
+        if self.stamps_s.shape != (self.poses.shape[0],):
+            raise DataError(
+                f"{self.stamps_s.shape[0]} timestamps for {self.poses.shape[0]} poses"
+            )
+
+    @classmethod
+    def from_poses(cls, poses: Sequence[Array] | Array, stamps_s: Sequence[float] | Array | None = None) -> Trajectory:
+        stack = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+        stamps = (np.arange(len(stack), dtype=np.float64) if stamps_s is None
+                  else np.asarray(stamps_s, dtype=np.float64))
+        return cls(stamps, stack)
+
+    def __len__(self) -> int:
+        return int(self.poses.shape[0])
+
+    @property
+    def positions(self) -> Array:
+        """(N, 3) positions in metres."""
+        return self.poses[:, :3, 3]
+
+    @property
+    def path_length_m(self) -> float:
+        return float(np.linalg.norm(np.diff(self.positions, axis=0), axis=1).sum())
+
+
+def _read_rows(path: Path, columns: int) -> Array:
+    if not path.is_file():
+        raise DataError(f"trajectory file not found: {path}")
+    rows = []
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        parts = text.replace(",", " ").split()
+        if len(parts) != columns:
+            raise DataError(f"{path}:{number}: expected {columns} numbers, found {len(parts)}")
+        try:
+            rows.append([float(p) for p in parts])
+        except ValueError as exc:
+            raise DataError(f"{path}:{number}: not a number ({exc})") from exc
+    if not rows:
+        raise DataError(f"trajectory file {path} holds no poses")
+    return np.asarray(rows, dtype=np.float64)
+
+
+def read_kitti_poses(path: str | Path, stamps_s: Array | None = None) -> Trajectory:
+    """Read a KITTI pose file; timestamps default to the frame index."""
+    rows = _read_rows(Path(path), 12)
+    poses = np.tile(np.eye(4), (len(rows), 1, 1))
+    poses[:, :3, :4] = rows.reshape(-1, 3, 4)
+    if stamps_s is not None and len(stamps_s) != len(rows):
+        raise DataError(f"{path}: {len(rows)} poses but {len(stamps_s)} timestamps")
+    return Trajectory.from_poses(poses, stamps_s)
+
+
+def write_kitti_poses(path: str | Path, trajectory: Trajectory) -> None:
+    lines = [" ".join(f"{v:.9e}" for v in pose[:3, :4].ravel()) for pose in trajectory.poses]
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+def read_tum(path: str | Path) -> Trajectory:
+    rows = _read_rows(Path(path), 8)
+    poses = np.stack([pose_from_quaternion(row[4:8], row[1:4]) for row in rows])
+    return Trajectory(rows[:, 0].copy(), poses)
+
+
+def write_tum(path: str | Path, trajectory: Trajectory) -> None:
+    lines = ["# timestamp tx ty tz qx qy qz qw"]
+    for stamp, pose in zip(trajectory.stamps_s, trajectory.poses, strict=True):
+        quat = quaternion_xyzw_from_pose(pose)
+        values = [*pose[:3, 3], *quat]
+        lines.append(f"{stamp:.9f} " + " ".join(f"{v:.9f}" for v in values))
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+def guess_format(path: str | Path) -> TrajectoryFormat:
+    """``tum`` for .tum/.csv files or 8-column text, else ``kitti``."""
+    path = Path(path)
+    if path.suffix.lower() in (".tum", ".csv"):
+        return "tum"
+    if path.is_file():
+        for line in path.read_text().splitlines():
+            if line.strip() and not line.startswith("#"):
+                return "tum" if len(line.split()) == 8 else "kitti"
+    return "kitti"
+
+
+def read_trajectory(path: str | Path, fmt: TrajectoryFormat | None = None) -> Trajectory:
+    fmt = fmt or guess_format(path)
+    return read_tum(path) if fmt == "tum" else read_kitti_poses(path)
+
+
+def write_trajectory(path: str | Path, trajectory: Trajectory, fmt: TrajectoryFormat | None = None) -> None:
+    fmt = fmt or guess_format(path)
+    (write_tum if fmt == "tum" else write_kitti_poses)(path, trajectory)

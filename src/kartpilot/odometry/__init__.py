@@ -1,0 +1,1 @@
+"""Visual odometry: frame-to-frame motion from stereo (and later monocular) images."""

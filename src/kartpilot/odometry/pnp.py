@@ -1,0 +1,178 @@
+"""Frame-to-frame motion from 2D-3D correspondences: PnP in RANSAC, then
+Levenberg-Marquardt refinement of the reprojection error on the inliers.
+
+Fischler and Bolles, "Random sample consensus", CACM 1981; the minimal solver is
+Ke and Roumeliotis' AP3P (CVPR 2017); refinement minimises
+``sum ||u_i - pi(K (R X_i + t))||^2`` (Madsen et al., "Methods for non-linear
+least squares problems", 2004).
+
+Frames: ``X_i`` are points in the previous left camera frame, ``u_i`` their pixels
+in the current left image; the result ``pose_cur_prev`` maps previous-camera
+points into the current camera (``X_cur = T X_prev``). The camera's own motion is
+its inverse.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from kartpilot.core.errors import ConfigError
+from kartpilot.core.geometry import Array, invert_pose, pose_from_rt, rotation_angle_rad
+
+__all__ = [
+    "MotionEstimate",
+    "PnpConfig",
+    "check_motion",
+    "estimate_motion_pnp",
+    "refine_translation",
+    "reprojection_errors",
+]
+
+
+@dataclass(frozen=True)
+class PnpConfig:
+    """Motion estimation settings.
+
+    Attributes:
+        reprojection_px: RANSAC inlier threshold.
+        iterations: RANSAC iterations.
+        confidence: RANSAC confidence.
+        min_inliers: fewest inliers accepted (the thesis required 8 to 10).
+        refine_lm: refine the RANSAC pose with Levenberg-Marquardt on the inliers.
+        translation_min_disparity_px: after the full refinement, re-estimate the translation
+            (rotation fixed) from inliers with at least this disparity. Depth from a small
+            disparity is biased long (E[1/d] > 1/E[d]), which inflates the translation;
+            far points still fix the rotation. 0 disables the step.
+        translation_min_points: fewest near inliers needed for that step.
+    """
+
+    reprojection_px: float = 1.5
+    iterations: int = 300
+    confidence: float = 0.999
+    min_inliers: int = 8
+    refine_lm: bool = True
+    translation_min_disparity_px: float = 20.0
+    translation_min_points: int = 12
+
+    def __post_init__(self) -> None:
+        if self.min_inliers < 6:
+            raise ConfigError(f"pnp.min_inliers must be at least 6 (a pose has 6 DoF), got {self.min_inliers}")
+        if self.reprojection_px <= 0:
+            raise ConfigError("pnp.reprojection_px must be positive")
+
+
+@dataclass(frozen=True)
+class MotionEstimate:
+    """Result of one PnP solve.
+
+    Attributes:
+        pose_cur_prev: 4x4 transform of points from the previous to the current camera frame.
+        inliers: indices of the correspondences that agree with the pose.
+        reprojection_rmse_px: RMS reprojection error over the inliers.
+        ok: False when no acceptable pose was found; ``reason`` says why.
+    """
+
+    pose_cur_prev: Array
+    inliers: NDArray[np.intp]
+    reprojection_rmse_px: float
+    ok: bool
+    reason: str = ""
+
+
+def _failure(reason: str) -> MotionEstimate:
+    return MotionEstimate(np.eye(4), np.zeros(0, np.intp), float("nan"), False, reason)
+
+
+def reprojection_errors(pose_cur_prev: Array, points_prev_m: Array, pixels_cur: Array, camera_matrix: Array) -> Array:
+    """Per-point reprojection error (px); points behind the camera get ``inf``."""
+    points = points_prev_m @ pose_cur_prev[:3, :3].T + pose_cur_prev[:3, 3]
+    projected = points @ camera_matrix.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = projected[:, :2] / projected[:, 2:3]
+    errors = np.linalg.norm(uv - pixels_cur, axis=1)
+    return np.where(points[:, 2] > 1e-6, errors, np.inf)
+
+
+def refine_translation(pose_cur_prev: Array, points_prev_m: Array, pixels_cur: Array, camera_matrix: Array,
+                       iterations: int = 5) -> Array:
+    """Gauss-Newton on the translation only, rotation held fixed, minimising reprojection error."""
+    pose = pose_cur_prev.copy()
+    fx, fy = camera_matrix[0, 0], camera_matrix[1, 1]
+    rotated = points_prev_m @ pose[:3, :3].T
+    for _ in range(iterations):
+        points = rotated + pose[:3, 3]
+        z = points[:, 2]
+        if np.any(z <= 1e-6):
+            return pose_cur_prev
+        u = fx * points[:, 0] / z + camera_matrix[0, 2]
+        v = fy * points[:, 1] / z + camera_matrix[1, 2]
+        residual = np.concatenate([u - pixels_cur[:, 0], v - pixels_cur[:, 1]])
+        zeros = np.zeros_like(z)
+        jacobian = np.concatenate([
+            np.stack([fx / z, zeros, -fx * points[:, 0] / z**2], axis=1),
+            np.stack([zeros, fy / z, -fy * points[:, 1] / z**2], axis=1),
+        ])
+        step = np.linalg.lstsq(jacobian, -residual, rcond=None)[0]
+        pose[:3, 3] += step
+        if np.linalg.norm(step) < 1e-9:
+            break
+    return pose
+
+
+def estimate_motion_pnp(
+    points_prev_m: Array, pixels_cur: Array, camera_matrix: Array, config: PnpConfig,
+    initial_pose_cur_prev: Array | None = None, disparities_px: Array | None = None,
+) -> MotionEstimate:
+    """Estimate ``pose_cur_prev`` from (N, 3) previous-frame points and their (N, 2) current pixels.
+
+    ``disparities_px`` (N,), when given, enables the near-point translation step.
+    ``initial_pose_cur_prev`` is accepted for interface stability; RANSAC does not need it.
+    """
+    points = np.ascontiguousarray(points_prev_m, dtype=np.float64).reshape(-1, 3)
+    pixels = np.ascontiguousarray(pixels_cur, dtype=np.float64).reshape(-1, 2)
+    if len(points) < config.min_inliers:
+        return _failure(f"only {len(points)} 2D-3D correspondences (need {config.min_inliers})")
+    K = np.asarray(camera_matrix, dtype=np.float64)
+    found, rvec, tvec, inliers = cv2.solvePnPRansac(
+        points, pixels, K, None, iterationsCount=config.iterations,
+        reprojectionError=config.reprojection_px, confidence=config.confidence, flags=cv2.SOLVEPNP_AP3P)
+    if not found or inliers is None or len(inliers) < config.min_inliers:
+        count = 0 if inliers is None else len(inliers)
+        return _failure(f"RANSAC found {count} inliers (need {config.min_inliers})")
+    inlier_index = inliers.ravel().astype(np.intp)
+    if config.refine_lm:
+        criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 1e-10)
+        for _ in range(2):
+            rvec, tvec = cv2.solvePnPRefineLM(points[inlier_index], pixels[inlier_index], K, None,
+                                              rvec, tvec, criteria=criteria)
+            pose = pose_from_rt(cv2.Rodrigues(rvec)[0], tvec)
+            errors = reprojection_errors(pose, points, pixels, K)
+            refined = np.flatnonzero(errors < config.reprojection_px)
+            if len(refined) < config.min_inliers or np.array_equal(refined, inlier_index):
+                break
+            inlier_index = refined
+    pose = pose_from_rt(cv2.Rodrigues(rvec)[0], tvec)
+    if disparities_px is not None and config.translation_min_disparity_px > 0:
+        near = inlier_index[np.asarray(disparities_px)[inlier_index] >= config.translation_min_disparity_px]
+        if len(near) >= config.translation_min_points:
+            pose = refine_translation(pose, points[near], pixels[near], K)
+    errors = reprojection_errors(pose, points[inlier_index], pixels[inlier_index], K)
+    rmse = float(np.sqrt(np.mean(errors**2)))
+    return MotionEstimate(pose, inlier_index, rmse, True)
+
+
+def check_motion(pose_cur_prev: Array, dt_s: float, max_speed_mps: float, max_yaw_rate_dps: float) -> str:
+    """Empty when the motion is plausible for the vehicle, else the reason it is not."""
+    motion = invert_pose(pose_cur_prev)
+    dt = max(dt_s, 1e-3)
+    speed = float(np.linalg.norm(motion[:3, 3])) / dt
+    rate = np.degrees(rotation_angle_rad(motion)) / dt
+    if not np.isfinite(speed) or speed > max_speed_mps:
+        return f"implausible speed {speed:.1f} m/s (limit {max_speed_mps:.1f})"
+    if rate > max_yaw_rate_dps:
+        return f"implausible rotation rate {rate:.0f} deg/s (limit {max_yaw_rate_dps:.0f})"
+    return ""

@@ -1,0 +1,302 @@
+"""Stereo visual odometry: the thesis's pipeline, kept fast and made more accurate.
+
+Per frame k (rectified pair):
+
+1. Detect and describe keypoints in the left image (bucketed) and the right image.
+2. Stereo correspondences: descriptor matches searched only along the epipolar
+   band (or KLT from left to right), refined to sub-pixel disparity with KLT, then
+   the epipolar filter (row difference <= 2 px) and the depth-range filter (1 to 45 m).
+   Triangulation gives 3D points in the left camera frame of frame k.
+3. Temporal correspondences: the previous left keypoints that have a 3D point are
+   matched to this frame's left keypoints (descriptor ratio test, or KLT), and
+   the match refined to sub-pixel with KLT. The left features of frame k are
+   detected once and serve both the stereo match at k and the temporal match at k+1.
+4. Motion: PnP in RANSAC, then Levenberg-Marquardt on the inliers; a sanity check
+   bounds speed and rotation rate by the vehicle's limits. On failure the motion
+   is bridged with a constant-velocity prediction and the reason is recorded.
+
+The world frame is the left camera at the first frame (x right, y down, z forward),
+as in KITTI's pose files.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kartpilot.core.camera import StereoRig
+from kartpilot.core.errors import ConfigError, PerceptionError
+from kartpilot.core.geometry import Array, invert_pose, pose_from_rotvec, rotvec_from_pose
+from kartpilot.core.types import Image, StereoFrame
+from kartpilot.odometry.pnp import PnpConfig, check_motion, estimate_motion_pnp
+from kartpilot.odometry.stereo_refine import refine_pose_and_depths
+from kartpilot.perception.features import FeatureConfig, Features, create_detector, detect_features
+from kartpilot.perception.matching import MatchConfig, match_descriptors, match_in_band
+from kartpilot.perception.stereo import (
+    StereoFilterConfig,
+    refine_disparity_zncc,
+    stereo_filter_mask,
+    triangulate_rectified,
+)
+from kartpilot.perception.tracking import KltConfig, track_klt
+
+__all__ = ["StereoVO", "StereoVOConfig", "VOEstimate", "VOStatus"]
+
+logger = logging.getLogger(__name__)
+
+VOStatus = Literal["init", "ok", "bridged"]
+
+
+@dataclass(frozen=True)
+class StereoVOConfig:
+    """Stereo VO settings; the defaults are the recommended configuration.
+
+    Attributes:
+        stereo_matching: ``band`` (descriptors along the epipolar band) or ``klt``.
+        temporal_matching: ``descriptor`` (ratio test, the thesis) or ``klt``.
+        subpixel: refine descriptor matches to sub-pixel positions with KLT.
+        joint_depth_refinement: after PnP, refine the pose jointly with each inlier's inverse
+            depth, observed through its disparity (see ``stereo_refine``).
+        max_speed_mps, max_yaw_rate_dps: the vehicle's limits for the motion sanity check.
+        max_bridged_frames: consecutive bridged frames after which the estimate is reported lost.
+    """
+
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    matching: MatchConfig = field(default_factory=MatchConfig)
+    stereo: StereoFilterConfig = field(default_factory=StereoFilterConfig)
+    klt: KltConfig = field(default_factory=KltConfig)
+    pnp: PnpConfig = field(default_factory=PnpConfig)
+    stereo_matching: Literal["band", "klt"] = "band"
+    temporal_matching: Literal["descriptor", "klt"] = "descriptor"
+    subpixel: bool = True
+    joint_depth_refinement: bool = False
+    max_speed_mps: float = 40.0
+    max_yaw_rate_dps: float = 180.0
+    max_bridged_frames: int = 10
+
+    def __post_init__(self) -> None:
+        if self.max_speed_mps <= 0 or self.max_yaw_rate_dps <= 0:
+            raise ConfigError("max_speed_mps and max_yaw_rate_dps must be positive")
+
+
+@dataclass(frozen=True)
+class VODiagnostics:
+    """What each stage kept in one frame, for the analyses of the thesis's research questions.
+
+    Counts: ``left_features``, ``right_features``, ``stereo_matches`` (before filters),
+    ``epipolar_ok``, ``depth_ok`` (3D points kept), ``temporal_matches``, ``inliers``.
+    ``inlier_pixels`` (M, 2) and ``inlier_depths_m`` (M,) are the final points in the
+    previous left image, for feature-distribution grids and depth histograms.
+    """
+
+    left_features: int = 0
+    right_features: int = 0
+    stereo_matches: int = 0
+    epipolar_ok: int = 0
+    depth_ok: int = 0
+    temporal_matches: int = 0
+    inliers: int = 0
+    reprojection_rmse_px: float = float("nan")
+    timing_ms: dict[str, float] = field(default_factory=dict)
+    inlier_pixels: Array = field(default_factory=lambda: np.zeros((0, 2)))
+    inlier_depths_m: Array = field(default_factory=lambda: np.zeros(0))
+
+
+@dataclass(frozen=True)
+class VOEstimate:
+    """The VO output for one frame.
+
+    Attributes:
+        pose_world_cam: 4x4 left-camera pose in the world frame (the first left camera).
+        status: ``init`` (first frame), ``ok`` (measured) or ``bridged`` (predicted).
+        lost: True once more than ``max_bridged_frames`` consecutive frames were bridged.
+    """
+
+    index: int
+    stamp_ns: int
+    pose_world_cam: Array
+    status: VOStatus
+    reason: str
+    lost: bool
+    diagnostics: VODiagnostics
+
+
+@dataclass
+class _Keyframe:
+    """The state carried from one frame to the next."""
+
+    image: Image
+    features: Features
+    points_m: Array  # (N, 3) per left feature, NaN where no valid stereo depth
+    stamp_ns: int
+
+
+class _Timer:
+    def __init__(self) -> None:
+        self.timing: dict[str, float] = {}
+        self._last = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.timing[name] = self.timing.get(name, 0.0) + (now - self._last) * 1e3
+        self._last = now
+
+
+class StereoVO:
+    """Frame-to-frame stereo VO. Holds only what must persist between frames."""
+
+    def __init__(self, rig: StereoRig, config: StereoVOConfig | None = None) -> None:
+        self.rig = rig
+        self.config = config or StereoVOConfig()
+        self._detector, self._binary = create_detector(self.config.features)
+        # OpenCV releases the GIL: the right image is detected on a second thread
+        self._right_detector, _ = create_detector(self.config.features)
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vo-detect")
+        self._previous: _Keyframe | None = None
+        self._pose_world_cam = np.eye(4)
+        self._velocity_cur_prev: Array = np.eye(4)  # last accepted motion, for bridging
+        self._velocity_dt_s = 0.1
+        self._bridged_in_row = 0
+
+    def close(self) -> None:
+        """Stop the detection thread."""
+        self._pool.shutdown(wait=False)
+
+    @property
+    def pose_world_cam(self) -> Array:
+        return self._pose_world_cam.copy()
+
+    def process(self, frame: StereoFrame) -> VOEstimate:
+        """Consume one rectified stereo frame and return the updated pose."""
+        expected = (self.rig.camera.height_px, self.rig.camera.width_px)
+        if frame.left.shape != expected or frame.right.shape != expected:
+            raise PerceptionError(
+                f"frame {frame.index}: images are {frame.left.shape}/{frame.right.shape}, "
+                f"the rig expects {expected}"
+            )
+        timer = _Timer()
+        features, points_m, counts = self._stereo_points(frame, timer)
+        current = _Keyframe(frame.left, features, points_m, frame.stamp_ns)
+        previous, self._previous = self._previous, current
+        if previous is None:
+            return VOEstimate(frame.index, frame.stamp_ns, self.pose_world_cam, "init", "", False,
+                              replace(counts, timing_ms=timer.timing))
+        dt_s = max((frame.stamp_ns - previous.stamp_ns) * 1e-9, 1e-3)
+        prev_points, cur_pixels, prev_pixels = self._temporal_correspondences(previous, current, timer)
+        disparities = self.rig.camera.fx_px * self.rig.baseline_m / prev_points[:, 2]
+        motion = estimate_motion_pnp(prev_points, cur_pixels, self.rig.camera.matrix, self.config.pnp,
+                                     self._predicted(dt_s), disparities)
+        if motion.ok and self.config.joint_depth_refinement:
+            inl = motion.inliers
+            refined = refine_pose_and_depths(motion.pose_cur_prev, prev_pixels[inl].astype(np.float64),
+                                             disparities[inl], cur_pixels[inl].astype(np.float64),
+                                             self.rig.camera.matrix, self.rig.baseline_m)
+            motion = replace(motion, pose_cur_prev=refined)
+        timer.lap("pnp")
+        reason = motion.reason
+        if motion.ok:
+            reason = check_motion(motion.pose_cur_prev, dt_s, self.config.max_speed_mps,
+                                  self.config.max_yaw_rate_dps)
+        diagnostics = replace(
+            counts, temporal_matches=len(prev_points), inliers=len(motion.inliers),
+            reprojection_rmse_px=motion.reprojection_rmse_px, timing_ms=timer.timing,
+            inlier_pixels=prev_pixels[motion.inliers], inlier_depths_m=prev_points[motion.inliers, 2])
+        status: VOStatus
+        if motion.ok and not reason:
+            pose_cur_prev, status = motion.pose_cur_prev, "ok"
+            self._velocity_cur_prev, self._velocity_dt_s = pose_cur_prev, dt_s
+            self._bridged_in_row = 0
+        else:
+            pose_cur_prev, status = self._predicted(dt_s), "bridged"
+            self._bridged_in_row += 1
+            logger.info("frame %d bridged with constant velocity: %s", frame.index, reason)
+        self._pose_world_cam = self._pose_world_cam @ invert_pose(pose_cur_prev)
+        lost = self._bridged_in_row > self.config.max_bridged_frames
+        return VOEstimate(frame.index, frame.stamp_ns, self.pose_world_cam, status, reason, lost, diagnostics)
+
+    def _predicted(self, dt_s: float) -> Array:
+        """Constant-velocity prediction of ``pose_cur_prev`` over ``dt_s``."""
+        if abs(dt_s - self._velocity_dt_s) < 1e-6:
+            return self._velocity_cur_prev.copy()
+        scale = dt_s / self._velocity_dt_s
+        return pose_from_rotvec(rotvec_from_pose(self._velocity_cur_prev) * scale,
+                                self._velocity_cur_prev[:3, 3] * scale)
+
+    def _stereo_points(self, frame: StereoFrame, timer: _Timer) -> tuple[Features, Array, VODiagnostics]:
+        config = self.config
+        right_future = None
+        if config.stereo_matching == "band":
+            right_future = self._pool.submit(detect_features, frame.right, self._right_detector,
+                                             self._binary, config.features)
+        left = detect_features(frame.left, self._detector, self._binary, config.features)
+        points_m = np.full((len(left), 3), np.nan)
+        counts = VODiagnostics(left_features=len(left))
+        band = config.stereo.epipolar_band_px
+        min_disp, max_disp = config.stereo.disparity_range_px(self.rig)
+        if right_future is not None:
+            right = right_future.result()
+            timer.lap("detect")
+            counts = replace(counts, right_features=len(right))
+            # search a slightly wider band and range; the filters below apply the exact limits
+            matches = match_in_band(left.points_px, left.descriptors, right.points_px, right.descriptors,
+                                    self._binary, band + 1.0, 0.5 * min_disp, 1.5 * max_disp + 2.0,
+                                    config.matching.ratio)
+            left_index = matches.index_a
+            right_px = right.points_px[matches.index_b]
+            if config.subpixel and len(left_index):
+                rounded, disparity, good = refine_disparity_zncc(
+                    frame.left, frame.right, left.points_px[left_index],
+                    left.points_px[left_index, 0] - right_px[:, 0])
+                left_index = left_index[good]
+                left.points_px[left_index] = rounded[good]
+                right_px = rounded[good].copy()
+                right_px[:, 0] -= disparity[good]
+        else:
+            timer.lap("detect")
+            left_index = np.arange(len(left))
+            guess = left.points_px.copy()
+            guess[:, 0] -= 0.5 * (min_disp + max_disp)
+            right_px, tracked = track_klt(frame.left, frame.right, left.points_px, config.klt, initial_px=guess)
+            left_index, right_px = left_index[tracked], right_px[tracked]
+        timer.lap("stereo_match")
+        counts = replace(counts, stereo_matches=len(left_index))
+        left_px = left.points_px[left_index]
+        epipolar_ok, depth_ok = stereo_filter_mask(self.rig, left_px, right_px, config.stereo)
+        counts = replace(counts, epipolar_ok=int(epipolar_ok.sum()), depth_ok=int(depth_ok.sum()))
+        points_m[left_index[depth_ok]] = triangulate_rectified(self.rig, left_px[depth_ok], right_px[depth_ok])
+        timer.lap("triangulate")
+        return left, points_m, counts
+
+    def _temporal_correspondences(self, previous: _Keyframe, current: _Keyframe,
+                                  timer: _Timer) -> tuple[Array, NDArray[np.float32], NDArray[np.float32]]:
+        """(M, 3) previous-frame points, their (M, 2) current pixels and (M, 2) previous pixels."""
+        config = self.config
+        with_depth = np.flatnonzero(np.isfinite(previous.points_m[:, 2]))
+        prev_px = previous.features.points_px[with_depth]
+        if config.temporal_matching == "descriptor":
+            matches = match_descriptors(previous.features.descriptors[with_depth], current.features.descriptors,
+                                        self._binary, config.matching)
+            prev_index = with_depth[matches.index_a]
+            prev_px = prev_px[matches.index_a]
+            cur_px = current.features.points_px[matches.index_b]
+            if config.subpixel and len(prev_index):
+                cur_px, tracked = track_klt(previous.image, current.image, prev_px, _stereo_klt(config.klt),
+                                            initial_px=cur_px)
+                prev_index, prev_px, cur_px = prev_index[tracked], prev_px[tracked], cur_px[tracked]
+        else:
+            cur_px, tracked = track_klt(previous.image, current.image, prev_px, config.klt)
+            prev_index, prev_px, cur_px = with_depth[tracked], prev_px[tracked], cur_px[tracked]
+        timer.lap("temporal_match")
+        return previous.points_m[prev_index], cur_px, prev_px
+
+
+def _stereo_klt(config: KltConfig) -> KltConfig:
+    """KLT settings for refining an existing match: small window, no pyramid needed."""
+    return KltConfig(window_px=min(config.window_px, 11), pyramid_levels=1,
+                     max_fb_error_px=config.max_fb_error_px, iterations=config.iterations)

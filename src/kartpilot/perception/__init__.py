@@ -1,0 +1,1 @@
+"""Perception: features, matching, tracking, stereo depth (and later lanes)."""

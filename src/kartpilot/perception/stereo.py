@@ -1,0 +1,209 @@
+"""Stereo depth on a rectified pair: feature triangulation with the thesis's
+filters, and dense block matching (StereoBM / StereoSGBM, optional WLS filter).
+
+For a rectified pair the linear triangulation of a correspondence reduces to
+``Z = fx * b / d``, ``X = (u - cx) * Z / fx``, ``Y = (v - cy) * Z / fy`` with the
+disparity ``d = u_left - u_right`` (Hartley and Zisserman, ch. 12); it is exact
+and cheaper than ``cv2.triangulatePoints``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from kartpilot.core.camera import StereoRig
+from kartpilot.core.errors import ConfigError, PerceptionError
+from kartpilot.core.geometry import Array
+from kartpilot.core.types import Image
+
+__all__ = [
+    "BlockMatchConfig",
+    "StereoFilterConfig",
+    "compute_disparity",
+    "refine_disparity_zncc",
+    "stereo_filter_mask",
+    "triangulate_rectified",
+]
+
+
+@dataclass(frozen=True)
+class StereoFilterConfig:
+    """The thesis's filters on stereo correspondences.
+
+    Attributes:
+        epipolar_band_px: largest row difference of a match (the thesis found 2 px ideal).
+        min_depth_m, max_depth_m: depth range filter (the thesis used 1 to 45 m).
+    """
+
+    epipolar_band_px: float = 2.0
+    min_depth_m: float = 1.0
+    max_depth_m: float = 45.0
+
+    def __post_init__(self) -> None:
+        if self.epipolar_band_px < 0:
+            raise ConfigError("stereo.epipolar_band_px must not be negative")
+        if not 0 < self.min_depth_m < self.max_depth_m:
+            raise ConfigError(
+                f"stereo depth range must satisfy 0 < min < max, got {self.min_depth_m}..{self.max_depth_m}"
+            )
+
+    def disparity_range_px(self, rig: StereoRig) -> tuple[float, float]:
+        """Disparities that correspond to the depth range on ``rig``."""
+        focal_baseline = rig.camera.fx_px * rig.baseline_m
+        return focal_baseline / self.max_depth_m, focal_baseline / self.min_depth_m
+
+
+def triangulate_rectified(rig: StereoRig, left_px: Array, right_px: Array) -> Array:
+    """3D points (N, 3) in the left camera frame from rectified correspondences.
+
+    Points with non-positive disparity get ``inf`` depth; filter them with
+    :func:`stereo_filter_mask` first.
+    """
+    left = np.asarray(left_px, dtype=np.float64).reshape(-1, 2)
+    right = np.asarray(right_px, dtype=np.float64).reshape(-1, 2)
+    camera = rig.camera
+    disparity = left[:, 0] - right[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = np.where(disparity > 0, camera.fx_px * rig.baseline_m / disparity, np.inf)
+    row = 0.5 * (left[:, 1] + right[:, 1])
+    x = (left[:, 0] - camera.cx_px) * depth / camera.fx_px
+    y = (row - camera.cy_px) * depth / camera.fy_px
+    return np.stack([x, y, depth], axis=1)
+
+
+def stereo_filter_mask(rig: StereoRig, left_px: Array, right_px: Array,
+                       config: StereoFilterConfig) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """The epipolar and depth-range filters.
+
+    Returns:
+        (epipolar_ok, depth_ok): the first keeps matches whose rows differ by at most
+        the band and whose disparity is positive; the second additionally keeps only
+        depths inside the range.
+    """
+    left = np.asarray(left_px, dtype=np.float64).reshape(-1, 2)
+    right = np.asarray(right_px, dtype=np.float64).reshape(-1, 2)
+    disparity = left[:, 0] - right[:, 0]
+    epipolar_ok = (np.abs(left[:, 1] - right[:, 1]) <= config.epipolar_band_px) & (disparity > 0)
+    low, high = config.disparity_range_px(rig)
+    depth_ok = epipolar_ok & (disparity >= low) & (disparity <= high)
+    return epipolar_ok, depth_ok
+
+
+def refine_disparity_zncc(
+    left: Image, right: Image, left_px: NDArray[np.float32], disparity_px: NDArray[np.float32],
+    half_window_px: int = 5, search_px: int = 1,
+) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.bool_]]:
+    """Sub-pixel disparity by zero-mean normalised cross-correlation along the row.
+
+    Each left point is rounded to its pixel; the right patch is compared at integer
+    disparities ``round(d) - search .. round(d) + search`` and a parabola through the
+    best score and its neighbours gives the sub-pixel disparity. ZNCC is invariant to
+    gain and offset between the cameras, which biases SSD-based trackers (KLT) when the
+    two exposures differ.
+
+    Returns:
+        (left pixels rounded, refined disparity, valid mask); invalid where the window
+        leaves the image, the peak lies outside the searched range, the texture is flat
+        or the best correlation is below 0.7.
+    """
+    count = len(left_px)
+    height, width = left.shape
+    h = half_window_px
+    u = np.rint(left_px[:, 0]).astype(np.int64)
+    v = np.rint(left_px[:, 1]).astype(np.int64)
+    d0 = np.rint(disparity_px).astype(np.int64)
+    offsets = np.arange(-search_px - 1, search_px + 2)  # one extra each side for the parabola
+    valid = (v - h >= 0) & (v + h < height) & (u + h < width) & (u - d0 - search_px - 1 - h >= 0) & (u - h >= 0)
+    rounded = np.stack([u, v], axis=1).astype(np.float32)
+    refined = np.full(count, np.nan, dtype=np.float32)
+    index = np.flatnonzero(valid)
+    if index.size == 0:
+        return rounded, refined, valid
+    window = np.arange(-h, h + 1)
+    rows = (v[index, None, None] + window[None, :, None])  # (M, W, 1)
+    cols_left = (u[index, None, None] + window[None, None, :])  # (M, 1, W)
+    patch_left = left[rows, cols_left].astype(np.float32).reshape(index.size, -1)
+    cols_right = (u[index, None, None, None] - d0[index, None, None, None] - offsets[None, :, None, None]
+                  + window[None, None, None, :])  # (M, S, 1, W)
+    patch_right = right[rows[:, None, :, :], cols_right].astype(np.float32).reshape(index.size, offsets.size, -1)
+    zl = patch_left - patch_left.mean(axis=1, keepdims=True)
+    zr = patch_right - patch_right.mean(axis=2, keepdims=True)
+    norm_l = np.sqrt((zl**2).sum(axis=1))
+    norm_r = np.sqrt((zr**2).sum(axis=2))
+    score = np.einsum("mk,msk->ms", zl, zr) / np.maximum(norm_l[:, None] * norm_r, 1e-6)
+    # the outer offsets only serve the parabola: a peak beyond the searched range
+    # shows up as a neighbour scoring higher, which the |shift| <= 0.5 test rejects
+    best = np.argmax(score[:, 1:-1], axis=1) + 1
+    rows_m = np.arange(index.size)
+    s_minus, s_0, s_plus = score[rows_m, best - 1], score[rows_m, best], score[rows_m, best + 1]
+    curvature = s_minus - 2 * s_0 + s_plus
+    textured = (norm_l > 1e-3 * patch_left.shape[1]) & (curvature < -1e-6) & (s_0 > 0.7)
+    shift = np.where(curvature < 0, 0.5 * (s_minus - s_plus) / np.where(curvature < 0, curvature, -1.0), 0.0)
+    ok = textured & (np.abs(shift) <= 0.5)
+    refined[index] = (d0[index] + offsets[best] + shift).astype(np.float32)
+    valid[index] = ok
+    return rounded, refined, valid
+
+
+@dataclass(frozen=True)
+class BlockMatchConfig:
+    """Dense stereo matching (OpenCV StereoBM / StereoSGBM, optional WLS post-filter).
+
+    Attributes:
+        method: ``bm`` or ``sgbm``.
+        num_disparities: search range in pixels (rounded up to a multiple of 16).
+        block_size: matching window (odd).
+        wls: apply the weighted-least-squares filter (Min et al., "Fast global image
+            smoothing based on weighted least squares", TIP 2014) using a right-to-left match.
+        wls_lambda, wls_sigma: the filter's smoothness and edge sensitivity.
+    """
+
+    method: Literal["bm", "sgbm"] = "sgbm"
+    num_disparities: int = 128
+    block_size: int = 5
+    wls: bool = False
+    wls_lambda: float = 8000.0
+    wls_sigma: float = 1.5
+
+    def __post_init__(self) -> None:
+        if self.block_size < 3 or self.block_size % 2 == 0:
+            raise ConfigError(f"block_match.block_size must be odd and at least 3, got {self.block_size}")
+        if self.num_disparities < 16:
+            raise ConfigError("block_match.num_disparities must be at least 16")
+
+
+def _create_matcher(config: BlockMatchConfig) -> cv2.StereoMatcher:
+    disparities = int(np.ceil(config.num_disparities / 16) * 16)
+    if config.method == "bm":
+        matcher = cv2.StereoBM_create(numDisparities=disparities, blockSize=max(config.block_size, 5))
+        matcher.setUniquenessRatio(10)
+        matcher.setTextureThreshold(10)
+        return matcher
+    block = config.block_size
+    return cv2.StereoSGBM_create(
+        minDisparity=0, numDisparities=disparities, blockSize=block,
+        P1=8 * block * block, P2=32 * block * block, disp12MaxDiff=1, uniquenessRatio=10,
+        speckleWindowSize=100, speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+
+
+def compute_disparity(left: Image, right: Image, config: BlockMatchConfig) -> NDArray[np.float32]:
+    """Dense disparity in pixels for the left image; invalid pixels are NaN."""
+    if left.shape != right.shape or left.ndim != 2:
+        raise PerceptionError(f"block matching needs two grayscale images of one size, got {left.shape}, {right.shape}")
+    matcher = _create_matcher(config)
+    raw_left = matcher.compute(left, right)
+    if config.wls:
+        right_matcher = cv2.ximgproc.createRightMatcher(matcher)
+        raw_right = right_matcher.compute(right, left)
+        wls = cv2.ximgproc.createDisparityWLSFilter(matcher)
+        wls.setLambda(config.wls_lambda)
+        wls.setSigmaColor(config.wls_sigma)
+        raw_left = wls.filter(raw_left, left, disparity_map_right=raw_right)
+    disparity = raw_left.astype(np.float32) / 16.0
+    disparity[disparity <= 0] = np.nan
+    return disparity

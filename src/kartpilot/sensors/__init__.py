@@ -1,0 +1,1 @@
+"""Frame sources: datasets, recordings and (later) live cameras behind one interface."""

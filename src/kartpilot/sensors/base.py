@@ -1,0 +1,58 @@
+"""The one interface every stereo frame source serves.
+
+A KITTI sequence, a EuRoC sequence, a kartpilot recording, the simulator and a
+live camera pair all yield :class:`~kartpilot.core.types.StereoFrame` objects
+with rectified images, so the pipeline cannot tell them apart.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+
+from kartpilot.core.camera import StereoRig
+from kartpilot.core.errors import DataError
+from kartpilot.core.trajectory import Trajectory
+from kartpilot.core.types import Image, StereoFrame
+
+__all__ = ["StereoSource", "read_gray"]
+
+
+class StereoSource(abc.ABC):
+    """A finite, indexable sequence of rectified stereo frames."""
+
+    name: str = "stereo"
+
+    @property
+    @abc.abstractmethod
+    def rig(self) -> StereoRig:
+        """The rectified rig the frames were taken with."""
+
+    @abc.abstractmethod
+    def __len__(self) -> int: ...
+
+    @abc.abstractmethod
+    def frame(self, index: int) -> StereoFrame:
+        """Load frame ``index`` (0-based). Raises DataError if it cannot be read."""
+
+    def ground_truth(self) -> Trajectory | None:
+        """Left-camera poses (camera to world of the first frame) when the source has them."""
+        return None
+
+    def __iter__(self) -> Iterator[StereoFrame]:
+        for index in range(len(self)):
+            yield self.frame(index)
+
+
+def read_gray(path: str | Path) -> Image:
+    """Read an image as 8-bit grayscale; a missing, corrupt or empty file raises DataError."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"image not found: {path}")
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None or image.size == 0:
+        raise DataError(f"cannot read image (corrupt or not an image): {path}")
+    return image

@@ -1,0 +1,101 @@
+"""The EuRoC MAV ASL layout.
+
+``ROOT/mav0/cam{0,1}/{sensor.yaml,data.csv,data/<stamp_ns>.png}``. The images are
+raw and distorted (radial-tangential); they are rectified with the maps computed
+once from ``sensor.yaml`` (intrinsics, distortion, ``T_BS`` body-to-sensor).
+Frames are paired by timestamp, keeping only stamps present in both cameras
+with an existing file.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from kartpilot.calibration.rectify import StereoRectification, rectify_stereo
+from kartpilot.core.camera import PinholeCamera, StereoRig
+from kartpilot.core.errors import CalibrationError, DataError
+from kartpilot.core.geometry import invert_pose
+from kartpilot.core.types import StereoFrame
+from kartpilot.sensors.base import StereoSource, read_gray
+
+__all__ = ["EurocSource", "read_euroc_camera"]
+
+
+def _load_opencv_yaml(path: Path) -> dict[str, Any]:
+    if not path.is_file():
+        raise CalibrationError(f"camera calibration not found: {path}")
+    text = "\n".join(line for line in path.read_text().splitlines() if not line.startswith("%YAML"))
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise CalibrationError(f"{path} is not valid YAML: {exc}") from exc
+    if not isinstance(data, dict):
+        raise CalibrationError(f"{path} does not hold a mapping")
+    return data
+
+
+def read_euroc_camera(path: Path) -> tuple[PinholeCamera, np.ndarray]:
+    """Read a EuRoC ``sensor.yaml``: the camera and its 4x4 body-from-sensor pose."""
+    data = _load_opencv_yaml(path)
+    try:
+        fu, fv, cu, cv = (float(v) for v in data["intrinsics"])
+        width, height = (int(v) for v in data["resolution"])
+        distortion = tuple(float(v) for v in data.get("distortion_coefficients", ()))
+        pose = np.asarray(data["T_BS"]["data"], dtype=np.float64).reshape(4, 4)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CalibrationError(f"{path}: missing or malformed field ({exc})") from exc
+    model = data.get("distortion_model", "radial-tangential")
+    if model not in ("radial-tangential", "radtan", "none"):
+        raise CalibrationError(f"{path}: unsupported distortion model {model!r}")
+    return PinholeCamera(fu, fv, cu, cv, width, height, distortion), pose
+
+
+def _read_stamps(csv_path: Path) -> dict[int, Path]:
+    if not csv_path.is_file():
+        raise DataError(f"frame list not found: {csv_path}")
+    frames: dict[int, Path] = {}
+    for line in csv_path.read_text().splitlines():
+        if not line.strip() or line.startswith("#"):
+            continue
+        stamp, _, name = line.partition(",")
+        path = csv_path.parent / "data" / name.strip()
+        if path.is_file():
+            frames[int(stamp)] = path
+    return frames
+
+
+class EurocSource(StereoSource):
+    """Rectified stereo frames of one EuRoC sequence."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+        mav = self.root / "mav0" if (self.root / "mav0").is_dir() else self.root
+        if not (mav / "cam0").is_dir() or not (mav / "cam1").is_dir():
+            raise DataError(f"no EuRoC cam0/cam1 folders under {self.root}")
+        self.name = f"euroc-{self.root.name}"
+        left_cam, body_left = read_euroc_camera(mav / "cam0" / "sensor.yaml")
+        right_cam, body_right = read_euroc_camera(mav / "cam1" / "sensor.yaml")
+        pose_right_left = invert_pose(body_right) @ body_left
+        self.rectification: StereoRectification = rectify_stereo(left_cam, right_cam, pose_right_left)
+        left_frames = _read_stamps(mav / "cam0" / "data.csv")
+        right_frames = _read_stamps(mav / "cam1" / "data.csv")
+        self._stamps = sorted(set(left_frames) & set(right_frames))
+        if not self._stamps:
+            raise DataError(f"no stereo frames with images in both cameras under {mav}")
+        self._left = [left_frames[s] for s in self._stamps]
+        self._right = [right_frames[s] for s in self._stamps]
+
+    @property
+    def rig(self) -> StereoRig:
+        return self.rectification.rig
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def frame(self, index: int) -> StereoFrame:
+        left, right = self.rectification.rectify(read_gray(self._left[index]), read_gray(self._right[index]))
+        return StereoFrame(index, self._stamps[index], left, right)
