@@ -1,7 +1,8 @@
 """Trajectory metrics, computed through evo's API.
 
 - ATE: RMSE of the position error after an SE(3) Umeyama alignment (Sturm et al.,
-  "A benchmark for the evaluation of RGB-D SLAM systems", IROS 2012).
+  "A benchmark for the evaluation of RGB-D SLAM systems", IROS 2012); on a straight
+  path, where that alignment is degenerate, after aligning the first poses.
 - RPE over a path distance (1 m, 10 m): translation error in % of the distance and
   rotation error in deg/m, over all pose pairs that far apart along the ground
   truth (Geiger et al., KITTI, CVPR 2012, use 100 to 800 m on long sequences;
@@ -16,7 +17,8 @@ import copy
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from evo.core import metrics, sync
+from evo.core import filters, metrics, sync
+from evo.core.geometry import GeometryException
 from evo.core.trajectory import PoseTrajectory3D
 
 from kartpilot.core.errors import EvaluationError
@@ -94,7 +96,11 @@ def evaluate_trajectory(reference: Trajectory, estimate: Trajectory,
     path_length = float(ref.path_length)
     end_drift = float(np.linalg.norm(est.positions_xyz[-1] - ref.positions_xyz[-1]))
     aligned = copy.deepcopy(est)
-    aligned.align(ref, correct_scale=False)
+    try:
+        aligned.align(ref, correct_scale=False)
+    except GeometryException:
+        # a straight-line path leaves the rotation about it undetermined: align the first poses instead
+        aligned.align_origin(ref)
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((ref, aligned))
     rpes = []
@@ -115,7 +121,7 @@ def _rpe(ref: PoseTrajectory3D, est: PoseTrajectory3D, delta_m: float) -> RpeRes
                           all_pairs=True, pairs_from_reference=True)
         try:
             rpe.process_data((ref, est))
-        except metrics.MetricsException:
+        except (metrics.MetricsException, filters.FilterException):
             return RpeResult(delta_m, 0, float("nan"), float("nan"))
         results.append((len(rpe.error), float(np.mean(rpe.error))))
     (pairs, trans_m), (_, rot_deg) = results

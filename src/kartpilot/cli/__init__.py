@@ -1,0 +1,1 @@
+"""The ``kartpilot`` command line: thin subcommands over library functions."""

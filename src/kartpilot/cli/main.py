@@ -1,0 +1,85 @@
+"""``kartpilot``: one command, thin subcommands.
+
+A known error (:class:`KartpilotError`) prints one line and exits 1; a usage
+error exits 2 (argparse); anything else is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Sequence
+
+from kartpilot import __version__
+from kartpilot.cli import commands
+from kartpilot.core.errors import KartpilotError
+
+__all__ = ["build_parser", "main"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="kartpilot", description="Camera-only self-driving stack for karts.")
+    parser.add_argument("--version", action="version", version=f"kartpilot {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log each stage's decisions")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    odometry = sub.add_parser("odometry", help="run stereo visual odometry over a dataset or recording")
+    odo_sub = odometry.add_subparsers(dest="source", required=True, metavar="SOURCE")
+    kitti = odo_sub.add_parser("kitti", help="KITTI odometry layout (sequences/NN, poses/NN.txt)")
+    kitti.add_argument("root")
+    kitti.add_argument("--sequence", default="00")
+    euroc = odo_sub.add_parser("euroc", help="EuRoC ASL layout (mav0/cam0, cam1)")
+    euroc.add_argument("root")
+    recording = odo_sub.add_parser("recording", help="a kartpilot recording folder")
+    recording.add_argument("root")
+    synthetic = odo_sub.add_parser("synthetic", help="the built-in synthetic stereo sequence")
+    synthetic.add_argument("--frames", type=int, default=40)
+    synthetic.add_argument("--seed", type=int, default=0)
+    for sub_parser in (kitti, euroc, recording, synthetic):
+        sub_parser.add_argument("--out", required=True, help="trajectory file (.txt = KITTI, .tum = TUM)")
+        sub_parser.add_argument("--format", choices=("kitti", "tum"), help="override the format guessed from --out")
+        sub_parser.add_argument("--config", help="YAML file merged over the defaults")
+        sub_parser.add_argument("--plot", help="write the top-view plot here (PNG)")
+        sub_parser.add_argument("--json", help="write the summary and metrics here")
+        sub_parser.add_argument("--no-progress", action="store_true")
+        sub_parser.set_defaults(handler=commands.odometry)
+
+    evaluate = sub.add_parser("eval", help="ATE, RPE and end-point drift of a trajectory against ground truth")
+    evaluate.add_argument("--gt", required=True)
+    evaluate.add_argument("--est", required=True)
+    evaluate.add_argument("--format", choices=("kitti", "tum"), help="format of both files (default: guessed)")
+    evaluate.add_argument("--plot", help="write the paths and the error over distance here (PNG)")
+    evaluate.add_argument("--json", help="write the metrics here")
+    evaluate.set_defaults(handler=commands.evaluate)
+
+    disparity = sub.add_parser("disparity", help="dense block matching scored against Middlebury ground truth")
+    disparity.add_argument("pair", help="folder with a Middlebury pair and its ground truth")
+    disparity.add_argument("--method", choices=("bm", "sgbm"), default="sgbm")
+    disparity.add_argument("--wls", action="store_true", help="apply the WLS post-filter")
+    disparity.add_argument("--threshold", type=float, default=2.0)
+    disparity.set_defaults(handler=commands.disparity)
+
+    demo = sub.add_parser("demo", help="the main job on an embedded default (see README)")
+    demo.add_argument("--data", default="../shared/data", help="where the datasets live")
+    demo.add_argument("--out", default="demo_out")
+    demo.set_defaults(handler=commands.demo)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.handler(args))
+    except KartpilotError as exc:
+        print(f"kartpilot: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("kartpilot: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

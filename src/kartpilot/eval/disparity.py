@@ -1,0 +1,78 @@
+"""Dense disparity accuracy: the Middlebury "bad-t" error.
+
+Scharstein and Szeliski, "A taxonomy and evaluation of dense two-frame stereo
+correspondence algorithms", IJCV 2002: the share of pixels with known ground
+truth whose disparity error exceeds ``t`` pixels; pixels without an estimate
+count as bad (the Middlebury v3 "all" convention).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from kartpilot.core.errors import DataError
+
+__all__ = ["DisparityScore", "bad_pixel_rate", "load_middlebury_pair"]
+
+
+@dataclass(frozen=True)
+class DisparityScore:
+    bad_percent: float
+    invalid_percent: float
+    threshold_px: float
+    pixels_with_truth: int
+
+
+def bad_pixel_rate(
+    estimate: NDArray[np.float32], truth: NDArray[np.float32], threshold_px: float = 2.0
+) -> DisparityScore:
+    """Score a disparity map (NaN = no estimate) against ground truth (NaN/inf/0 = unknown)."""
+    if estimate.shape != truth.shape:
+        raise DataError(f"disparity shapes differ: {estimate.shape} vs {truth.shape}")
+    known = np.isfinite(truth) & (truth > 0)
+    count = int(known.sum())
+    if count == 0:
+        raise DataError("the ground truth has no known pixels")
+    missing = known & ~np.isfinite(estimate)
+    error = np.abs(np.where(np.isfinite(estimate), estimate, 0.0) - np.where(known, truth, 0.0))
+    bad = missing | (known & (error > threshold_px))
+    return DisparityScore(100.0 * bad.sum() / count, 100.0 * missing.sum() / count, threshold_px, count)
+
+
+def load_middlebury_pair(folder: str | Path) -> tuple[np.ndarray, np.ndarray, NDArray[np.float32], float]:
+    """Load a pair from ``../shared/data/stereo-pairs``: left, right (grayscale), truth, and a truth scale.
+
+    Supports the 2014 layout (``*_left.png``, ``*_right.png``, ``*_disp.npz``) and the
+    2006 layout (``*L.jpg``, ``*R.jpg``, ``*GT.png``, disparities in px, 0 = unknown).
+    """
+    folder = Path(folder)
+    left = sorted(folder.glob("*_left.png")) or sorted(folder.glob("*L.jpg"))
+    right = sorted(folder.glob("*_right.png")) or sorted(folder.glob("*R.jpg"))
+    if not left or not right:
+        raise DataError(f"no stereo pair in {folder}")
+    left_image = cv2.imread(str(left[0]), cv2.IMREAD_GRAYSCALE)
+    right_image = cv2.imread(str(right[0]), cv2.IMREAD_GRAYSCALE)
+    if left_image is None or right_image is None:
+        raise DataError(f"cannot read the pair in {folder}")
+    npz = sorted(folder.glob("*_disp.npz"))
+    if npz:
+        truth = np.load(npz[0])["arr_0"].astype(np.float32)
+    else:
+        gt = sorted(folder.glob("*GT.png"))
+        if not gt:
+            raise DataError(f"no ground-truth disparity in {folder}")
+        truth = cv2.imread(str(gt[0]), cv2.IMREAD_UNCHANGED).astype(np.float32)
+        truth[truth == 0] = np.nan
+    if truth.shape != left_image.shape:
+        # half-size ground truth of a full-size pair (or vice versa): resample the images
+        scale = truth.shape[1] / left_image.shape[1]
+        size = (truth.shape[1], truth.shape[0])
+        left_image = cv2.resize(left_image, size, interpolation=cv2.INTER_AREA)
+        right_image = cv2.resize(right_image, size, interpolation=cv2.INTER_AREA)
+        return left_image, right_image, truth, scale
+    return left_image, right_image, truth, 1.0

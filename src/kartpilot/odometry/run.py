@@ -1,0 +1,80 @@
+"""Run stereo VO over a whole frame source and summarise the run."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from kartpilot.core.errors import DataError, KartpilotError
+from kartpilot.core.trajectory import Trajectory
+from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig, VOEstimate
+from kartpilot.sensors.base import StereoSource
+
+__all__ = ["OdometryRun", "run_stereo_vo"]
+
+
+@dataclass(frozen=True)
+class OdometryRun:
+    """A VO run: the trajectory, each frame's estimate, and what went wrong where."""
+
+    trajectory: Trajectory
+    estimates: tuple[VOEstimate, ...]
+    unreadable_frames: tuple[int, ...]
+    wall_time_s: float
+
+    @property
+    def bridged_frames(self) -> int:
+        return sum(1 for e in self.estimates if e.status == "bridged")
+
+    @property
+    def frames_per_second(self) -> float:
+        return len(self.estimates) / self.wall_time_s if self.wall_time_s > 0 else float("nan")
+
+    def stage_ms(self) -> dict[str, float]:
+        """Mean milliseconds per stage over the frames that ran every stage."""
+        timed = [e.diagnostics.timing_ms for e in self.estimates[1:]]
+        keys = sorted({k for t in timed for k in t})
+        return {k: float(np.mean([t.get(k, 0.0) for t in timed])) for k in keys} if timed else {}
+
+    def summary(self) -> str:
+        inliers = [e.diagnostics.inliers for e in self.estimates if e.status == "ok"]
+        return (f"{len(self.estimates)} frames, {self.bridged_frames} bridged, "
+                f"{len(self.unreadable_frames)} unreadable, median inliers "
+                f"{int(np.median(inliers)) if inliers else 0}, {self.frames_per_second:.1f} frames/s")
+
+
+def run_stereo_vo(source: StereoSource, config: StereoVOConfig | None = None,
+                  on_frame: Callable[[VOEstimate], None] | None = None) -> OdometryRun:
+    """Run VO over every frame of ``source``.
+
+    A frame that cannot be read is skipped and counted (the next frame is matched to the
+    last good one); a frame where VO fails is bridged and counted. A source whose every
+    frame is unreadable raises DataError.
+    """
+    if len(source) == 0:
+        raise DataError(f"{source.name} has no frames")
+    vo = StereoVO(source.rig, config)
+    estimates: list[VOEstimate] = []
+    unreadable: list[int] = []
+    start = time.perf_counter()
+    try:
+        for index in range(len(source)):
+            try:
+                frame = source.frame(index)
+            except KartpilotError:
+                unreadable.append(index)
+                continue
+            estimate = vo.process(frame)
+            estimates.append(estimate)
+            if on_frame is not None:
+                on_frame(estimate)
+    finally:
+        vo.close()
+    wall = time.perf_counter() - start
+    if not estimates:
+        raise DataError(f"none of the {len(source)} frames of {source.name} could be read")
+    trajectory = Trajectory.from_poses([e.pose_world_cam for e in estimates], [e.stamp_ns * 1e-9 for e in estimates])
+    return OdometryRun(trajectory, tuple(estimates), tuple(unreadable), wall)

@@ -1,0 +1,1 @@
+"""Record and replay: kartpilot's self-describing recording format."""

@@ -1,0 +1,270 @@
+"""kartpilot's recording format: one self-describing folder per run.
+
+Layout (format version 1)::
+
+    NAME/
+      manifest.json        format, version, rig (cameras with intrinsics, distortion,
+                           resolution and pose on the kart), stereo pair names,
+                           counts, and whether the recording was closed properly
+      cameras/<cam>/frames.csv   index,stamp_ns,file  (one line per frame, flushed)
+      cameras/<cam>/<stamp_ns>.png
+      commands.csv         stamp_ns,steer_rad,throttle,brake
+      groundtruth.tum      left camera poses in TUM format, when known
+
+The manifest is written first with ``"closed": false`` and rewritten on close,
+so a recording cut off by a crash still opens and says it was not closed.
+Frame and command lines are flushed as they are written.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import IO, Any
+
+import cv2
+import numpy as np
+
+from kartpilot.calibration.rectify import StereoRectification, rectify_stereo
+from kartpilot.core.camera import PinholeCamera, StereoRig
+from kartpilot.core.errors import CalibrationError, RecordingError
+from kartpilot.core.geometry import invert_pose
+from kartpilot.core.trajectory import Trajectory, read_tum, write_tum
+from kartpilot.core.types import Image, StereoFrame
+from kartpilot.sensors.base import StereoSource, read_gray
+
+__all__ = [
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "ActuatorCommand",
+    "RecordingReader",
+    "RecordingStereoSource",
+    "RecordingWriter",
+]
+
+FORMAT_NAME = "kartpilot-recording"
+FORMAT_VERSION = 1
+COMMAND_COLUMNS = ("stamp_ns", "steer_rad", "throttle", "brake")
+
+
+@dataclass(frozen=True)
+class ActuatorCommand:
+    """One command to the actuators: steering angle, throttle and brake in [0, 1]."""
+
+    stamp_ns: int
+    steer_rad: float
+    throttle: float
+    brake: float
+
+
+def _camera_to_json(camera: PinholeCamera) -> dict[str, Any]:
+    data = asdict(camera)
+    data["distortion"] = list(camera.distortion)
+    data["pose_body_cam"] = [list(row) for row in camera.pose_body_cam]
+    return data
+
+
+def _camera_from_json(name: str, data: dict[str, Any]) -> PinholeCamera:
+    try:
+        return PinholeCamera(
+            float(data["fx_px"]), float(data["fy_px"]), float(data["cx_px"]), float(data["cy_px"]),
+            int(data["width_px"]), int(data["height_px"]), tuple(float(d) for d in data.get("distortion", ())),
+            tuple(tuple(float(v) for v in row) for row in data.get("pose_body_cam", np.eye(4).tolist())),
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CalibrationError(f"camera {name!r} in the manifest is malformed ({exc})") from exc
+
+
+class RecordingWriter:
+    """Writes a recording folder. Use as a context manager; ``close`` marks it complete."""
+
+    def __init__(self, folder: str | Path, cameras: dict[str, PinholeCamera],
+                 stereo_pair: tuple[str, str] | None = None, metadata: dict[str, Any] | None = None,
+                 overwrite: bool = False) -> None:
+        self.folder = Path(folder)
+        if self.folder.exists() and any(self.folder.iterdir()) and not overwrite:
+            raise RecordingError(f"recording folder {self.folder} exists and is not empty")
+        if stereo_pair and not set(stereo_pair) <= set(cameras):
+            raise RecordingError(f"stereo pair {stereo_pair} names unknown cameras")
+        self.cameras = cameras
+        self.stereo_pair = stereo_pair
+        self.metadata = dict(metadata or {})
+        self.frame_counts = dict.fromkeys(cameras, 0)
+        self.dropped_frames = 0
+        self.command_count = 0
+        self._frame_files: dict[str, IO[str]] = {}
+        for name in cameras:
+            camera_dir = self.folder / "cameras" / name
+            camera_dir.mkdir(parents=True, exist_ok=True)
+            handle = (camera_dir / "frames.csv").open("w", newline="")
+            handle.write("index,stamp_ns,file\n")
+            self._frame_files[name] = handle
+        self._commands = (self.folder / "commands.csv").open("w", newline="")
+        self._commands.write(",".join(COMMAND_COLUMNS) + "\n")
+        self._closed = False
+        self._write_manifest(closed=False)
+
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _write_manifest(self, closed: bool) -> None:
+        manifest = {
+            "format": FORMAT_NAME,
+            "version": FORMAT_VERSION,
+            "closed": closed,
+            "cameras": {name: _camera_to_json(cam) for name, cam in self.cameras.items()},
+            "stereo_pair": list(self.stereo_pair) if self.stereo_pair else None,
+            "frame_counts": self.frame_counts,
+            "dropped_frames": self.dropped_frames,
+            "command_count": self.command_count,
+            "has_groundtruth": (self.folder / "groundtruth.tum").is_file(),
+            "metadata": self.metadata,
+        }
+        temporary = self.folder / "manifest.json.tmp"
+        temporary.write_text(json.dumps(manifest, indent=2))
+        os.replace(temporary, self.folder / "manifest.json")  # atomic: never a half-written manifest
+
+    def write_frame(self, camera: str, stamp_ns: int, image: Image) -> None:
+        if self._closed:
+            raise RecordingError("the recording is closed")
+        if camera not in self._frame_files:
+            raise RecordingError(f"unknown camera {camera!r}")
+        name = f"{stamp_ns}.png"
+        path = self.folder / "cameras" / camera / name
+        if not cv2.imwrite(str(path), image):
+            raise RecordingError(f"cannot write {path}")
+        handle = self._frame_files[camera]
+        handle.write(f"{self.frame_counts[camera]},{stamp_ns},{name}\n")
+        handle.flush()
+        self.frame_counts[camera] += 1
+
+    def write_command(self, command: ActuatorCommand) -> None:
+        self._commands.write(f"{command.stamp_ns},{command.steer_rad:.6f},{command.throttle:.6f},{command.brake:.6f}\n")
+        self._commands.flush()
+        self.command_count += 1
+
+    def write_groundtruth(self, trajectory: Trajectory) -> None:
+        write_tum(self.folder / "groundtruth.tum", trajectory)
+
+    def count_dropped(self, frames: int = 1) -> None:
+        self.dropped_frames += frames
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        for handle in self._frame_files.values():
+            handle.close()
+        self._commands.close()
+        self._closed = True
+        self._write_manifest(closed=True)
+
+
+class RecordingReader:
+    """Reads a recording folder written by :class:`RecordingWriter` (or cut off mid-run)."""
+
+    def __init__(self, folder: str | Path) -> None:
+        self.folder = Path(folder)
+        manifest_path = self.folder / "manifest.json"
+        if not manifest_path.is_file():
+            raise RecordingError(f"{self.folder} is not a kartpilot recording (no manifest.json)")
+        try:
+            manifest = json.loads(manifest_path.read_text())
+        except json.JSONDecodeError as exc:
+            raise RecordingError(f"{manifest_path} is not valid JSON: {exc}") from exc
+        if manifest.get("format") != FORMAT_NAME:
+            raise RecordingError(f"{manifest_path}: format is {manifest.get('format')!r}, not {FORMAT_NAME!r}")
+        if int(manifest.get("version", 0)) > FORMAT_VERSION:
+            raise RecordingError(
+                f"{manifest_path}: format version {manifest['version']} is newer than this kartpilot "
+                f"reads ({FORMAT_VERSION})")
+        self.manifest: dict[str, Any] = manifest
+        self.closed = bool(manifest.get("closed", False))
+        self.cameras = {name: _camera_from_json(name, data) for name, data in manifest["cameras"].items()}
+        pair = manifest.get("stereo_pair")
+        self.stereo_pair: tuple[str, str] | None = (pair[0], pair[1]) if pair else None
+
+    def frames(self, camera: str) -> list[tuple[int, Path]]:
+        """(stamp_ns, image path) of every complete frame of a camera, in order."""
+        if camera not in self.cameras:
+            raise RecordingError(f"recording has no camera {camera!r} (has {', '.join(self.cameras)})")
+        csv_path = self.folder / "cameras" / camera / "frames.csv"
+        if not csv_path.is_file():
+            raise RecordingError(f"missing frame list {csv_path}")
+        rows = []
+        with csv_path.open(newline="") as handle:
+            for row in csv.DictReader(handle):
+                try:
+                    path = csv_path.parent / row["file"]
+                    stamp = int(row["stamp_ns"])
+                except (KeyError, TypeError, ValueError):
+                    continue  # a line cut off by a crash
+                if path.is_file():
+                    rows.append((stamp, path))
+        return rows
+
+    def commands(self) -> list[ActuatorCommand]:
+        path = self.folder / "commands.csv"
+        if not path.is_file():
+            return []
+        result = []
+        with path.open(newline="") as handle:
+            for row in csv.DictReader(handle):
+                try:
+                    result.append(ActuatorCommand(int(row["stamp_ns"]), float(row["steer_rad"]),
+                                                  float(row["throttle"]), float(row["brake"])))
+                except (KeyError, TypeError, ValueError):
+                    continue
+        return result
+
+    def groundtruth(self) -> Trajectory | None:
+        path = self.folder / "groundtruth.tum"
+        return read_tum(path) if path.is_file() else None
+
+
+class RecordingStereoSource(StereoSource):
+    """The stereo pair of a recording, rectified from the manifest's calibration when needed."""
+
+    def __init__(self, folder: str | Path) -> None:
+        self.reader = RecordingReader(folder)
+        if self.reader.stereo_pair is None:
+            raise RecordingError(f"recording {self.reader.folder} names no stereo pair")
+        left_name, right_name = self.reader.stereo_pair
+        self.name = f"recording-{self.reader.folder.name}"
+        left_cam, right_cam = self.reader.cameras[left_name], self.reader.cameras[right_name]
+        pose_right_left = invert_pose(right_cam.pose_body_cam_array) @ left_cam.pose_body_cam_array
+        self._rectification: StereoRectification | None = None
+        if left_cam.distortion or right_cam.distortion or not np.allclose(pose_right_left[:3, :3], np.eye(3)):
+            self._rectification = rectify_stereo(left_cam, right_cam, pose_right_left)
+            self._rig = self._rectification.rig
+        else:
+            if abs(left_cam.fx_px - right_cam.fx_px) > 1e-6 or abs(left_cam.cx_px - right_cam.cx_px) > 1e-6:
+                raise CalibrationError("unrectified stereo cameras with different intrinsics need a rectification")
+            self._rig = StereoRig(left_cam, float(-pose_right_left[0, 3]))
+        right_frames = dict(self.reader.frames(right_name))
+        self._pairs = [(stamp, path, right_frames[stamp]) for stamp, path in self.reader.frames(left_name)
+                       if stamp in right_frames]
+        if not self._pairs:
+            raise RecordingError(f"recording {self.reader.folder} has no complete stereo pair")
+
+    @property
+    def rig(self) -> StereoRig:
+        return self._rig
+
+    def __len__(self) -> int:
+        return len(self._pairs)
+
+    def frame(self, index: int) -> StereoFrame:
+        stamp, left_path, right_path = self._pairs[index]
+        left, right = read_gray(left_path), read_gray(right_path)
+        if self._rectification is not None:
+            left, right = self._rectification.rectify(left, right)
+        return StereoFrame(index, stamp, left, right)
+
+    def ground_truth(self) -> Trajectory | None:
+        return self.reader.groundtruth()

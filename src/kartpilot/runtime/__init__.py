@@ -1,0 +1,1 @@
+"""The top layer: the whole-stack configuration and (later) the fixed-rate loop."""

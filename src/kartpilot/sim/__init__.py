@@ -1,0 +1,1 @@
+"""Simulation: synthetic sequences now, the closed-loop simulator later."""

@@ -1,0 +1,51 @@
+import json
+
+import pytest
+
+from kartpilot.cli.main import main
+from kartpilot.core.trajectory import read_kitti_poses
+
+
+def test_odometry_on_synthetic_writes_trajectory_and_json(tmp_path, capsys) -> None:
+    out, summary = tmp_path / "traj.txt", tmp_path / "summary.json"
+    assert main(["odometry", "synthetic", "--frames", "12", "--out", str(out), "--json", str(summary),
+                 "--no-progress", "--plot", str(tmp_path / "plot.png")]) == 0
+    assert len(read_kitti_poses(out)) == 12
+    data = json.loads(summary.read_text())
+    assert data["metrics"]["end_drift_percent"] < 2.0
+    assert (tmp_path / "plot.png").stat().st_size > 1000
+    assert "end-point drift (%)" in capsys.readouterr().out
+
+
+def test_eval_command(tmp_path, capsys) -> None:
+    out = tmp_path / "traj.txt"
+    main(["odometry", "synthetic", "--frames", "8", "--out", str(out), "--no-progress"])
+    capsys.readouterr()
+    assert main(["eval", "--gt", str(out), "--est", str(out), "--json", str(tmp_path / "m.json")]) == 0
+    assert "ATE RMSE (m)" in capsys.readouterr().out
+    assert json.loads((tmp_path / "m.json").read_text())["ate_rmse_m"] == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["odometry", "kitti", "/does/not/exist", "--sequence", "06", "--out", "x.txt"], "KITTI root not found"),
+        (["odometry", "euroc", "/does/not/exist", "--out", "x.tum"], "no EuRoC cam0/cam1"),
+        (["odometry", "recording", "/does/not/exist", "--out", "x.txt"], "not a kartpilot recording"),
+        (["eval", "--gt", "/does/not/exist.txt", "--est", "/nope.txt"], "trajectory file not found"),
+    ],
+)
+def test_user_mistakes_give_one_line_and_exit_1(argv: list[str], message: str, capsys, tmp_path) -> None:
+    argv = [a if a not in ("x.txt", "x.tum") else str(tmp_path / a) for a in argv]
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("kartpilot: error:") and message in err
+    assert "\n" not in err and "Traceback" not in err
+
+
+def test_config_typo_names_the_key(tmp_path, capsys) -> None:
+    config = tmp_path / "vo.yaml"
+    config.write_text("stereo_vo:\n  pnp: {min_inlier: 10}\n")
+    assert main(["odometry", "synthetic", "--frames", "3", "--out", str(tmp_path / "t.txt"),
+                 "--config", str(config)]) == 1
+    assert "stereo_vo.pnp.min_inlier" in capsys.readouterr().err

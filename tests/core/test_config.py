@@ -1,0 +1,87 @@
+from dataclasses import dataclass, field
+from typing import Literal
+
+import pytest
+
+from kartpilot.core.config import config_to_dict, load_yaml_mapping, merge_config
+from kartpilot.core.errors import ConfigError
+from kartpilot.odometry.stereo_vo import StereoVOConfig
+from kartpilot.runtime.config import load_stack_config
+
+
+@dataclass(frozen=True)
+class Inner:
+    size_px: int = 5
+    mode: Literal["a", "b"] = "a"
+
+
+@dataclass(frozen=True)
+class Outer:
+    gain: float = 1.0
+    inner: Inner = field(default_factory=Inner)
+    window: tuple[int, int] = (3, 3)
+    label: str | None = None
+
+
+def test_merge_nested_and_coerce_int_to_float() -> None:
+    merged = merge_config(Outer(), {"gain": 2, "inner": {"mode": "b"}, "window": [5, 7]})
+    assert merged == Outer(gain=2.0, inner=Inner(mode="b"), window=(5, 7))
+    assert isinstance(merged.gain, float)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"gian": 1.0}, "unknown config key 'gian'"),
+        ({"inner": {"size": 3}}, "unknown config key 'inner.size'"),
+        ({"inner": {"size_px": 2.5}}, "'inner.size_px' must be int"),
+        ({"inner": {"size_px": True}}, "'inner.size_px' must be int"),
+        ({"gain": "fast"}, "'gain' must be float"),
+        ({"inner": {"mode": "c"}}, "'inner.mode' must be one of"),
+        ({"window": [1]}, "'window' needs 2 values"),
+        ({"inner": 3}, "'inner' must be a mapping"),
+    ],
+)
+def test_bad_keys_and_types_name_the_key(overrides: dict, message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        merge_config(Outer(), overrides)
+
+
+def test_optional_accepts_none_and_value() -> None:
+    assert merge_config(Outer(), {"label": None}).label is None
+    assert merge_config(Outer(), {"label": "x"}).label == "x"
+
+
+def test_component_validation_is_reported_as_config_error() -> None:
+    with pytest.raises(ConfigError, match="ratio"):
+        merge_config(StereoVOConfig(), {"matching": {"ratio": 1.5}})
+
+
+def test_stack_yaml_round_trip(tmp_path) -> None:
+    path = tmp_path / "vo.yaml"
+    path.write_text("stereo_vo:\n  features: {detector: sift, max_features: 900}\n  stereo: {max_depth_m: 30}\n")
+    config = load_stack_config(path)
+    assert config.stereo_vo.features.detector == "sift"
+    assert config.stereo_vo.features.max_features == 900
+    assert config.stereo_vo.stereo.max_depth_m == 30.0
+    assert config_to_dict(config.stereo_vo)["features"]["detector"] == "sift"
+
+
+def test_stack_yaml_typo_is_an_error(tmp_path) -> None:
+    path = tmp_path / "vo.yaml"
+    path.write_text("stereo_vo:\n  featurse: {detector: orb}\n")
+    with pytest.raises(ConfigError, match=r"stereo_vo\.featurse"):
+        load_stack_config(path)
+
+
+def test_missing_and_invalid_yaml(tmp_path) -> None:
+    with pytest.raises(ConfigError, match="not found"):
+        load_yaml_mapping(tmp_path / "nope.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("a: [1, 2\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_yaml_mapping(bad)
+    listing = tmp_path / "list.yaml"
+    listing.write_text("- 1\n- 2\n")
+    with pytest.raises(ConfigError, match="mapping"):
+        load_yaml_mapping(listing)

@@ -1,0 +1,66 @@
+import cv2
+import numpy as np
+import pytest
+
+from kartpilot.core.camera import StereoRig
+from kartpilot.perception.stereo import (
+    BlockMatchConfig,
+    StereoFilterConfig,
+    compute_disparity,
+    refine_disparity_zncc,
+    stereo_filter_mask,
+    triangulate_rectified,
+)
+from kartpilot.sim.synthetic_stereo import make_texture
+
+
+def _project(rig: StereoRig, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    left = rig.camera.project(points)
+    right = rig.camera.project(points - [rig.baseline_m, 0.0, 0.0])
+    return left, right
+
+
+def test_triangulation_is_exact(rig: StereoRig, scene_points: np.ndarray) -> None:
+    left, right = _project(rig, scene_points)
+    np.testing.assert_allclose(triangulate_rectified(rig, left, right), scene_points, rtol=1e-9)
+
+
+def test_filters_remove_planted_outliers(rig: StereoRig, scene_points: np.ndarray) -> None:
+    left, right = _project(rig, scene_points)
+    right = right.copy()
+    right[:20, 1] += 5.0  # off the epipolar line
+    right[20:40, 0] = left[20:40, 0] + 3.0  # negative disparity
+    far = rig.camera.fx_px * rig.baseline_m / 80.0  # a point at 80 m
+    right[40:60, 0] = left[40:60, 0] - far
+    epipolar_ok, depth_ok = stereo_filter_mask(rig, left, right, StereoFilterConfig())
+    assert not epipolar_ok[:40].any()
+    assert epipolar_ok[40:].all()
+    assert not depth_ok[:60].any()
+    in_range = (scene_points[60:, 2] >= 1.0) & (scene_points[60:, 2] <= 45.0)
+    np.testing.assert_array_equal(depth_ok[60:], in_range)
+
+
+def test_zncc_subpixel_disparity_is_gain_invariant() -> None:
+    texture = make_texture(400, np.random.default_rng(5)).astype(np.float32)
+    true_disparity = 7.3
+    shift = np.float32([[1, 0, -true_disparity], [0, 1, 0]])
+    left = texture.astype(np.uint8)
+    # right camera: content shifted by the disparity, with a different gain and offset
+    right = np.clip(cv2.warpAffine(texture, shift, (400, 400), flags=cv2.INTER_CUBIC) * 0.8 + 20, 0, 255)
+    right = right.astype(np.uint8)
+    rng = np.random.default_rng(6)
+    points = rng.uniform(40, 360, (200, 2)).astype(np.float32)
+    _, disparity, valid = refine_disparity_zncc(left, right, points, np.full(200, 7.0, np.float32))
+    assert valid.mean() > 0.8
+    assert abs(float(np.median(disparity[valid])) - true_disparity) < 0.1
+
+
+@pytest.mark.parametrize("config", [BlockMatchConfig(method="bm", block_size=11), BlockMatchConfig(method="sgbm"),
+                                    BlockMatchConfig(method="sgbm", wls=True)])
+def test_block_matchers_recover_a_constant_disparity(config: BlockMatchConfig) -> None:
+    texture = make_texture(512, np.random.default_rng(8))
+    left = np.ascontiguousarray(texture[:300, 40:460])
+    right = np.ascontiguousarray(texture[:300, 60:480])  # disparity 20 px everywhere
+    disparity = compute_disparity(left, right, config)
+    centre = disparity[50:250, 180:380]
+    assert np.nanmedian(centre) == pytest.approx(20.0, abs=0.5)

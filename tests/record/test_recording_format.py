@@ -1,0 +1,75 @@
+import json
+
+import numpy as np
+import pytest
+
+from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.errors import RecordingError
+from kartpilot.record.recording import ActuatorCommand, RecordingReader, RecordingStereoSource, RecordingWriter
+from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
+
+
+def _cameras(source: SyntheticStereoSource) -> dict[str, PinholeCamera]:
+    left = source.rig.camera
+    right_pose = np.eye(4)
+    right_pose[0, 3] = source.rig.baseline_m
+    right = PinholeCamera(left.fx_px, left.fy_px, left.cx_px, left.cy_px, left.width_px, left.height_px,
+                          pose_body_cam=tuple(tuple(row) for row in right_pose))
+    return {"left": left, "right": right}
+
+
+@pytest.fixture(scope="module")
+def source() -> SyntheticStereoSource:
+    return SyntheticStereoSource(SyntheticStereoConfig(frames=4, width_px=320, height_px=180, focal_px=200))
+
+
+def test_round_trip_frames_commands_and_groundtruth(tmp_path, source: SyntheticStereoSource) -> None:
+    folder = tmp_path / "run1"
+    with RecordingWriter(folder, _cameras(source), stereo_pair=("left", "right"), metadata={"track": "synthetic"}) as w:
+        for frame in source:
+            w.write_frame("left", frame.stamp_ns, frame.left)
+            w.write_frame("right", frame.stamp_ns, frame.right)
+            w.write_command(ActuatorCommand(frame.stamp_ns, 0.01 * frame.index, 0.3, 0.0))
+        w.write_groundtruth(source.ground_truth())
+    reader = RecordingReader(folder)
+    assert reader.closed
+    assert reader.manifest["frame_counts"] == {"left": 4, "right": 4}
+    assert reader.commands()[3] == ActuatorCommand(source.frame(3).stamp_ns, 0.03, 0.3, 0.0)
+    replay = RecordingStereoSource(folder)
+    assert replay.rig.baseline_m == pytest.approx(source.rig.baseline_m)
+    for original, loaded in zip(source, replay, strict=True):
+        np.testing.assert_array_equal(original.left, loaded.left)
+        np.testing.assert_array_equal(original.right, loaded.right)
+        assert original.stamp_ns == loaded.stamp_ns
+    truth = replay.ground_truth()
+    assert truth is not None
+    np.testing.assert_allclose(truth.poses, source.ground_truth().poses, atol=1e-8)
+
+
+def test_recording_cut_off_by_a_crash_still_opens(tmp_path, source: SyntheticStereoSource) -> None:
+    folder = tmp_path / "crash"
+    writer = RecordingWriter(folder, _cameras(source), stereo_pair=("left", "right"))
+    for frame in list(source)[:3]:
+        writer.write_frame("left", frame.stamp_ns, frame.left)
+        writer.write_frame("right", frame.stamp_ns, frame.right)
+    # simulate power loss: never closed, and a half-written last line
+    with (folder / "cameras" / "left" / "frames.csv").open("a") as handle:
+        handle.write("3,12345")
+    reader = RecordingReader(folder)
+    assert not reader.closed
+    assert len(RecordingStereoSource(folder)) == 3
+
+
+def test_refuses_to_overwrite_and_rejects_foreign_folders(tmp_path, source: SyntheticStereoSource) -> None:
+    folder = tmp_path / "run"
+    RecordingWriter(folder, _cameras(source)).close()
+    with pytest.raises(RecordingError, match="not empty"):
+        RecordingWriter(folder, _cameras(source))
+    with pytest.raises(RecordingError, match="no manifest"):
+        RecordingReader(tmp_path)
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "manifest.json").write_text(json.dumps({"format": "donkey"}))
+    with pytest.raises(RecordingError, match="format"):
+        RecordingReader(tmp_path / "other")
+    with pytest.raises(RecordingError, match="no stereo pair"):
+        RecordingStereoSource(folder)

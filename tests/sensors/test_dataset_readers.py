@@ -1,0 +1,85 @@
+import shutil
+
+import numpy as np
+import pytest
+from tests.conftest import data_path
+
+from kartpilot.core.errors import CalibrationError, DataError
+from kartpilot.sensors.base import read_gray
+from kartpilot.sensors.euroc import EurocSource
+from kartpilot.sensors.kitti import KittiOdometrySource
+
+
+def _fake_kitti(root, frames: int = 3, calib: str | None = None):
+    sequence = root / "sequences" / "00"
+    for camera in ("image_0", "image_1"):
+        (sequence / camera).mkdir(parents=True)
+        for index in range(frames):
+            import cv2
+
+            cv2.imwrite(str(sequence / camera / f"{index:06d}.png"), np.full((40, 60), 128, np.uint8))
+    if calib is None:
+        calib = ("P0: 50 0 30 0 0 50 20 0 0 0 1 0\n"
+                 "P1: 50 0 30 -25 0 50 20 0 0 0 1 0\n")
+    (sequence / "calib.txt").write_text(calib)
+    (sequence / "times.txt").write_text("\n".join(f"{i * 0.1:.1f}" for i in range(frames)) + "\n")
+    return root
+
+
+def test_fake_kitti_layout_reads(tmp_path) -> None:
+    source = KittiOdometrySource(_fake_kitti(tmp_path), 0)
+    assert len(source) == 3
+    assert source.rig.baseline_m == pytest.approx(0.5)
+    frame = source.frame(2)
+    assert frame.stamp_ns == 200_000_000 and frame.left.shape == (40, 60)
+    assert source.ground_truth() is None
+
+
+def test_kitti_errors_are_clear(tmp_path) -> None:
+    with pytest.raises(DataError, match="KITTI root not found"):
+        KittiOdometrySource(tmp_path / "missing", "06")
+    root = _fake_kitti(tmp_path / "a")
+    with pytest.raises(DataError, match="sequence 07 not found"):
+        KittiOdometrySource(root, "07")
+    no_p1 = _fake_kitti(tmp_path / "b", calib="P0: 50 0 30 0 0 50 20 0 0 0 1 0\n")
+    with pytest.raises(CalibrationError, match="no P1"):
+        KittiOdometrySource(no_p1, 0)
+    empty = _fake_kitti(tmp_path / "c", frames=0)
+    with pytest.raises(DataError, match="no frames"):
+        KittiOdometrySource(empty, 0)
+
+
+def test_corrupt_image_is_a_data_error(tmp_path) -> None:
+    path = tmp_path / "broken.png"
+    path.write_bytes(b"\x89PNG not really")
+    with pytest.raises(DataError, match="cannot read image"):
+        read_gray(path)
+    with pytest.raises(DataError, match="not found"):
+        read_gray(tmp_path / "absent.png")
+
+
+def test_real_kitti_06() -> None:
+    root = data_path("kitti-odometry")
+    source = KittiOdometrySource(root, "06")
+    assert len(source) == 51
+    assert source.rig.baseline_m == pytest.approx(0.5372, abs=1e-3)
+    truth = source.ground_truth()
+    assert truth is not None and len(truth) == 51
+    assert 55 < truth.path_length_m < 65
+
+
+def test_real_euroc_pairs_by_timestamp_and_rectifies() -> None:
+    source = EurocSource(data_path("euroc-v101-static"))
+    assert len(source) == 95  # cam1/data.csv lists 4 rows without files
+    assert 0.10 < source.rig.baseline_m < 0.12
+    frame = source.frame(0)
+    assert frame.left.shape == (480, 752)
+
+
+def test_euroc_missing_calibration(tmp_path) -> None:
+    root = data_path("euroc-v101-static")
+    copy = tmp_path / "euroc"
+    shutil.copytree(root / "mav0" / "cam0", copy / "mav0" / "cam0")
+    (copy / "mav0" / "cam1").mkdir(parents=True)
+    with pytest.raises(CalibrationError, match="not found"):
+        EurocSource(copy)

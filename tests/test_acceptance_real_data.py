@@ -1,0 +1,29 @@
+"""Acceptance figures on real data (skipped with a reason when ../shared/data is absent)."""
+
+import numpy as np
+
+from kartpilot.eval.trajectory_metrics import evaluate_trajectory
+from kartpilot.odometry.run import run_stereo_vo
+from kartpilot.sensors.euroc import EurocSource
+from kartpilot.sensors.kitti import KittiOdometrySource
+from tests.conftest import data_path
+
+
+def test_kitti_06_end_point_drift_at_most_1_percent() -> None:
+    source = KittiOdometrySource(data_path("kitti-odometry"), "06")
+    run = run_stereo_vo(source)
+    truth = source.ground_truth()
+    assert truth is not None
+    metrics = evaluate_trajectory(truth, run.trajectory)
+    print("\nKITTI 06 stereo VO (default configuration)\n" + metrics.table() + "\n" + run.summary())
+    assert run.bridged_frames == 0
+    assert metrics.end_drift_percent <= 1.0
+    assert metrics.ate_rmse_m < 0.3
+
+
+def test_euroc_static_platform_stays_within_5_cm() -> None:
+    source = EurocSource(data_path("euroc-v101-static"))
+    run = run_stereo_vo(source)
+    excursion = float(np.linalg.norm(run.trajectory.positions, axis=1).max())
+    print(f"\nEuRoC V1_01 static: largest distance from the start {excursion * 100:.2f} cm over {len(source)} frames")
+    assert excursion < 0.05
