@@ -39,7 +39,9 @@ from kartpilot.odometry.stereo_refine import refine_pose_and_depths
 from kartpilot.perception.features import FeatureConfig, Features, create_detector, detect_features
 from kartpilot.perception.matching import MatchConfig, match_descriptors, match_in_band
 from kartpilot.perception.stereo import (
+    BlockMatchConfig,
     StereoFilterConfig,
+    compute_disparity,
     refine_disparity_zncc,
     stereo_filter_mask,
     triangulate_rectified,
@@ -58,7 +60,8 @@ class StereoVOConfig:
     """Stereo VO settings; the defaults are the recommended configuration.
 
     Attributes:
-        stereo_matching: ``band`` (descriptors along the epipolar band) or ``klt``.
+        stereo_matching: ``band`` (descriptors along the epipolar band), ``klt``, or ``dense``
+            (block matching, ``block_match``, sampled at the left keypoints).
         temporal_matching: ``descriptor`` (ratio test, the thesis) or ``klt``.
         subpixel: refine descriptor matches to sub-pixel positions with KLT.
         joint_depth_refinement: after PnP, refine the pose jointly with each inlier's inverse
@@ -72,7 +75,8 @@ class StereoVOConfig:
     stereo: StereoFilterConfig = field(default_factory=StereoFilterConfig)
     klt: KltConfig = field(default_factory=KltConfig)
     pnp: PnpConfig = field(default_factory=PnpConfig)
-    stereo_matching: Literal["band", "klt"] = "band"
+    block_match: BlockMatchConfig = field(default_factory=BlockMatchConfig)
+    stereo_matching: Literal["band", "klt", "dense"] = "band"
     temporal_matching: Literal["descriptor", "klt"] = "descriptor"
     subpixel: bool = True
     joint_depth_refinement: bool = False
@@ -257,6 +261,15 @@ class StereoVO:
                 left.points_px[left_index] = rounded[good]
                 right_px = rounded[good].copy()
                 right_px[:, 0] -= disparity[good]
+        elif config.stereo_matching == "dense":
+            timer.lap("detect")
+            disparity_map = compute_disparity(frame.left, frame.right, config.block_match)
+            columns = np.clip(np.rint(left.points_px[:, 0]).astype(np.intp), 0, frame.left.shape[1] - 1)
+            rows = np.clip(np.rint(left.points_px[:, 1]).astype(np.intp), 0, frame.left.shape[0] - 1)
+            sampled = disparity_map[rows, columns]
+            left_index = np.flatnonzero(np.isfinite(sampled))
+            right_px = left.points_px[left_index].copy()
+            right_px[:, 0] -= sampled[left_index]
         else:
             timer.lap("detect")
             left_index = np.arange(len(left))
