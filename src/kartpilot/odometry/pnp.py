@@ -125,12 +125,11 @@ def refine_translation(pose_cur_prev: Array, points_prev_m: Array, pixels_cur: A
 
 def estimate_motion_pnp(
     points_prev_m: Array, pixels_cur: Array, camera_matrix: Array, config: PnpConfig,
-    initial_pose_cur_prev: Array | None = None, disparities_px: Array | None = None,
+    disparities_px: Array | None = None,
 ) -> MotionEstimate:
     """Estimate ``pose_cur_prev`` from (N, 3) previous-frame points and their (N, 2) current pixels.
 
     ``disparities_px`` (N,), when given, enables the near-point translation step.
-    ``initial_pose_cur_prev`` is accepted for interface stability; RANSAC does not need it.
     """
     points = np.ascontiguousarray(points_prev_m, dtype=np.float64).reshape(-1, 3)
     pixels = np.ascontiguousarray(pixels_cur, dtype=np.float64).reshape(-1, 2)

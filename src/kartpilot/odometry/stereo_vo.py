@@ -195,7 +195,7 @@ class StereoVO:
         prev_points, cur_pixels, prev_pixels = self._temporal_correspondences(previous, current, timer)
         disparities = self.rig.camera.fx_px * self.rig.baseline_m / prev_points[:, 2]
         motion = estimate_motion_pnp(prev_points, cur_pixels, self.rig.camera.matrix, self.config.pnp,
-                                     self._predicted(dt_s), disparities)
+                                     disparities)
         if motion.ok and self.config.joint_depth_refinement:
             inl = motion.inliers
             refined = refine_pose_and_depths(motion.pose_cur_prev, prev_pixels[inl].astype(np.float64),
@@ -258,7 +258,10 @@ class StereoVO:
                     frame.left, frame.right, left.points_px[left_index],
                     left.points_px[left_index, 0] - right_px[:, 0])
                 left_index = left_index[good]
-                left.points_px[left_index] = rounded[good]
+                # the 3D point belongs to the pixel ZNCC measured at: move those keypoints there
+                points_px = left.points_px.copy()
+                points_px[left_index] = rounded[good]
+                left = replace(left, points_px=points_px)
                 right_px = rounded[good].copy()
                 right_px[:, 0] -= disparity[good]
         elif config.stereo_matching == "dense":
