@@ -21,9 +21,7 @@ import numpy as np
 
 from kartpilot.core.types import StereoFrame
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
-from kartpilot.sensors.base import StereoSource
-from kartpilot.sensors.kitti import KittiOdometrySource
-from kartpilot.sim.synthetic_stereo import SyntheticStereoSource
+from kartpilot.runtime.demo_source import default_stereo_source
 
 
 def main() -> int:
@@ -32,9 +30,9 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--out", default="benchmarks/results/stereo_vo.json")
     args = parser.parse_args()
-    kitti = Path(args.data) / "kitti-odometry"
-    source: StereoSource = (KittiOdometrySource(kitti, "06") if (kitti / "sequences" / "06").is_dir()
-                            else SyntheticStereoSource())
+    source, fallback = default_stereo_source(args.data)
+    if fallback:
+        print(fallback)
     frames: list[StereoFrame] = [source.frame(i) for i in range(len(source))]
     per_run_fps = []
     stage_samples: dict[str, list[float]] = {}

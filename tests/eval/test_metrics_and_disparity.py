@@ -4,7 +4,7 @@ from tests.conftest import data_path
 
 from kartpilot.core.geometry import pose_from_rotvec
 from kartpilot.core.trajectory import Trajectory
-from kartpilot.eval.disparity import bad_pixel_rate, load_middlebury_pair
+from kartpilot.eval.disparity import bad_pixel_rate, disparity_search_range_px, load_middlebury_pair
 from kartpilot.eval.trajectory_metrics import evaluate_trajectory
 from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
 
@@ -46,8 +46,8 @@ def test_bad_pixel_rate_counts_missing_as_bad() -> None:
 
 @pytest.mark.parametrize("pair", ["middlebury-motorcycle", "middlebury-aloe"])
 def test_middlebury_block_matchers(pair: str) -> None:
-    left, right, truth, _ = load_middlebury_pair(data_path("stereo-pairs", pair))
-    span = int(np.ceil(np.nanmax(truth[np.isfinite(truth)]) / 16) * 16 + 16)
+    left, right, truth = load_middlebury_pair(data_path("stereo-pairs", pair))
+    span = disparity_search_range_px(truth)
     scores = {}
     for name, config in {"bm": BlockMatchConfig(method="bm", num_disparities=span, block_size=15),
                          "sgbm": BlockMatchConfig(method="sgbm", num_disparities=span),

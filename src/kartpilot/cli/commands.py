@@ -12,7 +12,7 @@ import numpy as np
 from tqdm import tqdm
 
 from kartpilot.core.trajectory import Trajectory, read_trajectory, write_trajectory
-from kartpilot.eval.disparity import bad_pixel_rate, load_middlebury_pair
+from kartpilot.eval.disparity import bad_pixel_rate, disparity_search_range_px, load_middlebury_pair
 from kartpilot.eval.plots import plot_trajectories
 from kartpilot.eval.trajectory_metrics import TrajectoryMetrics, evaluate_trajectory
 from kartpilot.odometry.run import OdometryRun, run_stereo_vo
@@ -20,6 +20,7 @@ from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.runtime.config import load_stack_config
+from kartpilot.runtime.demo_source import default_stereo_source
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
@@ -106,11 +107,9 @@ def evaluate(args: argparse.Namespace) -> int:
 
 
 def disparity(args: argparse.Namespace) -> int:
-    left, right, truth, _ = load_middlebury_pair(args.pair)
-    known = truth[np.isfinite(truth)]
-    span = int(np.ceil(float(known.max()) / 16) * 16 + 16)
-    config = BlockMatchConfig(method=args.method, num_disparities=span, block_size=15 if args.method == "bm" else 5,
-                              wls=args.wls)
+    left, right, truth = load_middlebury_pair(args.pair)
+    config = BlockMatchConfig(method=args.method, num_disparities=disparity_search_range_px(truth),
+                              block_size=15 if args.method == "bm" else 5, wls=args.wls)
     score = bad_pixel_rate(compute_disparity(left, right, config), truth, args.threshold)
     print(f"{Path(args.pair).name}: {args.method}{' + WLS' if args.wls else ''} bad-{args.threshold:g} "
           f"{score.bad_percent:.1f} % (no estimate on {score.invalid_percent:.1f} %) over "
@@ -122,13 +121,9 @@ def demo(args: argparse.Namespace) -> int:
     """Stereo VO on KITTI 06 when it is present, else on the synthetic sequence."""
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    kitti_root = Path(args.data) / "kitti-odometry"
-    source: StereoSource
-    if (kitti_root / "sequences" / "06").is_dir():
-        source = KittiOdometrySource(kitti_root, "06")
-    else:
-        print(f"no KITTI data under {kitti_root}: running on the built-in synthetic stereo sequence")
-        source = SyntheticStereoSource()
+    source, fallback = default_stereo_source(args.data)
+    if fallback:
+        print(fallback)
     _, metrics = run_and_report(source, StereoVOConfig(), out / "trajectory.txt", "kitti",
                                   out / "trajectory.png", progress=True)
     if metrics is not None:

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from kartpilot.core.errors import DataError
 
-__all__ = ["DisparityScore", "bad_pixel_rate", "load_middlebury_pair"]
+__all__ = ["DisparityScore", "bad_pixel_rate", "disparity_search_range_px", "load_middlebury_pair"]
 
 
 @dataclass(frozen=True)
@@ -44,8 +44,16 @@ def bad_pixel_rate(
     return DisparityScore(100.0 * bad.sum() / count, 100.0 * missing.sum() / count, threshold_px, count)
 
 
-def load_middlebury_pair(folder: str | Path) -> tuple[np.ndarray, np.ndarray, NDArray[np.float32], float]:
-    """Load a pair from ``../shared/data/stereo-pairs``: left, right (grayscale), truth, and a truth scale.
+def disparity_search_range_px(truth: NDArray[np.float32]) -> int:
+    """A block matcher's ``num_disparities`` covering the ground truth: a multiple of 16, with a margin."""
+    known = truth[np.isfinite(truth)]
+    if known.size == 0:
+        raise DataError("the ground truth has no known pixels")
+    return int(np.ceil(float(known.max()) / 16) * 16 + 16)
+
+
+def load_middlebury_pair(folder: str | Path) -> tuple[np.ndarray, np.ndarray, NDArray[np.float32]]:
+    """Load a pair from ``../shared/data/stereo-pairs``: left, right (grayscale) and the truth disparity.
 
     Supports the 2014 layout (``*_left.png``, ``*_right.png``, ``*_disp.npz``) and the
     2006 layout (``*L.jpg``, ``*R.jpg``, ``*GT.png``, disparities in px, 0 = unknown).
@@ -68,11 +76,7 @@ def load_middlebury_pair(folder: str | Path) -> tuple[np.ndarray, np.ndarray, ND
             raise DataError(f"no ground-truth disparity in {folder}")
         truth = cv2.imread(str(gt[0]), cv2.IMREAD_UNCHANGED).astype(np.float32)
         truth[truth == 0] = np.nan
-    if truth.shape != left_image.shape:
-        # half-size ground truth of a full-size pair (or vice versa): resample the images
-        scale = truth.shape[1] / left_image.shape[1]
-        size = (truth.shape[1], truth.shape[0])
-        left_image = cv2.resize(left_image, size, interpolation=cv2.INTER_AREA)
-        right_image = cv2.resize(right_image, size, interpolation=cv2.INTER_AREA)
-        return left_image, right_image, truth, scale
-    return left_image, right_image, truth, 1.0
+    if truth.shape != left_image.shape or right_image.shape != left_image.shape:
+        raise DataError(f"{folder}: images {left_image.shape}/{right_image.shape} and ground truth {truth.shape} "
+                        "differ in size")
+    return left_image, right_image, truth

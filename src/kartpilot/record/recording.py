@@ -243,7 +243,7 @@ class RecordingStereoSource(StereoSource):
             self._rectification = rectify_stereo(left_cam, right_cam, pose_right_left)
             self._rig = self._rectification.rig
         else:
-            if abs(left_cam.fx_px - right_cam.fx_px) > 1e-6 or abs(left_cam.cx_px - right_cam.cx_px) > 1e-6:
+            if left_cam.size_wh != right_cam.size_wh or not np.allclose(left_cam.matrix, right_cam.matrix, atol=1e-6):
                 raise CalibrationError("unrectified stereo cameras with different intrinsics need a rectification")
             self._rig = StereoRig(left_cam, float(-pose_right_left[0, 3]))
         right_frames = dict(self.reader.frames(right_name))

@@ -126,16 +126,16 @@ class SyntheticStereoSource(StereoSource):
         texels = round(cfg.tile_m / cfg.texel_m)
         tiles = []
         start = -2 * cfg.tile_m
+        forward = np.array([0.0, 0.0, cfg.texel_m])
+        wall_texels = round(cfg.wall_height_m / cfg.texel_m)
+        top = cfg.camera_height_m - cfg.wall_height_m
         for k in range(int(cfg.length_m / cfg.tile_m)):
             z0 = start + k * cfg.tile_m
-            forward = np.array([0.0, 0.0, cfg.texel_m])
             # ground: texture x runs right across the road, texture y runs forward
             for x0 in np.arange(-cfg.road_half_width_m, cfg.road_half_width_m, cfg.tile_m):
                 tiles.append(_Tile(np.array([x0, cfg.camera_height_m, z0]), np.array([cfg.texel_m, 0.0, 0.0]),
                                    forward, (texels, texels), make_texture(texels // 2, rng)))
             # walls: texture x runs forward, texture y runs down from the top
-            wall_texels = round(cfg.wall_height_m / cfg.texel_m)
-            top = cfg.camera_height_m - cfg.wall_height_m
             for side in (-1.0, 1.0):
                 tiles.append(_Tile(np.array([side * cfg.road_half_width_m, top, z0]), forward,
                                    np.array([0.0, cfg.texel_m, 0.0]), (texels, wall_texels),
