@@ -5,7 +5,8 @@ import pytest
 
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import RecordingError
-from kartpilot.record.recording import ActuatorCommand, RecordingReader, RecordingStereoSource, RecordingWriter
+from kartpilot.core.types import ActuatorCommand
+from kartpilot.record.recording import RecordingReader, RecordingStereoSource, RecordingWriter
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
 
 

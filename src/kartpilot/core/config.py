@@ -151,4 +151,10 @@ def _coerce(value: Any, tp: Any, dotted: str) -> Any:
         raise bad
     if isinstance(tp, type) and isinstance(value, tp):
         return value
+    if dataclasses.is_dataclass(tp) and isinstance(tp, type) and isinstance(value, Mapping):
+        try:
+            default = tp()
+        except TypeError as exc:
+            raise ConfigError(f"config key '{dotted}': {tp.__name__} has required fields ({exc})") from exc
+        return merge_config(default, value, dotted)
     raise bad

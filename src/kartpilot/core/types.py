@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from numpy.typing import NDArray
 
-__all__ = ["Image", "StereoFrame"]
+__all__ = ["ActuatorCommand", "CommandSink", "FrameSet", "FrameSink", "FrameSource", "Image", "StereoFrame"]
 
 Image = NDArray[Any]
 """An 8-bit image (grayscale HxW or BGR HxWx3), as OpenCV returns it."""
@@ -31,3 +32,59 @@ class StereoFrame:
     @property
     def stamp_s(self) -> float:
         return self.stamp_ns * 1e-9
+
+
+@dataclass(frozen=True)
+class FrameSet:
+    """One synchronised set of camera images (BGR or grayscale), keyed by camera name.
+
+    Attributes:
+        index: position of the set in its source (0-based).
+        stamp_ns: capture time of the set in nanoseconds.
+        images: camera name -> image. A camera missing from the mapping delivered nothing.
+    """
+
+    index: int
+    stamp_ns: int
+    images: Mapping[str, Image]
+
+
+@dataclass(frozen=True)
+class ActuatorCommand:
+    """One command to the actuators.
+
+    Attributes:
+        stamp_ns: when the command was issued.
+        steer_rad: road-wheel steering angle, positive to the left.
+        throttle: 0 (none) to 1 (full).
+        brake: 0 (released) to 1 (full).
+    """
+
+    stamp_ns: int
+    steer_rad: float
+    throttle: float
+    brake: float
+
+    @classmethod
+    def stop(cls, stamp_ns: int) -> ActuatorCommand:
+        """The safe command: straight wheels, no throttle, full brake."""
+        return cls(stamp_ns, 0.0, 0.0, 1.0)
+
+
+class FrameSource(Protocol):
+    """Anything that delivers camera images: a live rig, a recording, the simulator."""
+
+    def read(self) -> FrameSet | None:
+        """The next frame set, or None when the source has ended."""
+
+
+class CommandSink(Protocol):
+    """Anything that takes actuator commands: the CAN bus, the simulator, a recorder."""
+
+    def send(self, command: ActuatorCommand) -> None: ...
+
+
+class FrameSink(Protocol):
+    """Anything that takes frame sets, such as a recorder."""
+
+    def write_frames(self, frames: FrameSet) -> None: ...

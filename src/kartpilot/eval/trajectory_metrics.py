@@ -85,7 +85,11 @@ def _associate(reference: Trajectory, estimate: Trajectory) -> tuple[PoseTraject
 
 def evaluate_trajectory(reference: Trajectory, estimate: Trajectory,
                         rpe_deltas_m: tuple[float, ...] = (1.0, 10.0)) -> TrajectoryMetrics:
-    """Compare an estimate with its ground truth (same start pose, matching timestamps).
+    """Compare an estimate with its ground truth (matching timestamps).
+
+    The estimate is first moved so that its first pose coincides with the reference's (odometry starts
+    from its own origin; ground truth may be in a world frame), then end-point drift is measured, then
+    ATE after a rigid alignment.
 
     Raises:
         EvaluationError: when fewer than two poses can be associated.
@@ -93,6 +97,8 @@ def evaluate_trajectory(reference: Trajectory, estimate: Trajectory,
     ref, est = _associate(reference, estimate)
     if ref.num_poses < 2:
         raise EvaluationError("fewer than two poses in common between estimate and ground truth")
+    est = copy.deepcopy(est)
+    est.align_origin(ref)
     path_length = float(ref.path_length)
     end_drift = float(np.linalg.norm(est.positions_xyz[-1] - ref.positions_xyz[-1]))
     aligned = copy.deepcopy(est)

@@ -21,7 +21,9 @@ from __future__ import annotations
 import csv
 import json
 import os
-from dataclasses import asdict, dataclass
+import queue
+import threading
+from dataclasses import asdict
 from pathlib import Path
 from typing import IO, Any
 
@@ -33,13 +35,12 @@ from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.errors import CalibrationError, RecordingError
 from kartpilot.core.geometry import invert_pose
 from kartpilot.core.trajectory import Trajectory, read_tum, write_tum
-from kartpilot.core.types import Image, StereoFrame
+from kartpilot.core.types import ActuatorCommand, FrameSet, Image, StereoFrame
 from kartpilot.sensors.base import StereoSource, read_gray
 
 __all__ = [
     "FORMAT_NAME",
     "FORMAT_VERSION",
-    "ActuatorCommand",
     "RecordingReader",
     "RecordingStereoSource",
     "RecordingWriter",
@@ -48,16 +49,7 @@ __all__ = [
 FORMAT_NAME = "kartpilot-recording"
 FORMAT_VERSION = 1
 COMMAND_COLUMNS = ("stamp_ns", "steer_rad", "throttle", "brake")
-
-
-@dataclass(frozen=True)
-class ActuatorCommand:
-    """One command to the actuators: steering angle, throttle and brake in [0, 1]."""
-
-    stamp_ns: int
-    steer_rad: float
-    throttle: float
-    brake: float
+_PNG_FAST = [cv2.IMWRITE_PNG_COMPRESSION, 1]  # lossless; level 1 writes about 3x faster than the default
 
 
 def _camera_to_json(camera: PinholeCamera) -> dict[str, Any]:
@@ -79,11 +71,17 @@ def _camera_from_json(name: str, data: dict[str, Any]) -> PinholeCamera:
 
 
 class RecordingWriter:
-    """Writes a recording folder. Use as a context manager; ``close`` marks it complete."""
+    """Writes a recording folder. Use as a context manager; ``close`` marks it complete.
+
+    With ``queue_frames > 0``, images are encoded and written by one background thread per camera
+    (PNG encoding releases the GIL) through a bounded queue, so recording does not hold up the
+    caller. When the queue is full the frame is dropped and counted (``drop_when_full``, for a live
+    loop that must not wait) or the caller waits (for the simulator, whose time does not run away).
+    """
 
     def __init__(self, folder: str | Path, cameras: dict[str, PinholeCamera],
                  stereo_pair: tuple[str, str] | None = None, metadata: dict[str, Any] | None = None,
-                 overwrite: bool = False) -> None:
+                 overwrite: bool = False, queue_frames: int = 0, drop_when_full: bool = True) -> None:
         self.folder = Path(folder)
         if self.folder.exists() and any(self.folder.iterdir()) and not overwrite:
             raise RecordingError(f"recording folder {self.folder} exists and is not empty")
@@ -105,6 +103,17 @@ class RecordingWriter:
         self._commands = (self.folder / "commands.csv").open("w", newline="")
         self._commands.write(",".join(COMMAND_COLUMNS) + "\n")
         self._closed = False
+        self._drop_when_full = drop_when_full
+        self._queues: dict[str, queue.Queue[tuple[str, int, Image] | None]] = {}
+        self._threads: list[threading.Thread] = []
+        self._error: BaseException | None = None
+        if queue_frames > 0:
+            for name in cameras:
+                self._queues[name] = queue.Queue(maxsize=queue_frames)
+                thread = threading.Thread(target=self._drain, args=(self._queues[name],),
+                                          name=f"recording-{name}", daemon=True)
+                thread.start()
+                self._threads.append(thread)
         self._write_manifest(closed=False)
 
     def __enter__(self) -> RecordingWriter:
@@ -135,14 +144,41 @@ class RecordingWriter:
             raise RecordingError("the recording is closed")
         if camera not in self._frame_files:
             raise RecordingError(f"unknown camera {camera!r}")
+        if self._error is not None:
+            raise RecordingError(f"the recording's writer failed: {self._error}") from self._error
+        if not self._queues:
+            self._write_image(camera, stamp_ns, image)
+            return
+        try:
+            self._queues[camera].put((camera, stamp_ns, image), block=not self._drop_when_full)
+        except queue.Full:
+            self.dropped_frames += 1
+
+    def _drain(self, jobs: queue.Queue[tuple[str, int, Image] | None]) -> None:
+        while (item := jobs.get()) is not None:
+            try:
+                self._write_image(*item)
+            except BaseException as exc:
+                self._error = exc
+
+    def _write_image(self, camera: str, stamp_ns: int, image: Image) -> None:
         name = f"{stamp_ns}.png"
         path = self.folder / "cameras" / camera / name
-        if not cv2.imwrite(str(path), image):
+        if not cv2.imwrite(str(path), image, _PNG_FAST):
             raise RecordingError(f"cannot write {path}")
         handle = self._frame_files[camera]
         handle.write(f"{self.frame_counts[camera]},{stamp_ns},{name}\n")
         handle.flush()
         self.frame_counts[camera] += 1
+
+    def write_frames(self, frames: FrameSet) -> None:
+        """Frame sink: write every image of a synchronised set under its camera's name."""
+        for camera, image in frames.images.items():
+            self.write_frame(camera, frames.stamp_ns, image)
+
+    def send(self, command: ActuatorCommand) -> None:
+        """Command sink: the recorder takes commands like any actuator would."""
+        self.write_command(command)
 
     def write_command(self, command: ActuatorCommand) -> None:
         self._commands.write(f"{command.stamp_ns},{command.steer_rad:.6f},{command.throttle:.6f},{command.brake:.6f}\n")
@@ -158,6 +194,10 @@ class RecordingWriter:
     def close(self) -> None:
         if self._closed:
             return
+        for jobs in self._queues.values():
+            jobs.put(None)  # after every queued frame: nothing queued is lost
+        for thread in self._threads:
+            thread.join()
         for handle in self._frame_files.values():
             handle.close()
         self._commands.close()
