@@ -26,7 +26,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/stereo_vo.py --data $(DATA) --out benchmarks/results/stereo_vo.json
 
 demo: $(STAMP)
-	$(BIN)/kartpilot demo --data $(DATA) --out demo_out
+	$(BIN)/kartpilot demo --out demo_out
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache .mypy_cache .ruff_cache

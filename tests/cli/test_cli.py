@@ -33,6 +33,11 @@ def test_eval_command(tmp_path, capsys) -> None:
         (["odometry", "euroc", "/does/not/exist", "--out", "x.tum"], "no EuRoC cam0/cam1"),
         (["odometry", "recording", "/does/not/exist", "--out", "x.txt"], "not a kartpilot recording"),
         (["eval", "--gt", "/does/not/exist.txt", "--est", "/nope.txt"], "trajectory file not found"),
+        (["sim", "--track", "monza", "--no-render"], "unknown track 'monza'"),
+        (["sim", "--track", "/does/not/exist.yaml", "--no-render"], "config file not found"),
+        (["sim", "--driver", "commands", "--no-render"], "needs a recording"),
+        (["sim", "--cameras", "rear", "--no-render"], "has no camera 'rear'"),
+        (["sim", "--no-render", "--record", "out"], "--no-render cannot record"),
     ],
 )
 def test_user_mistakes_give_one_line_and_exit_1(argv: list[str], message: str, capsys, tmp_path) -> None:
@@ -49,3 +54,19 @@ def test_config_typo_names_the_key(tmp_path, capsys) -> None:
     assert main(["odometry", "synthetic", "--frames", "3", "--out", str(tmp_path / "t.txt"),
                  "--config", str(config)]) == 1
     assert "stereo_vo.pnp.min_inlier" in capsys.readouterr().err
+
+
+def test_sim_prints_the_referee_and_writes_the_result(tmp_path, capsys) -> None:
+    result = tmp_path / "result.json"
+    assert main(["sim", "--track", "straight20", "--vehicle", "rc-kart", "--no-render", "--speed", "2",
+                 "--result", str(result), "--no-progress"]) == 0
+    assert "finished" in capsys.readouterr().out
+    data = json.loads(result.read_text())
+    assert data["disqualified"] is False and data["distance_m"] == pytest.approx(20.0, abs=0.3)
+
+
+def test_sim_config_file_is_merged_and_checked(tmp_path, capsys) -> None:
+    config = tmp_path / "sim.yaml"
+    config.write_text("sim:\n  referee: {laps: 1}\n  effects: {noise_sigmaa: 3}\n")
+    assert main(["sim", "--no-render", "--config", str(config)]) == 1
+    assert "sim.effects.noise_sigmaa" in capsys.readouterr().err

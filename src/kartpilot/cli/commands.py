@@ -5,12 +5,15 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shutil
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
+from kartpilot.core.errors import ConfigError
 from kartpilot.core.trajectory import Trajectory, read_trajectory, write_trajectory
 from kartpilot.eval.disparity import bad_pixel_rate, disparity_search_range_px, load_middlebury_pair
 from kartpilot.eval.plots import plot_trajectories
@@ -20,13 +23,16 @@ from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.runtime.config import load_stack_config
-from kartpilot.runtime.demo_source import default_stereo_source
+from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
+from kartpilot.sim.drivers import CenterlineDriverConfig
+from kartpilot.sim.referee import RunResult
+from kartpilot.sim.simulator import SimConfig
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
 
-__all__ = ["demo", "disparity", "evaluate", "odometry", "run_and_report"]
+__all__ = ["demo", "disparity", "evaluate", "odometry", "run_and_report", "simulate"]
 
 
 def _open_source(args: argparse.Namespace) -> StereoSource:
@@ -117,16 +123,56 @@ def disparity(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_result(result: RunResult, run: SimRun) -> None:
+    verdict = f"DISQUALIFIED: {result.reason}" if result.disqualified else result.reason
+    lap = f"{result.lap_time_s:.2f} s" if result.lap_time_s is not None else "-"
+    print(f"{verdict} | {result.distance_m:.1f} m driven, lap {lap}, cones hit {result.cones_hit}, "
+          f"centre offset mean {result.mean_center_offset_m:.3f} m / max {result.max_center_offset_m:.3f} m | "
+          f"sim {result.sim_time_s:.1f} s in {result.wall_time_s:.1f} s wall, {run.steps} steps")
+
+
+def simulate(args: argparse.Namespace) -> int:
+    stack = load_stack_config(args.config)
+    config, driver = stack.sim, stack.centerline_driver
+    overrides = {"track": args.track, "vehicle": args.vehicle, "seed": args.seed, "camera_rate_hz": args.rate}
+    config = replace(config, **{k: v for k, v in overrides.items() if v is not None})
+    if args.cameras:
+        config = replace(config, cameras=tuple(c.strip() for c in args.cameras.split(",") if c.strip()))
+    if args.laps is not None:
+        config = replace(config, referee=replace(config.referee, laps=args.laps))
+    if args.no_cones:
+        config = replace(config, show_cones=False)
+    if args.no_render:
+        if args.record or args.video:
+            raise ConfigError("--no-render cannot record images or a video")
+        config = replace(config, render_images=False)
+    driver_overrides = {"speed_mps": args.speed, "weave_amplitude_m": args.weave, "edge_offset_m": args.edge_offset}
+    driver = replace(driver, **{k: v for k, v in driver_overrides.items() if v is not None})
+    run = run_simulation(config, args.driver, driver, args.commands, args.record, args.video, args.result,
+                         progress=not args.no_progress)
+    _print_result(run.result, run)
+    for label, path in (("recording", args.record), ("video", args.video), ("result", args.result)):
+        if path:
+            print(f"{label} written to {path}")
+    return 0
+
+
 def demo(args: argparse.Namespace) -> int:
-    """Stereo VO on KITTI 06 when it is present, else on the synthetic sequence."""
+    """Closed loop in the simulator: drive straight20 with the rc-kart, record it, then run stereo VO on the
+    recording and score it against the simulator's ground truth."""
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    source, fallback = default_stereo_source(args.data)
-    if fallback:
-        print(fallback)
-    _, metrics = run_and_report(source, StereoVOConfig(), out / "trajectory.txt", "kitti",
-                                  out / "trajectory.png", progress=True)
+    record = out / "straight20-run"
+    if record.exists():
+        shutil.rmtree(record)
+    config = SimConfig(track="straight20", vehicle="rc-kart", cameras=("left", "right", "center"), seed=1)
+    print("driving straight20 with the rc-kart (centerline driver, 1.0 m/s), recording every camera ...")
+    run = run_simulation(config, "centerline", CenterlineDriverConfig(speed_mps=1.0), record_dir=record,
+                         video_path=out / "straight20.mp4", progress=True)
+    _print_result(run.result, run)
+    print("stereo VO on the recording, against the simulator's ground truth:")
+    _, metrics = run_and_report(RecordingStereoSource(record), StereoVOConfig(), out / "trajectory.txt", "kitti",
+                                out / "trajectory.png", progress=True)
     if metrics is not None:
         _write_json(out / "metrics.json", metrics.as_dict())
-    print(f"wrote {out / 'trajectory.txt'}, {out / 'trajectory.png'}")
+    print(f"wrote {record}, {out / 'straight20.mp4'}, {out / 'trajectory.txt'}, {out / 'trajectory.png'}")
     return 0

@@ -1,10 +1,14 @@
 """The stack's configuration: one section per component, one YAML file over the defaults.
 
-Example ``vo.yaml``::
+Example ``stack.yaml``::
 
     stereo_vo:
       features: {detector: sift, max_features: 2000}
       stereo: {max_depth_m: 30}
+    sim:
+      effects: {noise_sigma: 4.0, vibration_m: 0.003}
+      render: {time_of_day_h: 18.5}
+    centerline_driver: {weave_amplitude_m: 0.2}
 """
 
 from __future__ import annotations
@@ -14,6 +18,8 @@ from pathlib import Path
 
 from kartpilot.core.config import load_yaml_mapping, merge_config
 from kartpilot.odometry.stereo_vo import StereoVOConfig
+from kartpilot.sim.drivers import CenterlineDriverConfig
+from kartpilot.sim.simulator import SimConfig
 
 __all__ = ["StackConfig", "load_stack_config"]
 
@@ -21,6 +27,8 @@ __all__ = ["StackConfig", "load_stack_config"]
 @dataclass(frozen=True)
 class StackConfig:
     stereo_vo: StereoVOConfig = field(default_factory=StereoVOConfig)
+    sim: SimConfig = field(default_factory=SimConfig)
+    centerline_driver: CenterlineDriverConfig = field(default_factory=CenterlineDriverConfig)
 
 
 def load_stack_config(path: str | Path | None) -> StackConfig:

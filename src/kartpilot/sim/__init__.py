@@ -1,1 +1,1 @@
-"""Simulation: synthetic sequences now, the closed-loop simulator later."""
+"""Simulation: the closed-loop simulator (tracks, karts, dynamics, cameras, referee) and synthetic sequences."""

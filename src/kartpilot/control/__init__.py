@@ -1,0 +1,1 @@
+"""Control: pure functions from a tracking error (or a speed error) to actuator commands."""

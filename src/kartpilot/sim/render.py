@@ -1,0 +1,579 @@
+"""Rendering the simulated cameras with Panda3D, offscreen, on the CPU.
+
+Panda3D's software rasteriser (``p3tinydisplay``) needs nothing but the pip
+package, renders the same image for the same pose every time, and does
+trilinear mipmapping with ``texture-quality-level best`` (see
+``docs/simulator.md`` in the shared folder for the measurements behind the
+choice). All cameras of a kart are display regions of one offscreen buffer,
+read back with one copy per frame.
+
+The world is flat (z = 0). Ground layers (grass, road surface, tyre marks,
+curbs, painted lines) are drawn first, in order and without depth, so decals
+never flicker; cones and tyre walls are drawn with depth on top. The
+background panorama follows the cameras, so it behaves as if at infinity.
+
+Camera model: each camera's projection is its OpenCV matrix exactly, with the
+half-pixel shift between OpenCV's pixel centres and GL's accounted for, so a
+3D point lands where ``cv2.projectPoints`` puts it (tested to 0.5 px).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.errors import KartpilotError
+from kartpilot.core.geometry import Array
+from kartpilot.core.types import Image
+from kartpilot.sim import textures
+from kartpilot.sim.track import SAMPLE_SPACING_M, Track
+
+__all__ = ["RenderConfig", "Renderer", "lighting_for_time"]
+
+_PRC = """
+load-display p3tinydisplay
+aux-display
+window-type offscreen
+audio-library-name null
+texture-quality-level best
+sync-video false
+notify-level warning
+notify-level-display error
+"""
+
+
+class RenderError(KartpilotError):
+    """The renderer could not start or draw."""
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """How the world is drawn.
+
+    Attributes:
+        time_of_day_h: sets the sun's elevation and colour (6 = dawn, 13 = noon, 20 = dusk).
+        sun_azimuth_deg: compass direction of the sun in the world frame (0 = +x, counter-clockwise).
+        near_m, far_m: clipping planes (the near plane must be a few millimetres for a 19 cm camera).
+        background_radius_m: radius of the panorama around the cameras.
+        apron_m: width of the textured ground beside the road surface; beyond it the ground is one
+            flat colour (texturing all of it would halve the frame rate for pixels that are far away).
+        texture_seed: seed of the procedural textures (the world's look, not the run's randomness).
+    """
+
+    time_of_day_h: float = 13.0
+    sun_azimuth_deg: float = 135.0
+    near_m: float = 0.005
+    far_m: float = 2500.0
+    background_radius_m: float = 1000.0
+    apron_m: float = 15.0
+    texture_seed: int = 0
+
+
+def lighting_for_time(time_of_day_h: float) -> tuple[float, tuple[float, float, float], float]:
+    """(sun elevation in degrees, sun colour as RGB factors, ambient level) for an hour of the day.
+
+    Ambient plus sun never exceeds 0.95: the software rasteriser's colour interpolation wraps around
+    (a stray yellow pixel) where a lit colour saturates at a triangle edge.
+    """
+    phase = min(max((time_of_day_h - 6.0) / 14.0, 0.0), 1.0)
+    elevation = 60.0 * math.sin(math.pi * phase)
+    height = math.sin(math.radians(max(elevation, 0.0)))
+    strength = 0.15 + 0.45 * height
+    warm = 1.0 - height  # low sun: warmer, dimmer
+    ambient = 0.30 + 0.20 * height
+    scale = min(1.0, 0.95 / (ambient + strength * (1.0 + 0.15 * warm)))
+    colour = (scale * strength * (1.0 + 0.15 * warm), scale * strength, scale * strength * (1.0 - 0.25 * warm))
+    return elevation, colour, scale * ambient
+
+
+class Renderer:
+    """Draws a track, as seen by a set of cameras, into BGR images."""
+
+    def __init__(self, track: Track, cameras: Mapping[str, PinholeCamera], config: RenderConfig | None = None,
+                 show_cones: bool = True) -> None:
+        if not cameras:
+            raise RenderError("the renderer needs at least one camera")
+        self.config = config or RenderConfig()
+        self.cameras = dict(cameras)
+        self._core = _panda()
+        core = self._core
+        self._width = sum(c.width_px for c in self.cameras.values())
+        self._height = max(c.height_px for c in self.cameras.values())
+        engine = core.GraphicsEngine.get_global_ptr()
+        self._engine = engine
+        pipe = _pipe()
+        fb = core.FrameBufferProperties()
+        fb.set_rgb_color(True)
+        fb.set_rgba_bits(8, 8, 8, 0)
+        fb.set_depth_bits(24)
+        props = core.WindowProperties.size(self._width, self._height)
+        buffer = engine.make_output(pipe, "kartpilot-cameras", 0, fb, props, core.GraphicsPipe.BF_refuse_window)
+        if buffer is None:
+            raise RenderError("Panda3D could not open an offscreen buffer")
+        self._buffer = buffer
+        self._texture = core.Texture("cameras")
+        buffer.add_render_texture(self._texture, core.GraphicsOutput.RTM_copy_ram)
+        buffer.set_clear_color(core.LColor(*(np.array(textures.HAZE_BGR[::-1]) / 255.0), 1))
+
+        self.root = core.NodePath("world")
+        self._lights = self._make_lights()
+        self._background = self.root.attach_new_node("background")
+        self._build_world(track, show_cones)
+        self._camera_nodes: dict[str, Any] = {}
+        self._slices: dict[str, tuple[int, int, int]] = {}
+        left = 0
+        for name, cam in self.cameras.items():
+            node = self.root.attach_new_node(core.Camera(name, self._lens(cam)))
+            region = buffer.make_display_region(left / self._width, (left + cam.width_px) / self._width,
+                                                1.0 - cam.height_px / self._height, 1.0)
+            region.set_camera(node)
+            self._camera_nodes[name] = node
+            self._slices[name] = (left, cam.width_px, cam.height_px)
+            left += cam.width_px
+
+    # --- public ---------------------------------------------------------------------------
+
+    def render(self, poses_world_cam: Mapping[str, Array]) -> dict[str, Image]:
+        """BGR images of the named cameras at the given 4x4 OpenCV camera poses."""
+        core = self._core
+        centre = np.mean([np.asarray(p)[:3, 3] for p in poses_world_cam.values()], axis=0)
+        self._background.set_pos(float(centre[0]), float(centre[1]), 0.0)
+        for name, node in self._camera_nodes.items():
+            active = name in poses_world_cam
+            node.node().set_active(active)
+            if active:
+                node.set_mat(_panda_matrix(core, np.asarray(poses_world_cam[name], float)))
+        self._engine.render_frame()
+        data = self._texture.get_ram_image_as("BGR")
+        if not data:
+            raise RenderError("the renderer returned no image")
+        full = np.frombuffer(data, np.uint8).reshape(self._height, self._width, 3)[::-1]
+        images = {}
+        for name in poses_world_cam:
+            left, width, height = self._slices[name]
+            images[name] = np.ascontiguousarray(full[:height, left:left + width])
+        return images
+
+    def add_markers(self, points_world: Array, size_m: float = 0.02,
+                    rgba: tuple[float, float, float, float] = (1.0, 0.0, 1.0, 1.0)) -> None:
+        """Draw small unlit octahedra at 3D points (debug views, and the projection test)."""
+        core = self._core
+        pts = np.atleast_2d(np.asarray(points_world, float))
+        h = size_m / 2
+        template = np.array([[h, 0, 0], [-h, 0, 0], [0, h, 0], [0, -h, 0], [0, 0, h], [0, 0, -h]])
+        faces = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+        vertices = (template[None] + pts[:, None]).reshape(-1, 3)
+        triangles = (faces[None] + (np.arange(len(pts)) * 6)[:, None, None]).reshape(-1, 3)
+        node = self.root.attach_new_node(_mesh(core, vertices, triangles, colors=np.tile(rgba, (len(vertices), 1))))
+        node.set_texture_off(20)
+        node.set_light_off(20)
+        node.set_two_sided(True)
+
+    def close(self) -> None:
+        if self._buffer is not None:
+            self._engine.remove_window(self._buffer)
+            self._buffer = None
+            self.root.remove_node()
+
+    def __enter__(self) -> Renderer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- scene ------------------------------------------------------------------------------
+
+    def _lens(self, cam: PinholeCamera) -> Any:
+        core = self._core
+        lens = core.PerspectiveLens()
+        aspect = cam.fx_px / cam.fy_px
+        # Measured on p3tinydisplay: its viewport spans (size - 0.5) pixels, and OpenCV puts pixel centres on
+        # integers where GL puts them on half-integers. With both accounted for, small markers land within
+        # 0.4 px of cv2.projectPoints (the remainder is the rasteriser's vertex snapping).
+        span_x, span_y = cam.width_px - 0.5, (cam.height_px - 0.5) * aspect
+        lens.set_film_size(span_x, span_y)
+        lens.set_focal_length(cam.fx_px)
+        lens.set_film_offset(span_x / 2 - (cam.cx_px + 0.5), (cam.cy_px + 0.5) * aspect - span_y / 2)
+        lens.set_near_far(self.config.near_m, self.config.far_m)
+        return lens
+
+    def _build_world(self, track: Track, show_cones: bool) -> None:
+        core = self._core
+        spec = track.spec
+        seed = self.config.texture_seed
+        self._add_background(seed)
+
+        # far ground in one flat colour; textured only on aprons beside the road, where it is seen up close
+        ground_tex = textures.surface_texture(spec.ground, 1024, seed + 1)
+        ground_rgba = np.r_[ground_tex.reshape(-1, 3).mean(axis=0)[::-1] / 255.0, 1.0]
+        x0, y0, x1, y1 = track.bounds_m(margin_m=400.0)
+        corners = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+        ground = _mesh(core, np.c_[corners, np.zeros(4)], np.array([[0, 1, 2], [0, 2, 3]]),
+                       colors=np.tile(ground_rgba, (4, 1)))
+        self._decal(ground, 1, None)
+
+        surface_tex = textures.surface_texture(spec.surface, 2048, seed + 2)
+        margin_left, margin_right = spec.surface_margin_m
+        for piece in (track.route, *track.branches):
+            left = piece.boundary("left", margin_left)
+            right = piece.boundary("right", margin_right)
+            for left_part, right_part in _chunks(left, right, closed=piece.closed):
+                self._decal(_strip_mesh(core, left_part, right_part), 3, surface_tex)
+            apron_left = piece.boundary("left", margin_left + self.config.apron_m)
+            apron_right = piece.boundary("right", margin_right + self.config.apron_m)
+            for outer, inner in _chunks(apron_left, left, closed=piece.closed):
+                self._decal(_strip_mesh(core, outer, inner), 2, ground_tex)
+            for inner, outer in _chunks(right, apron_right, closed=piece.closed):
+                self._decal(_strip_mesh(core, inner, outer), 2, ground_tex)
+
+        if spec.tyre_marks:
+            self._decal(_tyre_marks(core, track, np.random.default_rng(spec.seed)), 4, None, alpha=True)
+        for inner, outer in track.curbs:
+            self._decal(_curb_mesh(core, inner, outer), 5, None)
+        paint = textures.surface_texture("paint", 256, seed + 3)
+        for line, width in zip(track.lines, track.line_widths_m, strict=True):
+            left, right = _offset_polyline(line, width / 2), _offset_polyline(line, -width / 2)
+            for left_part, right_part in _chunks(left, right):
+                self._decal(_strip_mesh(core, left_part, right_part, tile_m=1.0), 6, paint)
+
+        solids = self.root.attach_new_node("solids")
+        if show_cones and track.cones:
+            marking = spec.left if spec.left.kind == "cones" else spec.right
+            positions = np.array([c.xy_m for c in track.cones])
+            for cell in _spatial_groups(positions, _CHUNK_M):
+                cones = solids.attach_new_node(_cones_mesh(core, positions[cell], marking.cone_base_m,
+                                                           marking.cone_height_m))
+                cones.set_texture_off(10)
+        if track.barriers:
+            wall_tex = _texture(core, textures.tyre_wall_texture(seed + 4))
+            for wall in track.barriers:
+                for (part,) in _chunks(wall):
+                    node = solids.attach_new_node(_wall_mesh(core, part, spec.barrier_height_m))
+                    node.set_texture(wall_tex)
+                    node.set_two_sided(True)
+        self._light(solids)
+
+    def _add_background(self, seed: int) -> None:
+        """A plain sky gradient above a thin textured band of trees at the horizon: cheap to fill."""
+        core = self._core
+        radius = self.config.background_radius_m
+        lo, hi = textures.HORIZON_BAND_DEG
+        band = self._background.attach_new_node(_cylinder_mesh(core, radius, lo, hi))
+        band.set_texture(_texture(core, textures.horizon_band(seed), wrap=False))
+        elevations = np.array([hi, 12.0, 25.0, 45.0])
+        colours = [np.r_[np.array(textures.sky_bgr(e))[::-1] / 255.0, 1.0] for e in elevations]
+        for (e0, e1), (c0, c1) in zip(itertools.pairwise(elevations),
+                                      itertools.pairwise(colours), strict=True):
+            sky = self._background.attach_new_node(_cylinder_mesh(core, radius, e0, e1, (c0, c1)))
+            sky.set_texture_off(10)
+        self._background.set_bin("background", 0)
+        self._background.set_depth_write(False)
+        self._background.set_depth_test(False)
+        self._background.set_light_off(1)
+        self._background.set_two_sided(True)
+
+    def _decal(self, geom_node: Any, order: int, image: Image | None, alpha: bool = False) -> None:
+        core = self._core
+        node = self.root.attach_new_node(geom_node)
+        if image is not None:
+            node.set_texture(_texture(core, image))
+        else:
+            node.set_texture_off(10)
+        node.set_bin("background", order)
+        node.set_depth_write(False)
+        node.set_depth_test(False)
+        if alpha:
+            node.set_transparency(core.TransparencyAttrib.M_alpha)
+        self._light(node)
+
+    def _make_lights(self) -> tuple[Any, Any]:
+        core = self._core
+        elevation, colour, ambient_level = lighting_for_time(self.config.time_of_day_h)
+        ambient = core.AmbientLight("sky")
+        ambient.set_color(core.LColor(ambient_level, ambient_level, ambient_level, 1))
+        sun = core.DirectionalLight("sun")
+        sun.set_color(core.LColor(*colour, 1))
+        az, el = math.radians(self.config.sun_azimuth_deg), math.radians(max(elevation, 2.0))
+        sun.set_direction(core.LVector3(-math.cos(az) * math.cos(el), -math.sin(az) * math.cos(el), -math.sin(el)))
+        return self.root.attach_new_node(ambient), self.root.attach_new_node(sun)
+
+    def _light(self, node: Any) -> None:
+        for light in self._lights:
+            node.set_light(light)
+
+
+# --- Panda3D plumbing ---------------------------------------------------------------------------
+
+_PANDA: Any = None
+_PIPE: Any = None
+
+
+def _panda() -> Any:
+    """Import panda3d.core with kartpilot's settings (once per process)."""
+    global _PANDA
+    if _PANDA is None:
+        try:
+            from panda3d import core
+        except ImportError as exc:  # pragma: no cover - panda3d is a dependency
+            raise RenderError("the simulator needs Panda3D (pip install panda3d)") from exc
+        core.load_prc_file_data("kartpilot", _PRC)
+        _PANDA = core
+    return _PANDA
+
+
+def _pipe() -> Any:
+    global _PIPE
+    if _PIPE is None:
+        core = _panda()
+        selection = core.GraphicsPipeSelection.get_global_ptr()
+        selection.get_num_pipe_types()  # loads the display module named in the PRC
+        kind = core.TypeRegistry.ptr().find_type("TinyOffscreenGraphicsPipe")
+        pipe = selection.make_pipe(kind) if kind else None
+        if pipe is None:
+            raise RenderError("Panda3D's software renderer (p3tinydisplay) is not available")
+        _PIPE = pipe
+    return _PIPE
+
+
+def _panda_matrix(core: Any, pose_world_cam: Array) -> Any:
+    """Panda3D's camera looks along +y with z up; OpenCV's along +z with y down."""
+    cv_from_panda = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
+    world_from_panda = pose_world_cam @ cv_from_panda
+    return core.LMatrix4f(*world_from_panda.T.ravel().tolist())  # row vectors
+
+
+_FORMAT: Any = None
+
+
+def _format(core: Any) -> Any:
+    global _FORMAT
+    if _FORMAT is None:
+        c = core
+        array = c.GeomVertexArrayFormat()
+        array.add_column(c.InternalName.get_vertex(), 3, c.Geom.NT_float32, c.Geom.C_point)
+        array.add_column(c.InternalName.get_normal(), 3, c.Geom.NT_float32, c.Geom.C_normal)
+        array.add_column(c.InternalName.get_color(), 4, c.Geom.NT_float32, c.Geom.C_color)
+        array.add_column(c.InternalName.get_texcoord(), 2, c.Geom.NT_float32, c.Geom.C_texcoord)
+        _FORMAT = c.GeomVertexFormat.register_format(c.GeomVertexFormat(array))
+    return _FORMAT
+
+
+def _mesh(core: Any, vertices: Array, triangles: NDArray[Any], normals: Array | None = None,
+          colors: Array | None = None, uvs: Array | None = None) -> Any:
+    """A GeomNode from NumPy arrays (N x 3 vertices, M x 3 triangle indices)."""
+    c = core
+    n = len(vertices)
+    rows = np.zeros((n, 12), np.float32)
+    rows[:, 0:3] = vertices
+    rows[:, 3:6] = (0.0, 0.0, 1.0) if normals is None else normals
+    rows[:, 6:10] = 1.0 if colors is None else colors
+    if uvs is not None:
+        rows[:, 10:12] = uvs
+    vdata = c.GeomVertexData("mesh", _format(c), c.Geom.UH_static)
+    vdata.unclean_set_num_rows(n)
+    memoryview(vdata.modify_array(0)).cast("B")[:] = rows.tobytes()
+    prim = c.GeomTriangles(c.Geom.UH_static)
+    prim.set_index_type(c.Geom.NT_uint32)
+    index = prim.modify_vertices()
+    index.unclean_set_num_rows(triangles.size)
+    memoryview(index).cast("B")[:] = np.ascontiguousarray(triangles, np.uint32).tobytes()
+    geom = c.Geom(vdata)
+    geom.add_primitive(prim)
+    node = c.GeomNode("mesh")
+    node.add_geom(geom)
+    return node
+
+
+def _texture(core: Any, image: Image, wrap: bool = True) -> Any:
+    c = core
+    h, w = image.shape[:2]
+    tex = c.Texture("procedural")
+    tex.setup_2d_texture(w, h, c.Texture.T_unsigned_byte, c.Texture.F_rgb)
+    tex.set_ram_image(np.ascontiguousarray(image[::-1]).tobytes())  # Panda3D stores BGR, bottom row first
+    tex.set_minfilter(c.SamplerState.FT_linear_mipmap_linear)
+    tex.set_magfilter(c.SamplerState.FT_linear)
+    mode = c.SamplerState.WM_repeat if wrap else c.SamplerState.WM_clamp
+    tex.set_wrap_u(c.SamplerState.WM_repeat)
+    tex.set_wrap_v(mode)
+    return tex
+
+
+def _strip_mesh(core: Any, left: Array, right: Array, tile_m: float = textures.SURFACE_TILE_M,
+                color: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)) -> Any:
+    """A ribbon between two polylines, textured in world coordinates (so overlaps match seamlessly)."""
+    n = len(left)
+    xy = np.empty((2 * n, 2))
+    xy[0::2], xy[1::2] = left, right
+    vertices = np.c_[xy, np.zeros(2 * n)]
+    k = np.arange(n - 1) * 2
+    triangles = np.concatenate([np.stack([k, k + 1, k + 2], 1), np.stack([k + 1, k + 3, k + 2], 1)])
+    colors = np.tile(np.asarray(color, np.float32), (2 * n, 1))
+    return _mesh(core, vertices, triangles, colors=colors, uvs=xy / tile_m)
+
+
+_CHUNK_M = 12.0
+_RENDER_STEP = 5  # draw every 5th sample: 25 cm chords, under a millimetre of error on a 25 m bend
+
+
+def _chunks(*lines: Array, closed: bool = False) -> list[tuple[Array, ...]]:
+    """Cut parallel sampled polylines into pieces of about _CHUNK_M (so pieces out of view are culled),
+    keeping every _RENDER_STEP-th sample. Consecutive pieces share their end sample."""
+    if closed:
+        lines = tuple(np.vstack([line, line[:1]]) for line in lines)
+    n = len(lines[0])
+    keep = np.r_[np.arange(0, n - 1, _RENDER_STEP), n - 1]
+    per_chunk = int(_CHUNK_M / (SAMPLE_SPACING_M * _RENDER_STEP))
+    out = []
+    for a in range(0, len(keep) - 1, per_chunk):
+        idx = keep[a:a + per_chunk + 1]
+        out.append(tuple(line[idx] for line in lines))
+    return out
+
+
+def _spatial_groups(points: Array, cell_m: float) -> list[NDArray[np.intp]]:
+    keys = np.floor(points / cell_m).astype(np.int64)
+    _, inverse = np.unique(keys, axis=0, return_inverse=True)
+    return [np.flatnonzero(inverse.ravel() == k) for k in range(int(inverse.max()) + 1)]
+
+
+def _offset_polyline(line: Array, offset_m: float) -> Array:
+    d = np.gradient(line, axis=0)
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    return line + offset_m * np.stack([-d[:, 1], d[:, 0]], axis=1)
+
+
+def _curb_mesh(core: Any, inner: Array, outer: Array) -> Any:
+    """Alternating red and white blocks, one metre each."""
+    n = len(inner)
+    block = max(1, round(1.0 / SAMPLE_SPACING_M))
+    quads_v, quads_c, tris = [], [], []
+    for b, start in enumerate(range(0, n - 1, block)):
+        end = min(start + block, n - 1)
+        quad = np.array([inner[start], outer[start], outer[end], inner[end]])
+        base = 4 * b
+        quads_v.append(np.c_[quad, np.zeros(4)])
+        rgba = (0.85, 0.12, 0.1, 1.0) if b % 2 == 0 else (0.92, 0.92, 0.92, 1.0)
+        quads_c.append(np.tile(rgba, (4, 1)))
+        tris += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+    return _mesh(core, np.vstack(quads_v), np.asarray(tris), colors=np.vstack(quads_c))
+
+
+def _tyre_marks(core: Any, track: Track, rng: np.random.Generator) -> Any:
+    """Dark, translucent pairs of arcs on the route: the false edges the thesis's lane finder met."""
+    route = track.route
+    strips_v, strips_c, tris = [], [], []
+    base = 0
+    for _ in range(track.spec.tyre_marks):
+        i0 = int(rng.integers(0, len(route.s_m)))
+        length = int(rng.uniform(4.0, 18.0) / SAMPLE_SPACING_M)
+        idx = (np.arange(i0, i0 + length) % len(route.s_m)) if route.closed else np.arange(
+            i0, min(i0 + length, len(route.s_m)))
+        if len(idx) < 4:
+            continue
+        half = route.half_width_m[idx]
+        drift = rng.uniform(-0.6, 0.6) * np.linspace(-1, 1, len(idx)) ** 2
+        offset = rng.uniform(-0.6, 0.6) * half + drift * half * 0.3
+        alpha = rng.uniform(0.25, 0.55)
+        for wheel in (-0.5, 0.5):
+            centre = route.xy_m[idx] + (offset + wheel)[:, None] * route.normal()[idx]
+            left, right = _offset_polyline(centre, 0.1), _offset_polyline(centre, -0.1)
+            n = len(centre)
+            xy = np.empty((2 * n, 2))
+            xy[0::2], xy[1::2] = left, right
+            strips_v.append(np.c_[xy, np.full(2 * n, 0.0)])
+            fade = np.minimum(1.0, np.minimum(np.arange(n), np.arange(n)[::-1]) / 20.0)
+            a = np.repeat(alpha * fade, 2)
+            strips_c.append(np.c_[np.full((2 * n, 3), 0.08), a])
+            k = base + np.arange(n - 1) * 2
+            tris += [np.stack([k, k + 1, k + 2], 1), np.stack([k + 1, k + 3, k + 2], 1)]
+            base += 2 * n
+    if not strips_v:
+        return _mesh(core, np.zeros((3, 3)), np.array([[0, 1, 2]]))
+    return _mesh(core, np.vstack(strips_v), np.vstack(tris), colors=np.vstack(strips_c))
+
+
+def _cone_template(base_m: float, height_m: float, segments: int = 16) -> tuple[Array, Array, Array, Array]:
+    """One traffic cone: a square dark base and an orange body with a white band, with normals."""
+    plate = 0.08 * height_m
+    r0, r1 = 0.40 * base_m, 0.06 * base_m
+    orange, white, dark = (1.0, 0.45, 0.05, 1.0), (0.95, 0.95, 0.95, 1.0), (0.15, 0.07, 0.04, 1.0)
+    bands = [(0.0, 0.45, orange), (0.45, 0.7, white), (0.7, 1.0, orange)]
+    verts: list[tuple[float, float, float]] = []
+    norms: list[tuple[float, float, float]] = []
+    cols: list[tuple[float, float, float, float]] = []
+    tris: list[tuple[int, int, int]] = []
+    angles = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    slope = math.atan2(r0 - r1, height_m - plate)
+    for lo, hi, colour in bands:
+        z = plate + np.array([lo, hi]) * (height_m - plate)
+        r = r0 + (r1 - r0) * np.array([lo, hi])
+        base = len(verts)
+        for a in angles:
+            for zi, ri in zip(z, r, strict=True):
+                verts.append((ri * math.cos(a), ri * math.sin(a), zi))
+                norms.append((math.cos(a) * math.cos(slope), math.sin(a) * math.cos(slope), math.sin(slope)))
+                cols.append(colour)
+        for k in range(segments):
+            a0, a1 = base + 2 * k, base + 2 * ((k + 1) % segments)
+            tris += [(a0, a1, a0 + 1), (a1, a1 + 1, a0 + 1)]
+    h = base_m / 2
+    base = len(verts)
+    for x, y in ((-h, -h), (h, -h), (h, h), (-h, h)):
+        verts.append((x, y, plate))
+        norms.append((0.0, 0.0, 1.0))
+        cols.append(dark)
+    tris += [(base, base + 1, base + 2), (base, base + 2, base + 3)]
+    return np.asarray(verts), np.asarray(norms), np.asarray(cols), np.asarray(tris)
+
+
+def _cones_mesh(core: Any, positions: Array, base_m: float, height_m: float) -> Any:
+    verts, norms, cols, tris = _cone_template(base_m, height_m)
+    n = len(positions)
+    offsets = np.c_[positions, np.zeros(n)]
+    all_v = (verts[None] + offsets[:, None]).reshape(-1, 3)
+    all_t = (tris[None] + (np.arange(n) * len(verts))[:, None, None]).reshape(-1, 3)
+    return _mesh(core, all_v, all_t, normals=np.tile(norms, (n, 1)), colors=np.tile(cols, (n, 1)))
+
+
+def _wall_mesh(core: Any, line: Array, height_m: float, tile_m: float = 0.6) -> Any:
+    n = len(line)
+    s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(line, axis=0).T))]
+    vertices = np.empty((2 * n, 3))
+    vertices[0::2] = np.c_[line, np.zeros(n)]
+    vertices[1::2] = np.c_[line, np.full(n, height_m)]
+    uvs = np.empty((2 * n, 2))
+    uvs[0::2] = np.c_[s / tile_m, np.zeros(n)]
+    uvs[1::2] = np.c_[s / tile_m, np.ones(n)]
+    d = np.gradient(line, axis=0)
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    normals = np.repeat(np.c_[-d[:, 1], d[:, 0], np.zeros(n)], 2, axis=0)
+    k = np.arange(n - 1) * 2
+    triangles = np.concatenate([np.stack([k, k + 2, k + 1], 1), np.stack([k + 1, k + 2, k + 3], 1)])
+    return _mesh(core, vertices, triangles, normals=normals, uvs=uvs)
+
+
+def _cylinder_mesh(core: Any, radius_m: float, low_deg: float, high_deg: float,
+                   colours: tuple[Array, Array] | None = None, segments: int = 96) -> Any:
+    """A band of a cylinder around the origin between two elevations; u goes once around."""
+    a = np.linspace(0, 2 * np.pi, segments + 1)
+    ring = np.c_[radius_m * np.cos(a), radius_m * np.sin(a)]
+    vertices = np.empty((2 * (segments + 1), 3))
+    vertices[0::2] = np.c_[ring, np.full(segments + 1, radius_m * math.tan(math.radians(low_deg)))]
+    vertices[1::2] = np.c_[ring, np.full(segments + 1, radius_m * math.tan(math.radians(high_deg)))]
+    uvs = np.empty((2 * (segments + 1), 2))
+    uvs[0::2] = np.c_[a / (2 * np.pi), np.zeros(segments + 1)]
+    uvs[1::2] = np.c_[a / (2 * np.pi), np.ones(segments + 1)]
+    colors = None
+    if colours is not None:
+        colors = np.empty((2 * (segments + 1), 4))
+        colors[0::2], colors[1::2] = colours
+    k = np.arange(segments) * 2
+    triangles = np.concatenate([np.stack([k, k + 2, k + 1], 1), np.stack([k + 1, k + 2, k + 3], 1)])
+    return _mesh(core, vertices, triangles, colors=colors, uvs=uvs)

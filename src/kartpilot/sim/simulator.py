@@ -1,0 +1,252 @@
+"""The closed-loop simulator: a frame source and a command sink like the real kart.
+
+Each :meth:`Simulator.read` renders the kart's cameras at the current state;
+each :meth:`Simulator.send` applies a command and advances the physics by one
+camera period, then lets the referee judge. Time is simulated, so a run is the
+same however fast the machine is, and everything random (sensor noise,
+vibration, dropped frames) comes from the run's seed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from kartpilot.core.errors import ConfigError
+from kartpilot.core.geometry import Array
+from kartpilot.core.trajectory import Trajectory
+from kartpilot.core.types import ActuatorCommand, FrameSet, Image
+from kartpilot.sim.dynamics import GRAVITY_MPS2, Disturbances, VehicleState, step_vehicle
+from kartpilot.sim.referee import Referee, RefereeConfig, RunResult
+from kartpilot.sim.render import RenderConfig, Renderer
+from kartpilot.sim.track import Track, load_track, project_onto
+from kartpilot.sim.vehicle import VehicleParams, get_vehicle
+
+__all__ = ["CameraEffectsConfig", "DisturbanceConfig", "SimConfig", "Simulator", "body_pose"]
+
+
+@dataclass(frozen=True)
+class CameraEffectsConfig:
+    """What a real camera adds to a perfect rendering.
+
+    Attributes:
+        exposure_gain: brightness factor after rendering (above 1 over-exposes, below 1 under-exposes).
+        noise_sigma: standard deviation of the sensor noise in grey levels (0 = none).
+        motion_blur_subframes: renderings averaged over the exposure (1 = no motion blur).
+        exposure_time_s: the exposure that motion blur spans.
+        drop_probability: chance that a camera delivers no frame at a step.
+        vibration_m, vibration_pitch_deg, vibration_hz: vertical shake of the cameras (amplitudes reached
+            at 1 m/s and above; the small kart shook).
+    """
+
+    exposure_gain: float = 1.0
+    noise_sigma: float = 2.0
+    motion_blur_subframes: int = 1
+    exposure_time_s: float = 0.01
+    drop_probability: float = 0.0
+    vibration_m: float = 0.0
+    vibration_pitch_deg: float = 0.0
+    vibration_hz: float = 11.0
+
+
+@dataclass(frozen=True)
+class DisturbanceConfig:
+    """Attributes:
+        steer_bias_rad: constant offset of the steering (positive pulls left).
+        cross_slope: apply the track's cross-slope as a lateral pull.
+    """
+
+    steer_bias_rad: float = 0.0
+    cross_slope: bool = True
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """One simulated run. ``cameras`` empty means every camera of the vehicle."""
+
+    track: str = "utrack"
+    vehicle: str = "rc-kart"
+    seed: int = 1
+    camera_rate_hz: float = 30.0
+    cameras: tuple[str, ...] = ()
+    render_images: bool = True
+    show_cones: bool = True
+    max_time_s: float = 0.0
+    render: RenderConfig = field(default_factory=RenderConfig)
+    effects: CameraEffectsConfig = field(default_factory=CameraEffectsConfig)
+    disturbances: DisturbanceConfig = field(default_factory=DisturbanceConfig)
+    referee: RefereeConfig = field(default_factory=RefereeConfig)
+
+
+def body_pose(state: VehicleState) -> Array:
+    """The 4x4 world pose of the body frame (rear axle centre on the ground)."""
+    pose = np.eye(4)
+    c, s = math.cos(state.yaw_rad), math.sin(state.yaw_rad)
+    pose[:2, :2] = [[c, -s], [s, c]]
+    pose[:2, 3] = state.x_m, state.y_m
+    return pose
+
+
+class Simulator:
+    """A track, a kart, its cameras and the referee, stepped at the camera rate."""
+
+    def __init__(self, config: SimConfig | None = None, track: Track | None = None,
+                 vehicle: VehicleParams | None = None) -> None:
+        self.config = config = config or SimConfig()
+        if config.camera_rate_hz <= 0:
+            raise ConfigError("sim.camera_rate_hz must be positive")
+        self.track = track or load_track(config.track)
+        self.vehicle = vehicle or get_vehicle(config.vehicle)
+        names = config.cameras or tuple(name for name, _ in self.vehicle.cameras)
+        self.cameras = {name: self.vehicle.camera(name) for name in names}
+        self.dt_s = 1.0 / config.camera_rate_hz
+        x, y, yaw = self.track.start_pose()
+        self.state = VehicleState(x_m=x, y_m=y, yaw_rad=yaw)
+        self.step_index = 0
+        self.referee = Referee(self.track, self.vehicle, config.referee, cones=config.show_cones)
+        self._rng = np.random.default_rng(config.seed)
+        self._vibration_phase = self._rng.uniform(0, 2 * np.pi, 2)
+        self._noise_bank = self._make_noise_bank() if config.effects.noise_sigma > 0 and config.render_images else []
+        self._renderer: Renderer | None = None
+        if config.render_images:
+            self._renderer = Renderer(self.track, self.cameras, config.render, show_cones=config.show_cones)
+        self.camera_poses: dict[str, list[Array]] = {name: [] for name in self.cameras}
+        self.stamps_ns: list[int] = []
+        self.dropped_frames = 0
+        self.last_command = ActuatorCommand.stop(0)
+        max_time = config.max_time_s or self._default_time_limit()
+        self._max_steps = math.ceil(max_time / self.dt_s)
+
+    # --- interfaces ------------------------------------------------------------------------
+
+    @property
+    def time_ns(self) -> int:
+        return round(self.step_index * self.dt_s * 1e9)
+
+    @property
+    def time_s(self) -> float:
+        return self.step_index * self.dt_s
+
+    @property
+    def done(self) -> bool:
+        return self.referee.done or self.step_index >= self._max_steps
+
+    def read(self) -> FrameSet | None:
+        """Frame source: the cameras' images now (a dropped frame leaves its camera out); None when done."""
+        if self.done:
+            return None
+        poses = {name: self.camera_pose(name) for name in self.cameras}
+        self.stamps_ns.append(self.time_ns)
+        for name, pose in poses.items():
+            self.camera_poses[name].append(pose)
+        images: dict[str, Image] = {}
+        if self._renderer is not None:
+            images = self._render(poses)
+            effects = self.config.effects
+            for name in list(images):
+                if effects.drop_probability > 0 and self._rng.random() < effects.drop_probability:
+                    del images[name]
+                    self.dropped_frames += 1
+        return FrameSet(self.step_index, self.time_ns, images)
+
+    def send(self, command: ActuatorCommand) -> None:
+        """Command sink: apply ``command`` for one camera period, then let the referee judge."""
+        self.last_command = command
+        self.state = step_vehicle(self.vehicle, self.state, command, self.dt_s, self._disturbances())
+        self.step_index += 1
+        self.referee.update(self.time_s, self.state)
+
+    def result(self, wall_time_s: float) -> RunResult:
+        return self.referee.result(wall_time_s)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __enter__(self) -> Simulator:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- ground truth -------------------------------------------------------------------------
+
+    def camera_pose(self, name: str, state: VehicleState | None = None) -> Array:
+        """World pose of a camera, including the vibration of its mount."""
+        state = state or self.state
+        return body_pose(state) @ self._vibration(state) @ self.cameras[name].pose_body_cam_array
+
+    def ground_truth(self, camera: str) -> Trajectory:
+        """The poses of ``camera`` at every frame read so far."""
+        if not self.stamps_ns:
+            raise ConfigError("no frames were read, so there is no ground truth yet")
+        return Trajectory(np.asarray(self.stamps_ns, float) * 1e-9, np.asarray(self.camera_poses[camera]))
+
+    # --- internals ------------------------------------------------------------------------------
+
+    def _default_time_limit(self) -> float:
+        length = self.track.route.length_m * self.config.referee.laps if self.track.closed else self.track.finish_s_m
+        return 60.0 + 3.0 * length / self.vehicle.min_speed_mps
+
+    def _disturbances(self) -> Disturbances:
+        lateral = 0.0
+        slope = math.radians(self.track.spec.cross_slope_deg)
+        if self.config.disturbances.cross_slope and slope:
+            p = project_onto(self.track.route, np.array([self.state.x_m, self.state.y_m]), self.referee.route_index)
+            lateral = GRAVITY_MPS2 * math.sin(slope) * math.cos(self.state.yaw_rad - p.heading_rad)
+        return Disturbances(self.config.disturbances.steer_bias_rad, lateral)
+
+    def _vibration(self, state: VehicleState) -> Array:
+        effects = self.config.effects
+        out = np.eye(4)
+        if effects.vibration_m <= 0 and effects.vibration_pitch_deg <= 0:
+            return out
+        scale = min(1.0, state.vx_mps / 1.0)
+        w = 2 * math.pi * effects.vibration_hz * self.time_s
+        dz = effects.vibration_m * scale * math.sin(w + self._vibration_phase[0])
+        pitch = math.radians(effects.vibration_pitch_deg) * scale * math.sin(1.37 * w + self._vibration_phase[1])
+        c, s = math.cos(pitch), math.sin(pitch)
+        out[:3, :3] = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+        out[2, 3] = dz
+        return out
+
+    def _render(self, poses: dict[str, Array]) -> dict[str, Image]:
+        assert self._renderer is not None
+        effects = self.config.effects
+        n = max(1, effects.motion_blur_subframes)
+        if n == 1:
+            images = self._renderer.render(poses)
+        else:
+            sums: dict[str, np.ndarray] = {}
+            for k in range(n):
+                back = effects.exposure_time_s * k / (n - 1)
+                past = replace(self.state, x_m=self.state.x_m - back * self.state.vx_mps * math.cos(self.state.yaw_rad),
+                               y_m=self.state.y_m - back * self.state.vx_mps * math.sin(self.state.yaw_rad),
+                               yaw_rad=self.state.yaw_rad - back * self.state.yaw_rate_radps)
+                sub = self._renderer.render({name: self.camera_pose(name, past) for name in poses})
+                for name, image in sub.items():
+                    sums[name] = sums.get(name, 0) + image.astype(np.float32)
+            images = {name: (total / n).astype(np.uint8) for name, total in sums.items()}
+        return {name: self._expose(image) for name, image in images.items()}
+
+    def _expose(self, image: Image) -> Image:
+        effects = self.config.effects
+        out = image
+        if effects.exposure_gain != 1.0:
+            out = np.clip(out.astype(np.float32) * effects.exposure_gain, 0, 255).astype(np.uint8)
+        if self._noise_bank:
+            bank = self._noise_bank[int(self._rng.integers(len(self._noise_bank)))]
+            h, w = out.shape[:2]
+            dy, dx = (int(v) for v in self._rng.integers(0, 32, 2))
+            out = np.clip(out.astype(np.int16) + bank[dy:dy + h, dx:dx + w], 0, 255).astype(np.uint8)
+        return out
+
+    def _make_noise_bank(self) -> list[np.ndarray]:
+        """A few noise images, cropped at random offsets each frame: seeded, and cheap per frame."""
+        h = max(c.height_px for c in self.cameras.values()) + 32
+        w = max(c.width_px for c in self.cameras.values()) + 32
+        sigma = self.config.effects.noise_sigma
+        return [np.round(self._rng.normal(0, sigma, (h, w, 3))).astype(np.int16) for _ in range(4)]

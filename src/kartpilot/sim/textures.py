@@ -1,0 +1,121 @@
+"""Procedural textures for the simulated world: seeded NumPy, no image files.
+
+Surfaces are tiled in world coordinates; the grain is fine enough (about 2 mm
+per texel on the road) that a camera 19 cm above the ground finds corners on
+the tarmac just ahead of it, which is where a small kart's stereo VO gets its
+nearest, best-constrained points.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+from kartpilot.core.types import Image
+
+__all__ = ["HAZE_BGR", "HORIZON_BAND_DEG", "SURFACE_TILE_M", "horizon_band", "sky_bgr", "surface_texture",
+           "tyre_wall_texture"]
+
+SURFACE_TILE_M = 4.0
+"""World size of one tile of a ground texture, in metres."""
+
+_BASE_BGR = {
+    "asphalt": (92.0, 90.0, 88.0),
+    "tartan": (50.0, 62.0, 150.0),
+    "grass": (45.0, 105.0, 70.0),
+    "paint": (232.0, 236.0, 236.0),
+}
+
+
+def _blurred_noise(rng: np.random.Generator, size: int, sigma_px: float) -> np.ndarray:
+    return _wrap_blur(rng.standard_normal((size, size)).astype(np.float32), sigma_px, sigma_px)
+
+
+def _wrap_blur(image: np.ndarray, sigma_x: float, sigma_y: float) -> np.ndarray:
+    """Gaussian blur that wraps around the edges (so the texture tiles seamlessly), unit variance."""
+    pad = math.ceil(4 * max(sigma_x, sigma_y)) + 1
+    padded = np.pad(image, pad, mode="wrap")
+    out = cv2.GaussianBlur(padded, (0, 0), sigma_x, sigmaY=sigma_y)[pad:-pad, pad:-pad]
+    return out / max(float(out.std()), 1e-6)
+
+
+@lru_cache(maxsize=8)
+def surface_texture(kind: str, size_px: int = 2048, seed: int = 0) -> Image:
+    """A seamless BGR texture for ``asphalt``, ``tartan``, ``grass`` or ``paint``."""
+    if kind not in _BASE_BGR:
+        raise ValueError(f"unknown surface {kind!r}")
+    rng = np.random.default_rng(seed)
+    fine = _blurred_noise(rng, size_px, 0.8)
+    medium = _blurred_noise(rng, size_px, 6.0)
+    coarse = _blurred_noise(rng, size_px, 40.0)
+    if kind == "asphalt":
+        stones = (rng.random((size_px, size_px)) > 0.985).astype(np.float32)
+        stones = cv2.dilate(stones, np.ones((3, 3), np.uint8)) * rng.choice([-1.0, 1.0], (size_px, size_px))
+        shade = 16 * fine + 8 * medium + 2 * coarse + 12 * _wrap_blur(stones, 0.8, 0.8)
+    elif kind == "tartan":
+        shade = 14 * fine + 5 * medium + 4 * coarse
+    elif kind == "grass":
+        blades = _wrap_blur(rng.standard_normal((size_px, size_px)).astype(np.float32), 0.6, 2.5)
+        shade = 18 * blades + 10 * medium + 10 * coarse
+    else:
+        shade = 5 * fine + 3 * coarse
+    base = np.asarray(_BASE_BGR[kind], np.float32)
+    image = base + shade[..., None]
+    return np.clip(image, 0, 255).astype(np.uint8)
+
+
+@lru_cache(maxsize=2)
+def tyre_wall_texture(seed: int = 0) -> Image:
+    """Side view of a wall of stacked tyres: 0.6 m wide, three tyres high (BGR, 256x128)."""
+    rng = np.random.default_rng(seed)
+    image = np.full((128, 256, 3), 28, np.uint8)
+    for row in range(3):
+        top = 4 + row * 41
+        for col in range(2):
+            left = col * 128 + int(rng.integers(-6, 6))
+            cv2.rectangle(image, (left + 6, top), (left + 122, top + 36), (18, 18, 18), -1)
+            cv2.rectangle(image, (left + 6, top + 4), (left + 122, top + 8), (62, 62, 64), -1)
+            cv2.rectangle(image, (left + 6, top + 28), (left + 122, top + 31), (48, 48, 50), -1)
+    noise = rng.normal(0, 6, image.shape)
+    return np.clip(image + noise, 0, 255).astype(np.uint8)
+
+
+HORIZON_BAND_DEG = (-1.0, 4.0)
+"""Elevations covered by :func:`horizon_band` (bottom, top); the sky above it is a plain gradient."""
+
+
+def sky_bgr(elevation_deg: float) -> tuple[float, float, float]:
+    """Sky colour (BGR, 0-255) at an elevation: pale at the horizon, deeper blue above."""
+    t = min(max(elevation_deg / 35.0, 0.0), 1.0)
+    return 235.0 - 45.0 * t, 218.0 - 68.0 * t, 200.0 - 105.0 * t
+
+
+HAZE_BGR = (150.0, 160.0, 150.0)
+
+
+@lru_cache(maxsize=2)
+def horizon_band(seed: int = 0, width_px: int = 2048, height_px: int = 64) -> Image:
+    """A 360-degree band around the horizon: a tree line with a few buildings against the sky.
+
+    Rows span :data:`HORIZON_BAND_DEG` of elevation, top row first; columns go once around.
+    """
+    rng = np.random.default_rng(seed)
+    lo, hi = HORIZON_BAND_DEG
+    elevation = hi - (np.arange(height_px) + 0.5) / height_px * (hi - lo)
+    image = np.empty((height_px, width_px, 3), np.float32)
+    for r, e in enumerate(elevation):
+        image[r] = sky_bgr(e) if e >= 0 else HAZE_BGR
+    profile = np.cumsum(rng.normal(0, 0.5, width_px))
+    profile = np.convolve(np.r_[profile[-30:], profile, profile[:30]], np.ones(21) / 21, "same")[30:-30]
+    top_deg = 0.8 + 1.6 * (profile - profile.min()) / max(float(np.ptp(profile)), 1e-6)
+    for _ in range(10):
+        x0 = int(rng.integers(0, width_px - 60))
+        top_deg[x0:x0 + int(rng.integers(20, 60))] = rng.uniform(1.5, 3.5)
+    texture = rng.normal(0, 12, (height_px, width_px))
+    trees = np.stack([50 + texture, 78 + texture, 58 + texture], axis=-1)
+    mask = (elevation[:, None] <= top_deg[None, :]) & (elevation[:, None] >= -0.2)
+    image[mask] = trees[mask]
+    return np.clip(image, 0, 255).astype(np.uint8)

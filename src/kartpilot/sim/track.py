@@ -1,0 +1,478 @@
+"""Tracks as data: a YAML description turned into dense, queryable geometry.
+
+A track file describes the *route* (the centre line the kart must follow) as
+straights and arcs or as spline control points, its width along the way, each
+boundary's marking (painted line, cones at a gap, or nothing), curbs, tyre
+walls, tyre marks, a cross-slope, the start and (for open tracks) the finish,
+and *branches*: alternative roads that leave the route at a split and rejoin it
+later. Taking a branch is a wrong route. Crossings need no description: a
+route that passes over itself crosses, and the painted markings are left out
+wherever they would lie on another part of the road.
+
+World frame: x and y on the ground, z up, metres. ``s`` is the distance along
+a centre line; a lateral offset is positive to the left of the direction of
+travel.
+
+Example (``straight20``)::
+
+    name: straight20
+    centerline:
+      closed: false
+      segments: [{straight_m: 26.0}]
+    width_m: 1.5
+    left: {kind: cones, cone_gap_m: 1.0}
+    right: {kind: cones, cone_gap_m: 1.0}
+    start_s_m: 2.0
+    finish_s_m: 22.0
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.interpolate import splev, splprep
+from scipy.spatial import cKDTree
+
+from kartpilot.core.config import load_yaml_mapping, merge_config
+from kartpilot.core.errors import ConfigError
+from kartpilot.core.geometry import Array
+
+__all__ = [
+    "Branch",
+    "CenterlineSpec",
+    "Curb",
+    "Marking",
+    "Projection",
+    "RoadPiece",
+    "Segment",
+    "Track",
+    "TrackSpec",
+    "build_track",
+    "bundled_tracks",
+    "load_track",
+    "project_onto",
+]
+
+SAMPLE_SPACING_M = 0.05
+Side = Literal["left", "right"]
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A straight (``straight_m``) or an arc (``radius_m`` turning ``angle_deg``, positive to the left)."""
+
+    straight_m: float = 0.0
+    radius_m: float = 0.0
+    angle_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class CenterlineSpec:
+    """The route's centre line, from segments or from spline control points (not both)."""
+
+    closed: bool = True
+    start_xy_m: tuple[float, float] = (0.0, 0.0)
+    start_heading_deg: float = 0.0
+    segments: tuple[Segment, ...] = ()
+    points_m: tuple[tuple[float, float], ...] = ()
+
+
+@dataclass(frozen=True)
+class Marking:
+    """How one boundary is marked. Cones stand on the boundary, lines are centred on it."""
+
+    kind: Literal["line", "cones", "none"] = "line"
+    line_width_m: float = 0.08
+    cone_gap_m: float = 1.0
+    cone_base_m: float = 0.18
+    cone_height_m: float = 0.30
+
+
+@dataclass(frozen=True)
+class Curb:
+    """Red and white curb stones just outside a boundary, from ``from_s_m`` to ``to_s_m``."""
+
+    side: Side = "left"
+    from_s_m: float = 0.0
+    to_s_m: float = 0.0
+    width_m: float = 0.3
+
+
+@dataclass(frozen=True)
+class Branch:
+    """A split: a road that leaves the route toward ``side`` and rejoins it; taking it is a wrong route."""
+
+    side: Side = "left"
+    from_s_m: float = 0.0
+    to_s_m: float = 0.0
+    offset_m: float = 8.0
+    ramp_m: float = 15.0
+
+
+@dataclass(frozen=True)
+class TrackSpec:
+    """Everything a track file can say. Defaults describe a plain lined asphalt road."""
+
+    name: str = "track"
+    description: str = ""
+    centerline: CenterlineSpec = field(default_factory=CenterlineSpec)
+    width_m: float = 3.0
+    width_profile: tuple[tuple[float, float], ...] = ()
+    left: Marking = field(default_factory=Marking)
+    right: Marking = field(default_factory=Marking)
+    surface: Literal["asphalt", "tartan"] = "asphalt"
+    surface_margin_m: tuple[float, float] = (0.6, 0.6)
+    ground: Literal["grass", "asphalt"] = "grass"
+    decor_lines_m: tuple[float, ...] = ()
+    curbs: tuple[Curb, ...] = ()
+    barrier_offset_m: float = 0.0
+    barrier_height_m: float = 0.6
+    tyre_marks: int = 0
+    cross_slope_deg: float = 0.0
+    start_s_m: float = 0.0
+    finish_s_m: float | None = None
+    branches: tuple[Branch, ...] = ()
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class RoadPiece:
+    """A densely sampled centre line (route or branch) with its width."""
+
+    name: str
+    xy_m: Array
+    s_m: Array
+    heading_rad: Array
+    curvature_1pm: Array
+    half_width_m: Array
+    closed: bool
+
+    @property
+    def length_m(self) -> float:
+        return float(self.s_m[-1] + (SAMPLE_SPACING_M if self.closed else 0.0))
+
+    def normal(self) -> Array:
+        """Unit normals pointing to the left of the direction of travel."""
+        return np.stack([-np.sin(self.heading_rad), np.cos(self.heading_rad)], axis=1)
+
+    def boundary(self, side: Side, extra_m: float = 0.0) -> Array:
+        sign = 1.0 if side == "left" else -1.0
+        return self.xy_m + sign * (self.half_width_m + extra_m)[:, None] * self.normal()
+
+    def index_at(self, s_m: float) -> int:
+        if self.closed:
+            s_m %= self.length_m
+        return int(np.clip(round(s_m / SAMPLE_SPACING_M), 0, len(self.s_m) - 1))
+
+
+@dataclass(frozen=True)
+class Cone:
+    xy_m: tuple[float, float]
+    side: Side
+    s_m: float
+
+
+@dataclass(frozen=True)
+class Track:
+    """A built track: the route, its branches, and the markings as they appear on the ground."""
+
+    spec: TrackSpec
+    route: RoadPiece
+    branches: tuple[RoadPiece, ...]
+    cones: tuple[Cone, ...]
+    lines: tuple[Array, ...]
+    line_widths_m: tuple[float, ...]
+    curbs: tuple[tuple[Array, Array], ...]
+    barriers: tuple[Array, ...]
+    route_marked_left: NDArray[np.bool_]
+    route_marked_right: NDArray[np.bool_]
+
+    def marked(self, side: Side, index: int) -> bool:
+        """Whether the route's boundary on ``side`` is marked at a sample (not at a crossing or split)."""
+        mask = self.route_marked_left if side == "left" else self.route_marked_right
+        return bool(mask[index])
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def closed(self) -> bool:
+        return self.route.closed
+
+    @property
+    def start_index(self) -> int:
+        return self.route.index_at(self.spec.start_s_m)
+
+    @property
+    def finish_s_m(self) -> float:
+        """Where a run ends on an open track (closed tracks count laps from the start)."""
+        if self.spec.finish_s_m is not None:
+            return self.spec.finish_s_m
+        return self.route.length_m - 2.0
+
+    def start_pose(self) -> tuple[float, float, float]:
+        """(x, y, yaw) of the start on the route's centre line."""
+        i = self.start_index
+        return float(self.route.xy_m[i, 0]), float(self.route.xy_m[i, 1]), float(self.route.heading_rad[i])
+
+    def bounds_m(self, margin_m: float = 0.0) -> tuple[float, float, float, float]:
+        xy = np.vstack([self.route.xy_m, *(b.xy_m for b in self.branches)])
+        lo, hi = xy.min(axis=0) - margin_m, xy.max(axis=0) + margin_m
+        return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
+
+
+@dataclass(frozen=True)
+class Projection:
+    """Where a point lies relative to a road piece."""
+
+    index: int
+    s_m: float
+    offset_m: float
+    heading_rad: float
+    half_width_m: float
+
+
+def bundled_tracks() -> list[str]:
+    """Names of the tracks shipped with kartpilot."""
+    folder = resources.files("kartpilot.sim") / "tracks"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
+def load_track(name_or_path: str | Path) -> Track:
+    """A bundled track by name (``utrack``) or a track YAML file by path."""
+    path = Path(name_or_path)
+    if not path.suffix:
+        if str(name_or_path) not in bundled_tracks():
+            raise ConfigError(f"unknown track {name_or_path!r}; bundled tracks: {', '.join(bundled_tracks())}")
+        resource = resources.files("kartpilot.sim") / "tracks" / f"{name_or_path}.yaml"
+        with resources.as_file(resource) as file:
+            mapping = load_yaml_mapping(file)
+    else:
+        mapping = load_yaml_mapping(path)
+    spec = merge_config(TrackSpec(), mapping, "track")
+    return build_track(spec)
+
+
+def build_track(spec: TrackSpec) -> Track:
+    """Sample the route and its branches and lay out the markings."""
+    xy = _centerline_points(spec.centerline)
+    route = _piece("route", _resample(xy, spec.centerline.closed), spec, spec.centerline.closed)
+    if not spec.centerline.closed and not 0.0 <= spec.start_s_m < route.length_m:
+        raise ConfigError(f"track {spec.name!r}: start_s_m {spec.start_s_m} is off the route")
+    finish = spec.finish_s_m
+    if finish is not None and (spec.centerline.closed or not spec.start_s_m < finish <= route.length_m):
+        raise ConfigError(f"track {spec.name!r}: finish_s_m needs an open route and must lie after the start")
+    branches = tuple(_branch(route, b, i) for i, b in enumerate(spec.branches))
+    pieces = (route, *branches)
+    road = _RoadIndex(pieces)
+
+    lines: list[Array] = []
+    widths: list[float] = []
+    cones: list[Cone] = []
+    marked = {side: ~road.inside(route.boundary(side), -0.02) for side in ("left", "right")}
+    for piece in pieces:
+        for side, marking in (("left", spec.left), ("right", spec.right)):
+            boundary = piece.boundary(side)  # type: ignore[arg-type]
+            if marking.kind == "line":
+                keep = ~road.inside(boundary, -0.02)
+                for run in _runs(boundary, keep, piece.closed):
+                    lines.append(run)
+                    widths.append(marking.line_width_m)
+            elif marking.kind == "cones":
+                step = max(1, round(marking.cone_gap_m / SAMPLE_SPACING_M))
+                idx = np.arange(0, len(boundary), step)
+                keep = ~road.inside(boundary[idx], -marking.cone_base_m)
+                cones += [Cone((float(boundary[i, 0]), float(boundary[i, 1])), side, float(piece.s_m[i]))  # type: ignore[arg-type]
+                          for i in idx[keep]]
+        for offset in spec.decor_lines_m:
+            decor = piece.xy_m + offset * piece.normal()
+            keep = ~road.inside(decor, -0.02) if abs(offset) < piece.half_width_m.min() else np.ones(len(decor), bool)
+            for run in _runs(decor, keep, piece.closed):
+                lines.append(run)
+                widths.append(0.05)
+
+    curbs: list[tuple[Array, Array]] = []
+    for curb in spec.curbs:
+        i0, i1 = route.index_at(curb.from_s_m), route.index_at(curb.to_s_m)
+        idx = np.arange(i0, i1 + 1) if i1 >= i0 else np.r_[np.arange(i0, len(route.s_m)), np.arange(0, i1 + 1)]
+        line_w = (spec.left if curb.side == "left" else spec.right).line_width_m / 2
+        inner = route.boundary(curb.side, line_w)[idx]
+        outer = route.boundary(curb.side, line_w + curb.width_m)[idx]
+        curbs.append((inner, outer))
+
+    barriers: list[Array] = []
+    if spec.barrier_offset_m > 0:
+        for piece in pieces:
+            for side in ("left", "right"):
+                wall = piece.boundary(side, spec.barrier_offset_m)  # type: ignore[arg-type]
+                keep = ~road.inside(wall, 0.8 * spec.barrier_offset_m)
+                barriers += [run for run in _runs(wall, keep, piece.closed) if len(run) > 10]
+    return Track(spec, route, branches, tuple(cones), tuple(lines), tuple(widths), tuple(curbs), tuple(barriers),
+                 marked["left"], marked["right"])
+
+
+def project_onto(piece: RoadPiece, xy: Array, hint: int | None = None,
+                 back_m: float = 1.0, ahead_m: float = 5.0) -> Projection:
+    """Project a point onto a centre line; with ``hint``, search only a window around it.
+
+    The window keeps the projection on the right part of the road where the
+    route passes near itself (a crossing, a hairpin): progress can only move by
+    about as far as the kart can drive between two calls.
+    """
+    n = len(piece.s_m)
+    if hint is None:
+        candidates = np.arange(n)
+    else:
+        lo, hi = hint - int(back_m / SAMPLE_SPACING_M), hint + int(ahead_m / SAMPLE_SPACING_M)
+        candidates = np.arange(lo, hi + 1) % n if piece.closed else np.arange(max(lo, 0), min(hi, n - 1) + 1)
+    d2 = np.sum((piece.xy_m[candidates] - xy) ** 2, axis=1)
+    i = int(candidates[int(np.argmin(d2))])
+    heading = float(piece.heading_rad[i])
+    delta = np.asarray(xy, float) - piece.xy_m[i]
+    along = delta[0] * math.cos(heading) + delta[1] * math.sin(heading)
+    offset = -delta[0] * math.sin(heading) + delta[1] * math.cos(heading)
+    s = float(piece.s_m[i] + along)
+    if piece.closed:
+        s %= piece.length_m
+    return Projection(i, s, float(offset), heading, float(piece.half_width_m[i]))
+
+
+# --- construction helpers ---------------------------------------------------------------------
+
+def _centerline_points(spec: CenterlineSpec) -> Array:
+    if bool(spec.segments) == bool(spec.points_m):
+        raise ConfigError("track.centerline needs either 'segments' or 'points_m' (exactly one)")
+    if spec.points_m:
+        pts = np.asarray(spec.points_m, float)
+        if len(pts) < 4:
+            raise ConfigError("track.centerline.points_m needs at least 4 control points")
+        if spec.closed:
+            pts = np.vstack([pts, pts[:1]])
+        tck, _ = splprep(pts.T, s=0.0, per=1 if spec.closed else 0, k=3)
+        u = np.linspace(0.0, 1.0, 40 * len(pts) * 50)
+        return np.stack(splev(u, tck), axis=1)
+    x, y = spec.start_xy_m
+    heading = math.radians(spec.start_heading_deg)
+    out = [(x, y)]
+    for i, seg in enumerate(spec.segments):
+        if seg.straight_m > 0 and seg.radius_m == 0 and seg.angle_deg == 0:
+            n = max(2, int(seg.straight_m / 0.01))
+            t = np.linspace(0, seg.straight_m, n)[1:]
+            out += list(zip(x + t * math.cos(heading), y + t * math.sin(heading), strict=True))
+            x, y = out[-1]
+        elif seg.radius_m > 0 and seg.angle_deg != 0 and seg.straight_m == 0:
+            sign = math.copysign(1.0, seg.angle_deg)
+            cx, cy = x - sign * seg.radius_m * math.sin(heading), y + sign * seg.radius_m * math.cos(heading)
+            sweep = math.radians(seg.angle_deg)
+            n = max(2, int(abs(sweep) * seg.radius_m / 0.01))
+            a = heading - sign * math.pi / 2 + np.linspace(0, sweep, n)[1:]
+            out += list(zip(cx + seg.radius_m * np.cos(a), cy + seg.radius_m * np.sin(a), strict=True))
+            x, y = out[-1]
+            heading += sweep
+        else:
+            raise ConfigError(f"track.centerline.segments[{i}] must be a straight (straight_m) "
+                              "or an arc (radius_m and angle_deg), not both")
+    pts = np.asarray(out)
+    if spec.closed and np.hypot(*(pts[-1] - pts[0])) > 0.05:
+        raise ConfigError(f"track.centerline is closed but its segments end {np.hypot(*(pts[-1] - pts[0])):.2f} m "
+                          "from the start")
+    if spec.closed:
+        pts = pts[:-1]
+    return pts
+
+
+def _resample(xy: Array, closed: bool) -> Array:
+    pts = np.vstack([xy, xy[:1]]) if closed else xy
+    seg = np.hypot(*np.diff(pts, axis=0).T)
+    s = np.r_[0.0, np.cumsum(seg)]
+    total = s[-1]
+    n = round(total / SAMPLE_SPACING_M)
+    targets = np.arange(n) * (total / n) if closed else np.linspace(0.0, total, n + 1)
+    return np.stack([np.interp(targets, s, pts[:, 0]), np.interp(targets, s, pts[:, 1])], axis=1)
+
+
+def _piece(name: str, xy: Array, spec: TrackSpec, closed: bool) -> RoadPiece:
+    if closed:
+        ahead, behind = np.roll(xy, -1, axis=0), np.roll(xy, 1, axis=0)
+    else:
+        ahead, behind = np.vstack([xy[1:], 2 * xy[-1] - xy[-2]]), np.vstack([2 * xy[0] - xy[1], xy[:-1]])
+    heading = np.arctan2(ahead[:, 1] - behind[:, 1], ahead[:, 0] - behind[:, 0])
+    steps = np.hypot(*np.diff(xy, axis=0).T)
+    s = np.r_[0.0, np.cumsum(steps)]
+    dh = np.diff(np.unwrap(heading))
+    curvature = np.r_[dh, dh[-1:]] / np.maximum(np.r_[steps, steps[-1:]], 1e-9)
+    length = s[-1] + (float(np.hypot(*(xy[0] - xy[-1]))) if closed else 0.0)
+    half = 0.5 * _width_along(spec, s, length if closed else None)
+    return RoadPiece(name, xy, s, heading, curvature, half, closed)
+
+
+def _width_along(spec: TrackSpec, s: Array, period: float | None) -> Array:
+    if not spec.width_profile:
+        return np.full(len(s), spec.width_m)
+    prof = np.asarray(sorted(spec.width_profile), float)
+    if np.any(prof[:, 1] <= 0):
+        raise ConfigError("track.width_profile widths must be positive")
+    if period is not None:
+        return np.interp(s % period, prof[:, 0], prof[:, 1], period=period)
+    return np.interp(s, prof[:, 0], prof[:, 1])
+
+
+def _branch(route: RoadPiece, branch: Branch, number: int) -> RoadPiece:
+    i0, i1 = route.index_at(branch.from_s_m), route.index_at(branch.to_s_m)
+    if i1 <= i0 or (i1 - i0) * SAMPLE_SPACING_M < 2 * branch.ramp_m:
+        raise ConfigError(f"track.branches[{number}] must span more than twice its ramp_m along the route")
+    idx = np.arange(i0, i1 + 1)
+    s = route.s_m[idx] - route.s_m[i0]
+    span = s[-1]
+    ramp = np.clip(np.minimum(s, span - s) / branch.ramp_m, 0.0, 1.0)
+    smooth = ramp * ramp * (3 - 2 * ramp)
+    sign = 1.0 if branch.side == "left" else -1.0
+    xy = route.xy_m[idx] + (sign * branch.offset_m * smooth)[:, None] * route.normal()[idx]
+    xy = _resample(xy, closed=False)
+    half = np.interp(np.linspace(0, 1, len(xy)), np.linspace(0, 1, len(idx)), route.half_width_m[idx])
+    piece = _piece(f"branch{number}", xy, TrackSpec(), closed=False)
+    return RoadPiece(piece.name, piece.xy_m, piece.s_m, piece.heading_rad, piece.curvature_1pm, half, False)
+
+
+class _RoadIndex:
+    """Answers "is this point on the road surface?" for all pieces at once."""
+
+    def __init__(self, pieces: tuple[RoadPiece, ...]) -> None:
+        self.xy = np.vstack([p.xy_m for p in pieces])
+        self.half = np.concatenate([p.half_width_m for p in pieces])
+        self.tree = cKDTree(self.xy)
+        self.max_half = float(self.half.max())
+
+    def inside(self, points: Array, margin_m: float) -> NDArray[np.bool_]:
+        """True where a point lies closer than half the width plus ``margin_m`` to some centre line."""
+        radius = self.max_half + max(margin_m, 0.0)
+        out = np.zeros(len(points), bool)
+        for k, neighbours in enumerate(self.tree.query_ball_point(points, radius)):
+            if neighbours:
+                nb = np.asarray(neighbours)
+                d = np.hypot(*(self.xy[nb] - points[k]).T)
+                out[k] = bool(np.any(d < self.half[nb] + margin_m))
+        return out
+
+
+def _runs(points: Array, keep: NDArray[np.bool_], closed: bool) -> list[Array]:
+    """Split a polyline into the runs where ``keep`` holds (joining across the seam when closed)."""
+    if keep.all():
+        return [np.vstack([points, points[:1]]) if closed else points]
+    runs: list[Array] = []
+    idx = np.flatnonzero(keep)
+    if len(idx) == 0:
+        return runs
+    breaks = np.flatnonzero(np.diff(idx) > 1)
+    starts, ends = np.r_[idx[0], idx[breaks + 1]], np.r_[idx[breaks], idx[-1]]
+    pieces = [points[a:b + 1] for a, b in zip(starts, ends, strict=True)]
+    if closed and keep[0] and keep[-1] and len(pieces) > 1:
+        pieces[0] = np.vstack([pieces.pop(), pieces[0]])
+    return [p for p in pieces if len(p) >= 2]

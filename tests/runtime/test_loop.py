@@ -1,0 +1,41 @@
+import pytest
+
+from kartpilot.core.types import ActuatorCommand, FrameSet
+from kartpilot.runtime.loop import run_loop
+
+
+class ListSource:
+    def __init__(self, count: int) -> None:
+        self.frames = [FrameSet(i, i * 1000, {}) for i in range(count)]
+
+    def read(self) -> FrameSet | None:
+        return self.frames.pop(0) if self.frames else None
+
+
+class ListSink:
+    def __init__(self) -> None:
+        self.commands: list[ActuatorCommand] = []
+
+    def send(self, command: ActuatorCommand) -> None:
+        self.commands.append(command)
+
+
+def test_the_loop_runs_until_the_source_ends():
+    sink = ListSink()
+    stats = run_loop(ListSource(5), lambda f: ActuatorCommand(f.stamp_ns, 0.1, 0.5, 0.0), sink)
+    assert stats.steps == 5 and len(sink.commands) == 5
+    assert set(stats.stage_ms()) == {"source", "policy", "sinks"}
+
+
+def test_an_exception_in_the_pipeline_commands_a_stop_before_it_propagates():
+    sink = ListSink()
+
+    def policy(frames: FrameSet) -> ActuatorCommand:
+        if frames.index == 3:
+            raise RuntimeError("perception crashed")
+        return ActuatorCommand(frames.stamp_ns, 0.2, 0.8, 0.0)
+
+    with pytest.raises(RuntimeError, match="perception crashed"):
+        run_loop(ListSource(10), policy, sink)
+    assert sink.commands[-1] == ActuatorCommand.stop(3000)  # stamped with the frame that failed
+    assert sink.commands[-1].throttle == 0.0 and sink.commands[-1].brake == 1.0

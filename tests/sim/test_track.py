@@ -1,0 +1,89 @@
+import math
+
+import numpy as np
+import pytest
+
+from kartpilot.core.config import merge_config
+from kartpilot.core.errors import ConfigError
+from kartpilot.sim.track import (
+    CenterlineSpec,
+    Segment,
+    TrackSpec,
+    build_track,
+    bundled_tracks,
+    load_track,
+    project_onto,
+)
+
+
+def test_bundled_tracks_are_the_documented_ones():
+    assert {"utrack", "sdc-assen", "straight20"} <= set(bundled_tracks())
+
+
+def test_utrack_is_a_400m_oval_with_cones_every_metre_on_both_sides():
+    track = load_track("utrack")
+    expected = 2 * 84.39 + 2 * math.pi * 37.11  # lane-1 centre line
+    assert track.route.length_m == pytest.approx(expected, abs=0.1)
+    assert track.closed
+    left = [c for c in track.cones if c.side == "left"]
+    right = [c for c in track.cones if c.side == "right"]
+    assert len(left) == pytest.approx(track.route.length_m, abs=2)
+    gaps = np.hypot(*np.diff(np.array([c.xy_m for c in right]), axis=0).T)
+    assert np.median(gaps) == pytest.approx(1.0, abs=0.02)
+    # cones stand on the lane's boundaries, 1.22 m apart
+    p = project_onto(track.route, np.array(left[5].xy_m))
+    assert p.offset_m == pytest.approx(0.61, abs=0.01)
+
+
+def test_sdc_assen_has_a_crossing_a_split_and_lines_with_gaps_there():
+    track = load_track("sdc-assen")
+    assert 900 < track.route.length_m < 1100
+    assert len(track.branches) == 1 and len(track.curbs) == 4 and track.barriers
+    # the route crosses itself: two samples far apart along s are within a metre of each other
+    xy, s = track.route.xy_m, track.route.s_m
+    near_origin = s[np.hypot(*xy.T) < 0.5]
+    assert near_origin.max() - near_origin.min() > 400
+    # at the crossing the route's lines are left out, elsewhere they are painted
+    crossing = int(np.argmin(np.hypot(*xy.T) + 1e9 * (s < 400)))  # the second pass over the origin
+    assert not track.marked("left", crossing) and not track.marked("right", crossing)
+    assert track.marked("left", track.start_index + 100)
+    # turns both ways
+    assert track.route.curvature_1pm.max() > 0.02 and track.route.curvature_1pm.min() < -0.02
+    widths = 2 * track.route.half_width_m
+    assert widths.min() == pytest.approx(4.0, abs=0.05) and widths.max() == pytest.approx(6.0, abs=0.05)
+
+
+def test_projection_window_keeps_progress_on_the_right_pass_of_a_crossing():
+    track = load_track("sdc-assen")
+    route = track.route
+    i_late = int(np.flatnonzero(np.abs(route.s_m - 500.1) < 0.03)[0])  # the second pass over the crossing
+    point = route.xy_m[i_late]
+    assert abs(project_onto(route, point, hint=i_late - 10).s_m - route.s_m[i_late]) < 0.1
+    assert abs(project_onto(route, point, hint=5).s_m - route.s_m[5]) < 1.0  # the first pass
+
+
+def test_segments_that_do_not_close_are_rejected():
+    spec = TrackSpec(centerline=CenterlineSpec(closed=True, segments=(Segment(straight_m=10.0),
+                                                                      Segment(radius_m=5.0, angle_deg=90.0))))
+    with pytest.raises(ConfigError, match="closed"):
+        build_track(spec)
+
+
+def test_a_typo_in_a_track_file_names_the_key():
+    with pytest.raises(ConfigError, match=r"track\.left\.cone_gap"):
+        merge_config(TrackSpec(), {"left": {"cone_gap": 2.0}}, "track")
+    with pytest.raises(ConfigError, match=r"track.centerline.segments\[0\].radius"):
+        merge_config(TrackSpec(), {"centerline": {"segments": [{"radius": 3}]}}, "track")
+
+
+def test_unknown_track_name_lists_the_bundled_ones():
+    with pytest.raises(ConfigError, match="utrack"):
+        load_track("monza")
+
+
+def test_track_file_from_a_path(tmp_path):
+    path = tmp_path / "oval.yaml"
+    path.write_text("name: oval\ncenterline:\n  segments:\n    - {radius_m: 10, angle_deg: 360}\nwidth_m: 2\n")
+    track = load_track(path)
+    assert track.route.length_m == pytest.approx(2 * math.pi * 10, abs=0.05)
+    assert track.route.curvature_1pm.mean() == pytest.approx(0.1, abs=1e-3)
