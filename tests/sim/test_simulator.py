@@ -81,3 +81,15 @@ def test_the_simulator_stops_delivering_when_the_run_is_over():
             sim.send(ActuatorCommand.stop(frames.stamp_ns))
             steps += 1
     assert steps == 15 and sim.done
+
+
+def test_motion_blur_smooths_the_image_of_a_moving_kart():
+    def sharpness(subframes: int) -> float:
+        effects = CameraEffectsConfig(noise_sigma=0.0, motion_blur_subframes=subframes, exposure_time_s=0.03)
+        with Simulator(SimConfig(track="straight20", cameras=("left",), effects=effects)) as sim:
+            sim.state = type(sim.state)(x_m=sim.state.x_m, y_m=sim.state.y_m, vx_mps=4.0, yaw_rate_radps=0.5)
+            image = sim.read().images["left"]
+        gray = image.mean(axis=2)
+        return float(np.var(np.diff(gray[300:], axis=0)))
+
+    assert sharpness(4) < 0.8 * sharpness(1)
