@@ -15,6 +15,7 @@ from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError, RecordingError
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image
 from kartpilot.record.recording import RecordingReader, RecordingWriter
+from kartpilot.runtime.lane_policy import LanePolicy, LanePolicyConfig
 from kartpilot.runtime.loop import Policy, Recorder, run_loop
 from kartpilot.sim.drivers import CenterlineDriver, CenterlineDriverConfig, CommandsDriver
 from kartpilot.sim.referee import RunResult
@@ -44,7 +45,8 @@ def load_commands(path: str | Path) -> list[ActuatorCommand]:
 def run_simulation(config: SimConfig, driver: str = "centerline",
                    driver_config: CenterlineDriverConfig | None = None, commands: str | Path | None = None,
                    record_dir: str | Path | None = None, video_path: str | Path | None = None,
-                   result_path: str | Path | None = None, progress: bool = False) -> SimRun:
+                   result_path: str | Path | None = None, progress: bool = False,
+                   lane_config: LanePolicyConfig | None = None) -> SimRun:
     """Drive one run and write what was asked for. The result JSON always goes next to the recording."""
     with Simulator(config) as sim:
         policy: Policy
@@ -54,8 +56,12 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
             if commands is None:
                 raise ConfigError("the commands driver needs a recording or commands.csv to replay")
             policy = CommandsDriver(load_commands(commands))
+        elif driver == "lanes":
+            if not config.render_images:
+                raise ConfigError("the lanes driver needs rendered images")
+            policy = LanePolicy(sim.cameras, lane_config, config.camera_rate_hz)
         else:
-            raise ConfigError(f"unknown driver {driver!r} (centerline or commands)")
+            raise ConfigError(f"unknown driver {driver!r} (centerline, commands or lanes)")
 
         recorders: list[Recorder] = []
         writer: RecordingWriter | None = None

@@ -64,7 +64,8 @@ class DisturbanceConfig:
 
 @dataclass(frozen=True)
 class SimConfig:
-    """One simulated run. ``cameras`` empty means every camera of the vehicle."""
+    """One simulated run. ``cameras`` empty means every camera of the vehicle; ``speed_mode_mps`` caps the
+    kart's top speed like the SDC kart's speed modes (0: the vehicle's own top speed)."""
 
     track: str = "utrack"
     vehicle: str = "rc-kart"
@@ -74,6 +75,7 @@ class SimConfig:
     render_images: bool = True
     show_cones: bool = True
     max_time_s: float = 0.0
+    speed_mode_mps: float = 0.0
     render: RenderConfig = field(default_factory=RenderConfig)
     effects: CameraEffectsConfig = field(default_factory=CameraEffectsConfig)
     disturbances: DisturbanceConfig = field(default_factory=DisturbanceConfig)
@@ -99,6 +101,8 @@ class Simulator:
             raise ConfigError("sim.camera_rate_hz must be positive")
         self.track = track or load_track(config.track)
         self.vehicle = vehicle or get_vehicle(config.vehicle)
+        if config.speed_mode_mps > 0:
+            self.vehicle = replace(self.vehicle, top_speed_mps=min(self.vehicle.top_speed_mps, config.speed_mode_mps))
         names = config.cameras or tuple(name for name, _ in self.vehicle.cameras)
         self.cameras = {name: self.vehicle.camera(name) for name in names}
         self.dt_s = 1.0 / config.camera_rate_hz

@@ -1,0 +1,146 @@
+"""Steering and speed from lane boundaries: the thesis's lane follower, with what it lacked.
+
+The thesis steered toward the boundaries' intersection (its equations 1 and 2), kept the last steer
+for a few frames when no boundary was seen and then halted, used a slower throttle in turns, and let
+the side cameras' off-track steer override the centre camera. It oscillated and settled off-centre.
+Added here: a lateral-offset term (the lane centre against the image centre), exponential smoothing
+and a rate limit on the steer, a side preference at splits (the lane suddenly widening), and a fusion
+rule for both side cameras at once that steers away from the nearer boundary.
+
+``lane_follow_step`` is a pure function: state in, decision and state out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from kartpilot.perception.lanes import LaneLine, LaneObservation, heading_deviation_rad, intersection
+
+__all__ = ["LaneDecision", "LaneFollowConfig", "LaneFollowState", "lane_follow_step"]
+
+
+@dataclass(frozen=True)
+class LaneFollowConfig:
+    """Attributes:
+        max_steer_rad: the kart's maximum steer (S_max in the thesis).
+        heading_gain: steer per radian of heading deviation (1: the thesis).
+        offset_gain: steer (rad) per unit of lateral offset, the lane centre's distance from the image
+            centre at the bottom row over the lane's width there (0: the thesis).
+        smoothing: weight of the previous steer in the exponential smoothing (0: none, the thesis).
+        max_steer_rate_radps: how fast the commanded steer may change.
+        hold_frames: frames the last steer is kept when no boundary is seen; then the kart halts.
+        throttle_straight, throttle_turn, turn_threshold_rad: fixed throttles, the lower one when the
+            commanded steer exceeds the threshold.
+        split_preference: which side's boundary to follow when the lane suddenly widens (a split).
+        split_width_ratio: how much wider than usual the lane must look to count as a split.
+        both_sides: with both side cameras steering, ``nearer`` steers away from the nearer boundary;
+            ``thesis`` always takes the left camera's steer to the right.
+        missing_side: with one boundary seen, put the other a remembered lane width away (``lane_width``)
+            or use the image's extreme column as the thesis did (``extreme``).
+    """
+
+    max_steer_rad: float = 0.40
+    heading_gain: float = 0.6
+    offset_gain: float = 0.25
+    smoothing: float = 0.4
+    max_steer_rate_radps: float = 1.5
+    hold_frames: int = 8
+    throttle_straight: float = 1.0
+    throttle_turn: float = 0.6
+    turn_threshold_rad: float = 0.12
+    split_preference: Literal["right", "left"] = "right"
+    split_width_ratio: float = 1.45
+    both_sides: Literal["nearer", "thesis"] = "nearer"
+    missing_side: Literal["lane_width", "extreme"] = "lane_width"
+
+
+@dataclass(frozen=True)
+class LaneFollowState:
+    steer_rad: float = 0.0
+    frames_without_lane: int = 0
+    lane_width_bottom_px: float = 0.0
+    lane_width_top_px: float = 0.0
+
+
+@dataclass(frozen=True)
+class LaneDecision:
+    """Steer (rad, positive left), throttle and brake, and which rule produced them."""
+
+    steer_rad: float
+    throttle: float
+    brake: float
+    reason: Literal["centre", "split", "side-left", "side-right", "hold", "halt"]
+
+
+def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: LaneObservation | None,
+                     away_from_left: float = 0.0, away_from_right: float = 0.0, dt_s: float = 1 / 30
+                     ) -> tuple[LaneDecision, LaneFollowState]:
+    """One control step.
+
+    Args:
+        centre: the centre camera's observation (None when the camera delivered nothing).
+        away_from_left, away_from_right: the side cameras' steers away from a boundary, 0 to 1.
+    """
+    max_step = config.max_steer_rate_radps * dt_s
+
+    def limited(target: float) -> float:
+        target = max(-config.max_steer_rad, min(config.max_steer_rad, target))
+        return state.steer_rad + max(-max_step, min(max_step, target - state.steer_rad))
+
+    if away_from_left > 0 or away_from_right > 0:
+        if away_from_left > 0 and away_from_right > 0:
+            use_left = config.both_sides == "thesis" or away_from_left >= away_from_right
+        else:
+            use_left = away_from_left > 0
+        steer = -away_from_left * config.max_steer_rad if use_left else away_from_right * config.max_steer_rad
+        steer = limited(steer)
+        decision = LaneDecision(steer, config.throttle_turn, 0.0, "side-left" if use_left else "side-right")
+        return decision, LaneFollowState(steer, 0, state.lane_width_bottom_px, state.lane_width_top_px)
+
+    if centre is None or not centre.any_detected:
+        missing = state.frames_without_lane + 1
+        if missing <= config.hold_frames:
+            hold = LaneDecision(state.steer_rad, config.throttle_turn, 0.0, "hold")
+            return hold, LaneFollowState(state.steer_rad, missing, state.lane_width_bottom_px, state.lane_width_top_px)
+        return LaneDecision(state.steer_rad, 0.0, 1.0, "halt"), LaneFollowState(
+            state.steer_rad, missing, state.lane_width_bottom_px, state.lane_width_top_px)
+
+    width_b, width_t = state.lane_width_bottom_px, state.lane_width_top_px
+    reason: Literal["centre", "split"] = "centre"
+    left, right, target = centre.left, centre.right, centre.intersection_px
+    virtual = False
+    if centre.both_detected:
+        now_b, now_t = right.x_bottom - left.x_bottom, right.x_top - left.x_top
+        if width_b > 0 and now_b > config.split_width_ratio * width_b:
+            reason = "split"
+            left, right = _keep_one_side(config.split_preference, left, right, width_b, width_t)
+            target, virtual = intersection(left, right), True
+        else:
+            width_b = now_b if width_b <= 0 else 0.9 * width_b + 0.1 * now_b
+            width_t = now_t if width_t <= 0 else 0.9 * width_t + 0.1 * now_t
+    elif config.missing_side == "lane_width" and width_b > 0:
+        seen = "right" if centre.right_source == "detected" else "left"
+        left, right = _keep_one_side(seen, left, right, width_b, width_t)
+        target, virtual = intersection(left, right), True
+    deviation = heading_deviation_rad(centre, target)  # positive: the lane goes right
+    steer_right = config.heading_gain * deviation
+    if centre.both_detected or virtual:
+        lane_centre = (left.x_bottom + right.x_bottom) / 2
+        lane_width = max(right.x_bottom - left.x_bottom, 1.0)
+        steer_right += config.offset_gain * (lane_centre - (centre.width_px - 1) / 2) / lane_width
+    target_steer = -steer_right
+    smoothed = config.smoothing * state.steer_rad + (1 - config.smoothing) * target_steer
+    steer = limited(smoothed)
+    throttle = config.throttle_turn if abs(steer) > config.turn_threshold_rad else config.throttle_straight
+    return LaneDecision(steer, throttle, 0.0, reason), LaneFollowState(steer, 0, width_b, width_t)
+
+
+def _keep_one_side(side: str, left: LaneLine, right: LaneLine, width_b: float, width_t: float
+                   ) -> tuple[LaneLine, LaneLine]:
+    """At a split, keep the preferred boundary and put the other one a usual lane width away."""
+    if side == "right":
+        virtual = LaneLine(right.x_bottom - width_b, right.y_bottom, right.x_top - width_t, right.y_top)
+        return virtual, right
+    virtual = LaneLine(left.x_bottom + width_b, left.y_bottom, left.x_top + width_t, left.y_top)
+    return left, virtual

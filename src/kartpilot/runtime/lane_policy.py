@@ -1,0 +1,107 @@
+"""The lane-following pipeline as a policy: camera images in, an actuator command out.
+
+Centre camera: :func:`detect_lanes`; side cameras: :func:`detect_side_boundary` in a region of search
+computed from each camera's calibration (the ground between ``near_m`` and ``far_m`` beside the kart,
+where a boundary appears only when the kart is close to it); then :func:`lane_follow_step`. The same
+policy drives the simulator, a replay or the real kart.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from kartpilot.control.lane_follow import LaneDecision, LaneFollowConfig, LaneFollowState, lane_follow_step
+from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.errors import CalibrationError
+from kartpilot.core.types import ActuatorCommand, FrameSet
+from kartpilot.perception.lanes import (
+    LaneConfig,
+    LaneObservation,
+    SideSearchConfig,
+    detect_lanes,
+    detect_side_boundary,
+)
+
+__all__ = ["LanePolicy", "LanePolicyConfig", "side_search_band"]
+
+
+@dataclass(frozen=True)
+class LanePolicyConfig:
+    """Attributes:
+        near_m, far_m: the side cameras' region of search, as distances from the kart's side.
+        kart_half_width_m: half the kart's width (where "beside the kart" starts).
+        roi_far_m: the centre camera's region of interest starts at the row where the ground this far
+            ahead appears (from the calibration; overrides ``lanes.roi_top``).
+    """
+
+    # a kart's camera sees a wide road from close to the ground: the boundaries run out to the image's
+    # sides at shallow slopes, so the region is a full-width band and shallow lines are kept
+    lanes: LaneConfig = field(default_factory=lambda: LaneConfig(roi_top_width=1.0, min_abs_slope=0.1))
+    side: SideSearchConfig = field(default_factory=SideSearchConfig)
+    follow: LaneFollowConfig = field(default_factory=LaneFollowConfig)
+    near_m: float = 0.15
+    far_m: float = 0.9
+    kart_half_width_m: float = 0.6
+    roi_far_m: float = 25.0
+
+
+def side_search_band(camera: PinholeCamera, side: str, near_m: float, far_m: float, half_width_m: float
+                     ) -> tuple[tuple[int, int], int]:
+    """((far_row, near_row), inner_column) of the ground beside the kart as this camera sees it."""
+    sign = 1.0 if side == "left" else -1.0
+    x = float(camera.pose_body_cam_array[0, 3])
+    body = np.array([[x, sign * (half_width_m + far_m), 0.0], [x, sign * (half_width_m + near_m), 0.0]])
+    cam_from_body = np.linalg.inv(camera.pose_body_cam_array)
+    points = (cam_from_body[:3, :3] @ body.T).T + cam_from_body[:3, 3]
+    if np.any(points[:, 2] <= 0):
+        raise CalibrationError(f"the {side} camera does not see the ground beside the kart")
+    pixels = camera.project(points)
+    far_row, near_row = (round(v) for v in pixels[:, 1])
+    if not 0 <= far_row < near_row <= camera.height_px + 40:
+        raise CalibrationError(f"the {side} camera's region of search (rows {far_row} to {near_row}) is off the image")
+    return (far_row, min(near_row, camera.height_px)), round(pixels[1, 0])
+
+
+def _ground_row(camera: PinholeCamera, ahead_m: float) -> float:
+    """The image row of the ground ``ahead_m`` in front of the camera, on the kart's centre line."""
+    x = float(camera.pose_body_cam_array[0, 3]) + ahead_m
+    cam_from_body = np.linalg.inv(camera.pose_body_cam_array)
+    point = cam_from_body[:3, :3] @ np.array([x, 0.0, 0.0]) + cam_from_body[:3, 3]
+    if point[2] <= 0:
+        raise CalibrationError("the centre camera does not look ahead")
+    return float(camera.project(point[None])[0, 1])
+
+
+class LanePolicy:
+    """Holds the follower's state from frame to frame; everything else is pure functions."""
+
+    def __init__(self, cameras: dict[str, PinholeCamera], config: LanePolicyConfig | None = None,
+                 rate_hz: float = 30.0) -> None:
+        self.config = config or LanePolicyConfig()
+        if "center" not in cameras:
+            raise CalibrationError("lane following needs a camera named 'center'")
+        centre = cameras["center"]
+        top_row = _ground_row(centre, self.config.roi_far_m)
+        lanes = replace(self.config.lanes, roi_top=min(max(top_row / centre.height_px, 0.0), 0.9))
+        self.config = replace(self.config, lanes=lanes)
+        self.bands = {side: side_search_band(cameras[side], side, self.config.near_m, self.config.far_m,
+                                             self.config.kart_half_width_m)
+                      for side in ("left", "right") if side in cameras}
+        self.state = LaneFollowState()
+        self.dt_s = 1.0 / rate_hz
+        self.last_observation: LaneObservation | None = None
+        self.last_decision: LaneDecision | None = None
+
+    def __call__(self, frames: FrameSet) -> ActuatorCommand:
+        centre_image = frames.images.get("center")
+        observation = detect_lanes(centre_image, self.config.lanes) if centre_image is not None else None
+        away = {}
+        for side, (band, column) in self.bands.items():
+            image = frames.images.get(side)
+            away[side] = detect_side_boundary(image, band, column, self.config.side).steer if image is not None else 0.0
+        decision, self.state = lane_follow_step(self.config.follow, self.state, observation, away.get("left", 0.0),
+                                                away.get("right", 0.0), self.dt_s)
+        self.last_observation, self.last_decision = observation, decision
+        return ActuatorCommand(frames.stamp_ns, decision.steer_rad, decision.throttle, decision.brake)
