@@ -38,6 +38,7 @@ def test_eval_command(tmp_path, capsys) -> None:
         (["sim", "--driver", "commands", "--no-render"], "needs a recording"),
         (["sim", "--cameras", "rear", "--no-render"], "has no camera 'rear'"),
         (["sim", "--no-render", "--record", "out"], "--no-render cannot record"),
+        (["lanes", "/does/not/exist.jpg", "--out", "x.txt"], "input not found"),
     ],
 )
 def test_user_mistakes_give_one_line_and_exit_1(argv: list[str], message: str, capsys, tmp_path) -> None:
@@ -70,3 +71,26 @@ def test_sim_config_file_is_merged_and_checked(tmp_path, capsys) -> None:
     config.write_text("sim:\n  referee: {laps: 1}\n  effects: {noise_sigmaa: 3}\n")
     assert main(["sim", "--no-render", "--config", str(config)]) == 1
     assert "sim.effects.noise_sigmaa" in capsys.readouterr().err
+
+
+def test_lanes_writes_one_row_per_frame_with_the_documented_columns(tmp_path, capsys) -> None:
+    import csv
+
+    import cv2
+    import numpy as np
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in range(3):
+        image = np.full((540, 960, 3), 80, np.uint8)
+        cv2.line(image, (100, 539), (480, 300), (235, 235, 235), 8)
+        cv2.line(image, (860, 539), (480, 300), (235, 235, 235), 8)
+        cv2.imwrite(str(folder / f"{k}.png"), image)
+    out = tmp_path / "lanes.csv"
+    assert main(["lanes", str(folder), "--out", str(out), "--overlay", str(tmp_path / "overlay")]) == 0
+    rows = list(csv.DictReader(out.open()))
+    assert len(rows) == 3 and list(rows[0]) == ["frame", "left_x1", "left_y1", "left_x2", "left_y2", "right_x1",
+                                                "right_y1", "right_x2", "right_y2", "left_source", "right_source",
+                                                "steer", "confidence"]
+    assert rows[0]["left_source"] == "detected" and abs(float(rows[0]["left_x1"]) - 100) < 15
+    assert len(list((tmp_path / "overlay").glob("*.png"))) == 3

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import math
 import shutil
@@ -10,9 +11,11 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 from tqdm import tqdm
 
+from kartpilot.control.lane_follow import LaneFollowState, lane_follow_step
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.trajectory import Trajectory, read_trajectory, write_trajectory
 from kartpilot.eval.disparity import bad_pixel_rate, disparity_search_range_px, load_middlebury_pair
@@ -20,11 +23,14 @@ from kartpilot.eval.plots import plot_trajectories
 from kartpilot.eval.trajectory_metrics import TrajectoryMetrics, evaluate_trajectory
 from kartpilot.odometry.run import OdometryRun, run_stereo_vo
 from kartpilot.odometry.stereo_vo import StereoVOConfig
+from kartpilot.perception.lanes import LaneStages, detect_lanes, draw_lanes
 from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
 from kartpilot.record.recording import RecordingStereoSource
+from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sensors.base import StereoSource
+from kartpilot.sensors.donkeycar import DonkeyTub
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
 from kartpilot.sim.drivers import CenterlineDriverConfig
@@ -32,7 +38,7 @@ from kartpilot.sim.referee import RunResult
 from kartpilot.sim.simulator import SimConfig
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
 
-__all__ = ["demo", "disparity", "evaluate", "odometry", "run_and_report", "simulate"]
+__all__ = ["demo", "disparity", "evaluate", "lanes", "odometry", "run_and_report", "simulate", "steer_agreement"]
 
 
 def _open_source(args: argparse.Namespace) -> StereoSource:
@@ -148,13 +154,90 @@ def simulate(args: argparse.Namespace) -> int:
         config = replace(config, render_images=False)
     driver_overrides = {"speed_mps": args.speed, "weave_amplitude_m": args.weave, "edge_offset_m": args.edge_offset}
     driver = replace(driver, **{k: v for k, v in driver_overrides.items() if v is not None})
+    if args.speed_mode is not None:
+        config = replace(config, speed_mode_mps=args.speed_mode / 3.6)
     run = run_simulation(config, args.driver, driver, args.commands, args.record, args.video, args.result,
-                         progress=not args.no_progress)
+                         progress=not args.no_progress, lane_config=stack.lane_policy)
     _print_result(run.result, run)
     for label, path in (("recording", args.record), ("video", args.video), ("result", args.result)):
         if path:
             print(f"{label} written to {path}")
     return 0
+
+
+LANE_COLUMNS = ("frame", "left_x1", "left_y1", "left_x2", "left_y2", "right_x1", "right_y1", "right_x2", "right_y2",
+                "left_source", "right_source", "steer", "confidence")
+
+
+def lanes(args: argparse.Namespace) -> int:
+    """Lane boundaries per frame to CSV (steer in radians, positive left), with optional overlays; on a
+    Donkey Car tub, the agreement of the steer with the human driver's."""
+    stack = load_stack_config(args.config)
+    kind, frames = open_frames(args.input)
+    follow = stack.lane_policy.follow
+    state = LaneFollowState()
+    overlay = _Overlay(args.overlay) if args.overlay else None
+    steers: list[float] = []
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    with Path(args.out).open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(LANE_COLUMNS)
+        for frame_set in frames:
+            image = frame_set.images["center"]
+            stages = LaneStages() if args.stages else None
+            observation = detect_lanes(image, stack.lane_detection, stages)
+            decision, state = lane_follow_step(follow, state, observation)
+            steers.append(decision.steer_rad)
+            row: list[object] = [frame_set.index]
+            for line, source in ((observation.left, observation.left_source),
+                                 (observation.right, observation.right_source)):
+                row += [f"{v:.1f}" for v in line.as_tuple()] if source == "detected" else ["", "", "", ""]
+            row += [observation.left_source, observation.right_source, f"{decision.steer_rad:.5f}",
+                    f"{observation.confidence:.3f}"]
+            writer.writerow(row)
+            if overlay is not None:
+                overlay.write(frame_set.index, draw_lanes(image, observation, decision.steer_rad, stages))
+    if overlay is not None:
+        overlay.close()
+    print(f"{len(steers)} frames ({kind}) -> {args.out}")
+    if kind == "donkeycar-tub":
+        angles = np.array([r.angle for r in DonkeyTub(args.input).records])
+        report = steer_agreement(-np.asarray(steers), angles)  # Donkey Car's angle is positive to the right
+        print(f"steer vs the human's user/angle: correlation {report['correlation']:.3f}, "
+              f"sign agreement {100 * report['sign_agreement']:.1f} % over {report['frames_compared']} frames "
+              f"where the human steered")
+    return 0
+
+
+def steer_agreement(steer_right: np.ndarray, human_right: np.ndarray, deadband: float = 0.05) -> dict[str, float]:
+    """Pearson correlation over all frames; sign agreement where the human steered beyond the deadband."""
+    corr = float(np.corrcoef(steer_right, human_right)[0, 1]) if np.std(steer_right) > 0 else float("nan")
+    steered = np.abs(human_right) > deadband
+    agree = float(np.mean(np.sign(steer_right[steered]) == np.sign(human_right[steered]))) if steered.any() else float(
+        "nan")
+    return {"correlation": corr, "sign_agreement": agree, "frames_compared": int(steered.sum())}
+
+
+class _Overlay:
+    def __init__(self, target: str) -> None:
+        self.path = Path(target)
+        self.video: cv2.VideoWriter | None = None
+        if self.path.suffix.lower() not in VIDEO_SUFFIXES:
+            self.path.mkdir(parents=True, exist_ok=True)
+
+    def write(self, index: int, image: np.ndarray) -> None:
+        if self.path.suffix.lower() in VIDEO_SUFFIXES:
+            if self.video is None:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                h, w = image.shape[:2]
+                self.video = cv2.VideoWriter(str(self.path), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (w, h))
+            self.video.write(image)
+        else:
+            cv2.imwrite(str(self.path / f"{index:06d}.png"), image)
+
+    def close(self) -> None:
+        if self.video is not None:
+            self.video.release()
 
 
 def demo(args: argparse.Namespace) -> int:

@@ -63,7 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim = sub.add_parser("sim", help="drive a simulated kart on a track, judged by the referee")
     sim.add_argument("--track", help="bundled track name (utrack, sdc-assen, straight20) or a track YAML file")
     sim.add_argument("--vehicle", choices=("rc-kart", "sdc-kart"))
-    sim.add_argument("--driver", choices=("centerline", "commands"), default="centerline")
+    sim.add_argument("--driver", choices=("centerline", "commands", "lanes"), default="centerline",
+                     help="lanes: the lane-following pipeline on the rendered cameras (sdc-kart)")
+    sim.add_argument("--speed-mode", type=float, help="cap the top speed, km/h (the SDC kart's 5/15/30/60 modes)")
     sim.add_argument("--commands", help="recording (or its commands.csv) whose commands the commands driver replays")
     sim.add_argument("--laps", type=int)
     sim.add_argument("--speed", type=float, help="target speed of the centerline driver, m/s")
@@ -80,6 +82,14 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--config", help="YAML file merged over the defaults (sections sim, centerline_driver)")
     sim.add_argument("--no-progress", action="store_true")
     sim.set_defaults(handler=commands.simulate)
+
+    lanes = sub.add_parser("lanes", help="lane boundaries and steer for an image, folder, video, recording or tub")
+    lanes.add_argument("input")
+    lanes.add_argument("--out", required=True, help="CSV, one row per frame")
+    lanes.add_argument("--overlay", help="write the frames with the lanes drawn: a .mp4 file or a folder")
+    lanes.add_argument("--stages", action="store_true", help="draw the raw and clustered lines too")
+    lanes.add_argument("--config", help="YAML file merged over the defaults (sections lane_detection, lane_policy)")
+    lanes.set_defaults(handler=commands.lanes)
 
     demo = sub.add_parser("demo", help="the main job on an embedded default (see README)")
     demo.add_argument("--out", default="demo_out")

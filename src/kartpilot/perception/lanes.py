@@ -67,6 +67,7 @@ class LaneConfig:
         cluster: keep only the lines with an intercept beyond the side's mean (the thesis's clustering).
         min_brightness_contrast: a boundary must be this many grey levels brighter than the region's median
             beside it (paint is; tyre marks, shadows and barrier bases are darker). 0: off, as in the thesis.
+        paint: ``dark`` for dark tape on a light floor (the check then wants darker lines).
         yellow_boost: add this times max(0, min(R, G) - B) to the grey level, so yellow paint stands out on
             light concrete where plain grey has no contrast (0: plain grayscale, as in the thesis).
     """
@@ -90,6 +91,7 @@ class LaneConfig:
     cluster: bool = True
     yellow_boost: float = 1.0
     min_brightness_contrast: float = 30.0
+    paint: Literal["bright", "dark"] = "bright"
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.roi_top < 1.0:
@@ -172,9 +174,11 @@ def detect_lanes(image: Image, config: LaneConfig = LaneConfig(), stages: LaneSt
     if stages is not None:
         stages.after_position = np.vstack([left, right])
     left, right = _slope_filter(left, config, w, top), _slope_filter(right, config, w, top)
+    left, right = _longest(left, _MAX_SEGMENTS), _longest(right, _MAX_SEGMENTS)
     if config.min_brightness_contrast > 0:
-        floor = float(np.median(gray[top:])) + config.min_brightness_contrast
-        left, right = _bright(gray, left, floor), _bright(gray, right, floor)
+        sign = 1.0 if config.paint == "bright" else -1.0
+        floor = sign * float(np.median(gray[top:])) + config.min_brightness_contrast
+        left, right = _painted(gray, left, floor, sign), _painted(gray, right, floor, sign)
     if stages is not None:
         stages.after_slope = np.vstack([left, right])
     if config.cluster:
@@ -220,10 +224,11 @@ class SideSearchConfig:
             median (painted lines are; tyre marks are darker than the tarmac, the thesis's false positives).
     """
 
+    process_scale: float = 0.5
     blur_px: int = 5
     canny_low: float = 50.0
     canny_high: float = 150.0
-    hough_threshold: int = 30
+    hough_threshold: int = 20
     min_line_length: float = 0.15
     max_line_gap: float = 0.03
     max_abs_slope: float = 1.2
@@ -250,18 +255,22 @@ def detect_side_boundary(image: Image, band_rows: tuple[int, int], inner_column:
     far, near = max(0, far), min(h, near)
     if near - far < 4:
         raise PerceptionError(f"the side region of search {band_rows} is empty in a {w}x{h} image")
-    band = cv2.GaussianBlur(gray[far:near], (config.blur_px, config.blur_px), 0)
-    edges = cv2.Canny(band, config.canny_low, config.canny_high)
+    scale = config.process_scale
+    band = gray[far:near]
+    small = band if scale == 1.0 else cv2.resize(band, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    edges = cv2.Canny(cv2.GaussianBlur(small, (config.blur_px, config.blur_px), 0), config.canny_low,
+                      config.canny_high)
     found = cv2.HoughLinesP(edges, 1, np.pi / 180, config.hough_threshold,
-                            minLineLength=config.min_line_length * w, maxLineGap=config.max_line_gap * w)
+                            minLineLength=config.min_line_length * w * scale,
+                            maxLineGap=config.max_line_gap * w * scale)
     if found is None:
         return SideObservation(0.0, None)
-    segs = found.reshape(-1, 4).astype(np.float64)
+    segs = _longest(found.reshape(-1, 4).astype(np.float64) / scale, _MAX_SEGMENTS)
     dx, dy = segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1]
     segs = segs[np.abs(dy) <= config.max_abs_slope * np.abs(dx) + 1e-9]
     if len(segs) == 0:
         return SideObservation(0.0, None)
-    median = float(np.median(band))
+    median = float(np.median(small))
     bright = [s for s in segs if _line_brightness(band, s) > median + config.min_brightness_contrast]
     if not bright:
         return SideObservation(0.0, None)
@@ -399,10 +408,22 @@ def _slope_filter(segs: Segments, config: LaneConfig, w: int, top: float) -> Seg
     return segs[np.abs(x_top - (w - 1) / 2) <= config.max_top_offset * w]
 
 
-def _bright(gray: Image, segs: Segments, floor: float) -> Segments:
+_MAX_SEGMENTS = 40  # per side: the longest ones carry the boundary; more only cost time
+
+
+def _longest(segs: Segments, count: int) -> Segments:
+    if len(segs) <= count:
+        return segs
+    return segs[np.argsort(-_length(segs))[:count]]
+
+
+def _painted(gray: Image, segs: Segments, floor: float, sign: float) -> Segments:
+    """Segments beside which the image is brighter (sign 1) or darker (sign -1) than the floor."""
     if len(segs) == 0:
         return segs
-    return segs[np.array([_line_brightness(gray, seg) > floor for seg in segs], bool)]
+    source = gray if sign > 0 else cv2.bitwise_not(gray)
+    return segs[np.array([_line_brightness(source, seg) > floor + (255.0 if sign < 0 else 0.0) for seg in segs],
+                         bool)]
 
 
 def _cluster(segs: Segments, side: str) -> Segments:

@@ -18,6 +18,8 @@ from pathlib import Path
 
 from kartpilot.core.config import load_yaml_mapping, merge_config
 from kartpilot.odometry.stereo_vo import StereoVOConfig
+from kartpilot.perception.lanes import LaneConfig
+from kartpilot.runtime.lane_policy import LanePolicyConfig
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import SimConfig
 
@@ -29,6 +31,8 @@ class StackConfig:
     stereo_vo: StereoVOConfig = field(default_factory=StereoVOConfig)
     sim: SimConfig = field(default_factory=SimConfig)
     centerline_driver: CenterlineDriverConfig = field(default_factory=CenterlineDriverConfig)
+    lane_detection: LaneConfig = field(default_factory=LaneConfig)
+    lane_policy: LanePolicyConfig = field(default_factory=LanePolicyConfig)
 
 
 def load_stack_config(path: str | Path | None) -> StackConfig:

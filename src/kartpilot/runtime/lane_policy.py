@@ -59,7 +59,7 @@ def side_search_band(camera: PinholeCamera, side: str, near_m: float, far_m: flo
         raise CalibrationError(f"the {side} camera does not see the ground beside the kart")
     pixels = camera.project(points)
     far_row, near_row = (round(v) for v in pixels[:, 1])
-    if not 0 <= far_row < near_row <= camera.height_px + 40:
+    if not (far_row < near_row and 0 <= far_row < camera.height_px - 8):
         raise CalibrationError(f"the {side} camera's region of search (rows {far_row} to {near_row}) is off the image")
     return (far_row, min(near_row, camera.height_px)), round(pixels[1, 0])
 

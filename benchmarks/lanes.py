@@ -1,0 +1,114 @@
+"""Lane-following speed on one core: the centre-camera pipeline, and all three cameras with fusion.
+
+Centre camera: the real road photos at 960x540 (``../shared/data/road-lanes/udacity-p1``, or simulated
+frames when absent). Three cameras: the sdc-kart's cameras re-made at 960x540 and rendered by the
+simulator on sdc-assen. Frames are preloaded; OpenCV runs on one thread. Prints per-stage ms and
+frames per second, writes JSON.
+
+    python benchmarks/lanes.py --data ../shared/data --out benchmarks/results/lanes.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from kartpilot.control.lane_follow import LaneFollowConfig, LaneFollowState, lane_follow_step
+from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.types import FrameSet
+from kartpilot.perception.lanes import LaneConfig, detect_lanes
+from kartpilot.runtime.lane_policy import LanePolicy
+from kartpilot.sim.dynamics import VehicleState
+from kartpilot.sim.render import Renderer
+from kartpilot.sim.simulator import body_pose
+from kartpilot.sim.track import load_track
+from kartpilot.sim.vehicle import get_vehicle
+
+W, H = 960, 540
+
+
+def kart_cameras_960() -> dict[str, PinholeCamera]:
+    """The sdc-kart's cameras with the same poses and fields of view, at 960x540."""
+    out = {}
+    for name, cam in get_vehicle("sdc-kart").cameras:
+        f = cam.fx_px * W / cam.width_px
+        out[name] = PinholeCamera(f, f, (W - 1) / 2, (H - 1) / 2, W, H, (), cam.pose_body_cam)
+    return out
+
+
+def simulated_frames(cameras: dict[str, PinholeCamera], count: int) -> list[FrameSet]:
+    track = load_track("sdc-assen")
+    route = track.route
+    frames = []
+    with Renderer(track, cameras) as renderer:
+        for k in range(count):
+            i = (track.start_index + 40 * k) % len(route.s_m)
+            body = body_pose(VehicleState(x_m=float(route.xy_m[i, 0]), y_m=float(route.xy_m[i, 1]),
+                                          yaw_rad=float(route.heading_rad[i])))
+            images = renderer.render({n: body @ c.pose_body_cam_array for n, c in cameras.items()})
+            frames.append(FrameSet(k, k, images))
+    return frames
+
+
+def timed(function: Callable[[Any], object], items: Sequence[Any], repeats: int) -> float:
+    start = time.perf_counter()
+    for _ in range(repeats):
+        for item in items:
+            function(item)
+    return (time.perf_counter() - start) / (repeats * len(items))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", default="../shared/data")
+    parser.add_argument("--repeats", type=int, default=50)
+    parser.add_argument("--out", default="benchmarks/results/lanes.json")
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    cameras = kart_cameras_960()
+    sim_frames = simulated_frames(cameras, 20)
+    photos = sorted((Path(args.data) / "road-lanes" / "udacity-p1").glob("*.jpg"))
+    centre_images = [cv2.imread(str(p)) for p in photos] or [f.images["center"] for f in sim_frames]
+    source = "udacity-p1 photos" if photos else "simulated frames"
+    config, follow = LaneConfig(), LaneFollowConfig()
+
+    def centre_step(image: np.ndarray) -> None:
+        lane_follow_step(follow, LaneFollowState(), detect_lanes(image, config))
+
+    centre_s = timed(centre_step, centre_images, args.repeats)
+    stage = {
+        "grayscale": timed(lambda im: cv2.cvtColor(im, cv2.COLOR_BGR2GRAY), centre_images, args.repeats),
+        "detect_lanes": timed(lambda im: detect_lanes(im, config), centre_images, args.repeats),
+    }
+    policy = LanePolicy(cameras)
+    fused_s = timed(policy, sim_frames, max(1, args.repeats // 2))
+    result = {
+        "image_size": [W, H], "centre_source": source, "opencv_threads": cv2.getNumThreads(),
+        "centre_fps": 1.0 / centre_s, "centre_ms": 1000 * centre_s,
+        "three_cameras_fps": 1.0 / fused_s, "three_cameras_ms": 1000 * fused_s,
+        "stage_ms": {k: 1000 * v for k, v in stage.items()},
+        "machine": {"python": platform.python_version(), "opencv": cv2.__version__},
+    }
+    print(f"lane following at {W}x{H}, one OpenCV thread")
+    for name, ms in result["stage_ms"].items():
+        print(f"  {name:<24}{ms:8.2f} ms")
+    print(f"  centre camera + control  {result['centre_ms']:8.2f} ms -> {result['centre_fps']:.0f} "
+          f"frames/s (target 300)")
+    print(f"  three cameras + fusion   {result['three_cameras_ms']:8.2f} ms -> {result['three_cameras_fps']:.0f} "
+          f"frames/s (target 150)")
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,77 @@
+"""Replay from files: one image, a folder of images, a video, a kartpilot recording or a Donkey Car tub,
+all as frame sets with one camera (``center``), so a pipeline cannot tell them apart."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+
+from kartpilot.core.errors import DataError
+from kartpilot.core.types import FrameSet
+from kartpilot.record.recording import RecordingReader
+from kartpilot.sensors.donkeycar import DonkeyTub, is_donkey_tub
+
+__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "open_frames"]
+
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".webm"}
+
+
+def open_frames(path: str | Path, camera: str = "center") -> tuple[str, Iterator[FrameSet]]:
+    """(kind, frames) for whatever ``path`` holds. A recording gives its ``camera`` (or its first one)."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"input not found: {path}")
+    if path.is_file() and path.suffix.lower() in IMAGE_SUFFIXES:
+        return "image", _images([path])
+    if path.is_file() and path.suffix.lower() in VIDEO_SUFFIXES:
+        return "video", _video(path)
+    if path.is_dir() and is_donkey_tub(path):
+        return "donkeycar-tub", DonkeyTub(path).frames()
+    if path.is_dir() and (path / "manifest.json").is_file():
+        reader = RecordingReader(path)
+        name = camera if camera in reader.cameras else next(iter(reader.cameras))
+        return "recording", _recording(reader, name)
+    if path.is_dir():
+        images = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not images:
+            raise DataError(f"no images in {path}")
+        return "folder", _images(images)
+    raise DataError(f"cannot read {path}: not an image, a video, a recording, a tub or a folder of images")
+
+
+def _images(paths: list[Path]) -> Iterator[FrameSet]:
+    for k, path in enumerate(paths):
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if image is None:
+            raise DataError(f"cannot read the image {path}")
+        yield FrameSet(k, k, {"center": image})
+
+
+def _video(path: Path) -> Iterator[FrameSet]:
+    capture = cv2.VideoCapture(str(path))
+    if not capture.isOpened():
+        raise DataError(f"cannot open the video {path}")
+    fps = capture.get(cv2.CAP_PROP_FPS) or 30.0
+    k = 0
+    try:
+        while True:
+            ok, image = capture.read()
+            if not ok:
+                break
+            yield FrameSet(k, int(k * 1e9 / fps), {"center": image})
+            k += 1
+    finally:
+        capture.release()
+    if k == 0:
+        raise DataError(f"the video {path} has no frames")
+
+
+def _recording(reader: RecordingReader, camera: str) -> Iterator[FrameSet]:
+    for k, (stamp, path) in enumerate(reader.frames(camera)):
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if image is None:
+            raise DataError(f"cannot read the recording's frame {path}")
+        yield FrameSet(k, stamp, {"center": image})
