@@ -25,6 +25,7 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/stereo_vo.py --data $(DATA) --out benchmarks/results/stereo_vo.json
 	$(BIN)/python benchmarks/sim_render.py --out benchmarks/results/sim_render.json
+	$(BIN)/python benchmarks/lanes.py --data $(DATA) --out benchmarks/results/lanes.json
 
 demo: $(STAMP)
 	$(BIN)/kartpilot demo --out demo_out

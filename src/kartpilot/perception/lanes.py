@@ -162,10 +162,12 @@ class LaneStages:
 def detect_lanes(image: Image, config: LaneConfig = LaneConfig(), stages: LaneStages | None = None
                  ) -> LaneObservation:
     """Find the ego lane's left and right boundaries in a centre-camera image (BGR or gray)."""
-    gray = _lane_gray(image, config.yellow_boost)
-    h, w = gray.shape
+    if image is None or image.size == 0:
+        raise PerceptionError("empty image")
+    h, w = image.shape[:2]
     top = round(config.roi_top * h)
-    segments, edges = _hough_segments(gray[top:], config, w, top)
+    region = _lane_gray(image[top:], config.yellow_boost)  # only the region of interest is converted
+    segments, edges, median = _hough_segments(region, config, w, top)
     if stages is not None:
         stages.edges = edges
         stages.raw = segments
@@ -177,8 +179,8 @@ def detect_lanes(image: Image, config: LaneConfig = LaneConfig(), stages: LaneSt
     left, right = _longest(left, _MAX_SEGMENTS), _longest(right, _MAX_SEGMENTS)
     if config.min_brightness_contrast > 0:
         sign = 1.0 if config.paint == "bright" else -1.0
-        floor = sign * float(np.median(gray[top:])) + config.min_brightness_contrast
-        left, right = _painted(gray, left, floor, sign), _painted(gray, right, floor, sign)
+        floor = sign * median + config.min_brightness_contrast
+        left, right = _painted(region, left, floor, sign, top), _painted(region, right, floor, sign, top)
     if stages is not None:
         stages.after_slope = np.vstack([left, right])
     if config.cluster:
@@ -226,8 +228,8 @@ class SideSearchConfig:
 
     process_scale: float = 0.5
     blur_px: int = 5
-    canny_low: float = 50.0
-    canny_high: float = 150.0
+    canny_low: float = 80.0
+    canny_high: float = 200.0
     hough_threshold: int = 20
     min_line_length: float = 0.15
     max_line_gap: float = 0.03
@@ -270,8 +272,8 @@ def detect_side_boundary(image: Image, band_rows: tuple[int, int], inner_column:
     segs = segs[np.abs(dy) <= config.max_abs_slope * np.abs(dx) + 1e-9]
     if len(segs) == 0:
         return SideObservation(0.0, None)
-    median = float(np.median(small))
-    bright = [s for s in segs if _line_brightness(band, s) > median + config.min_brightness_contrast]
+    median = float(np.median(small[::4, ::4]))  # a sparse sample is as good and four times cheaper
+    bright = list(segs[_segment_brightness(band, segs) > median + config.min_brightness_contrast])
     if not bright:
         return SideObservation(0.0, None)
     # the nearest bright line at the inner column sets the steer
@@ -335,14 +337,16 @@ def _lane_gray(image: Image, yellow_boost: float) -> Image:
     return cv2.addWeighted(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), 1.0, yellow, yellow_boost, 0.0)
 
 
-def _hough_segments(region: Image, config: LaneConfig, width: int, top: int) -> tuple[Segments, Image]:
+def _hough_segments(region: Image, config: LaneConfig, width: int, top: int) -> tuple[Segments, Image, float]:
+    """Segments in input pixels, the edge image, and the region's median grey level."""
     scale = config.process_scale
     small = region if scale == 1.0 else cv2.resize(region, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
     k = config.blur_px | 1
     blurred = cv2.GaussianBlur(small, (k, k), 0)
     low, high = config.canny_low, config.canny_high
+    median = float(np.median(blurred[::4, ::4]))
     if config.auto_canny:
-        gain = max(float(np.median(blurred)), 16.0) / 128.0
+        gain = max(median, 16.0) / 128.0
         low, high = low * gain, high * gain
     edges = cv2.Canny(blurred, low, high)
     w_small = small.shape[1]
@@ -356,7 +360,7 @@ def _hough_segments(region: Image, config: LaneConfig, width: int, top: int) -> 
         segs = np.zeros((0, 4)) if found is None else _clip_infinite(found.reshape(-1, 2), small.shape)
     segs = segs / scale
     segs[:, [1, 3]] += top
-    return segs, edges
+    return segs, edges, median
 
 
 def _clip_infinite(lines: NDArray[np.float32], shape: tuple[int, ...]) -> Segments:
@@ -417,13 +421,27 @@ def _longest(segs: Segments, count: int) -> Segments:
     return segs[np.argsort(-_length(segs))[:count]]
 
 
-def _painted(gray: Image, segs: Segments, floor: float, sign: float) -> Segments:
-    """Segments beside which the image is brighter (sign 1) or darker (sign -1) than the floor."""
+def _painted(region: Image, segs: Segments, floor: float, sign: float, top: int) -> Segments:
+    """Segments beside which the region is brighter (sign 1) or darker (sign -1) than the floor."""
     if len(segs) == 0:
         return segs
-    source = gray if sign > 0 else cv2.bitwise_not(gray)
-    return segs[np.array([_line_brightness(source, seg) > floor + (255.0 if sign < 0 else 0.0) for seg in segs],
-                         bool)]
+    source = region if sign > 0 else cv2.bitwise_not(region)
+    local = segs - np.array([0.0, top, 0.0, top])
+    brightness = _segment_brightness(source, local)
+    return segs[brightness > floor + (255.0 if sign < 0 else 0.0)]
+
+
+def _segment_brightness(gray: Image, segs: Segments, samples: int = 16) -> NDArray[np.float64]:
+    """Per segment, how bright the image is beside it: 3 px to either side, the brighter side's upper
+    quartile (an edge lies between paint and tarmac; the quartile ignores the gaps of a dashed line)."""
+    t = np.linspace(0.0, 1.0, samples)
+    xs = segs[:, 0:1] + t * (segs[:, 2:3] - segs[:, 0:1])
+    ys = segs[:, 1:2] + t * (segs[:, 3:4] - segs[:, 1:2])
+    h, w = gray.shape[:2]
+    cols = np.clip(np.rint(xs).astype(np.intp), 0, w - 1)
+    sides = [np.percentile(gray[np.clip(np.rint(ys + d).astype(np.intp), 0, h - 1), cols], 75, axis=1)
+             for d in (-3, 3)]
+    return np.maximum(sides[0], sides[1])
 
 
 def _cluster(segs: Segments, side: str) -> Segments:
@@ -496,14 +514,3 @@ def _x_at(seg: NDArray[np.float64], y: float) -> float:
 
 def _length(segs: Segments) -> NDArray[np.float64]:
     return np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1]) if len(segs) else np.zeros(0)
-
-
-def _line_brightness(gray: Image, seg: NDArray[np.float64]) -> float:
-    x1, y1, x2, y2 = seg
-    n = max(2, int(math.hypot(x2 - x1, y2 - y1) / 2))
-    xs = np.clip(np.linspace(x1, x2, n).round().astype(int), 0, gray.shape[1] - 1)
-    ys = np.clip(np.linspace(y1, y2, n).round().astype(int), 0, gray.shape[0] - 1)
-    # an edge lies between the paint and the tarmac: sample a few pixels to both sides and keep the brighter;
-    # the upper quartile, so that the gaps of a dashed line do not count against it
-    samples = [gray[np.clip(ys + d, 0, gray.shape[0] - 1), xs] for d in (-3, 3)]
-    return float(max(np.percentile(s, 75) for s in samples))
