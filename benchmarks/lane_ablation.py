@@ -1,0 +1,73 @@
+"""Lane following, the thesis's rules against kartpilot's, closed loop in the simulator.
+
+Drives the sdc-kart on sdc-assen with the lane-following policy twice: once with the thesis's
+control rules (steer = heading deviation, no offset term, no smoothing, the extreme column for a
+missing side, the right-steer when both side cameras fire) and once with kartpilot's defaults.
+Prints the referee's verdict, the distance from the lane centre and how much the steer oscillates
+(RMS of the steer's change per second), and writes JSON.
+
+    python benchmarks/lane_ablation.py --seconds 60 --out benchmarks/results/lane_ablation.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from kartpilot.control.lane_follow import LaneFollowConfig
+from kartpilot.core.types import ActuatorCommand, FrameSet
+from kartpilot.runtime.lane_policy import LanePolicy, LanePolicyConfig
+from kartpilot.runtime.loop import run_loop
+from kartpilot.sim.simulator import SimConfig, Simulator
+
+THESIS = LaneFollowConfig(heading_gain=1.0, offset_gain=0.0, smoothing=0.0, max_steer_rate_radps=100.0,
+                          missing_side="extreme", both_sides="thesis")
+
+
+def drive(follow: LaneFollowConfig, seconds: float, rate_hz: float, mode_kmh: float) -> dict[str, float | str | bool]:
+    config = SimConfig(track="sdc-assen", vehicle="sdc-kart", speed_mode_mps=mode_kmh / 3.6,
+                       camera_rate_hz=rate_hz, max_time_s=seconds)
+    steers: list[float] = []
+    with Simulator(config) as sim:
+        policy = LanePolicy(sim.cameras, replace(LanePolicyConfig(), follow=follow), rate_hz)
+
+        def step(frames: FrameSet) -> ActuatorCommand:
+            command = policy(frames)
+            steers.append(command.steer_rad)
+            return command
+
+        run_loop(sim, step, sim)
+        result = sim.result(1.0)
+    rate = np.diff(steers) * rate_hz
+    return {"disqualified": result.disqualified, "reason": result.reason, "distance_m": result.distance_m,
+            "mean_center_offset_m": result.mean_center_offset_m, "max_center_offset_m": result.max_center_offset_m,
+            "steer_rate_rms_radps": float(np.sqrt(np.mean(rate**2))) if len(rate) else 0.0}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--rate", type=float, default=15.0)
+    parser.add_argument("--mode", type=float, default=15.0, help="speed mode, km/h")
+    parser.add_argument("--out", default="benchmarks/results/lane_ablation.json")
+    args = parser.parse_args()
+    rows = {"thesis rules": drive(THESIS, args.seconds, args.rate, args.mode),
+            "kartpilot": drive(LaneFollowConfig(), args.seconds, args.rate, args.mode)}
+    print(f"sdc-assen, sdc-kart, {args.mode:g} km/h mode, {args.rate:g} Hz, up to {args.seconds:g} s")
+    print(f"{'rules':<14}{'verdict':<44}{'metres':>8}{'mean off':>10}{'max off':>9}{'steer rate rms':>16}")
+    for name, row in rows.items():
+        verdict = f"DQ: {row['reason']}" if row["disqualified"] else str(row["reason"])
+        print(f"{name:<14}{verdict:<44}{row['distance_m']:>8.1f}{row['mean_center_offset_m']:>10.2f}"
+              f"{row['max_center_offset_m']:>9.2f}{row['steer_rate_rms_radps']:>16.3f}")
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(rows, indent=2) + "\n")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
