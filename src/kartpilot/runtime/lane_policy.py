@@ -8,6 +8,7 @@ policy drives the simulator, a replay or the real kart.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -86,9 +87,11 @@ class LanePolicy:
         top_row = _ground_row(centre, self.config.roi_far_m)
         lanes = replace(self.config.lanes, roi_top=min(max(top_row / centre.height_px, 0.0), 0.9))
         self.config = replace(self.config, lanes=lanes)
+        # side cameras look out to the side; a forward-looking "left"/"right" (the rc-kart's stereo pair) is not one
         self.bands = {side: side_search_band(cameras[side], side, self.config.near_m, self.config.far_m,
                                              self.config.kart_half_width_m)
-                      for side in ("left", "right") if side in cameras}
+                      for side in ("left", "right")
+                      if side in cameras and cameras[side].pose_body_cam_array[0, 2] < math.cos(math.radians(30))}
         self.state = LaneFollowState()
         self.dt_s = 1.0 / rate_hz
         self.last_observation: LaneObservation | None = None
