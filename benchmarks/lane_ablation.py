@@ -12,12 +12,11 @@ Prints the referee's verdict, the distance from the lane centre and how much the
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 
+from common import write_json
 from kartpilot.control.lane_follow import LaneFollowConfig
 from kartpilot.core.types import ActuatorCommand, FrameSet
 from kartpilot.runtime.lane_policy import LanePolicy, LanePolicyConfig
@@ -63,9 +62,7 @@ def main() -> int:
         verdict = f"DQ: {row['reason']}" if row["disqualified"] else str(row["reason"])
         print(f"{name:<14}{verdict:<44}{row['distance_m']:>8.1f}{row['mean_center_offset_m']:>10.2f}"
               f"{row['max_center_offset_m']:>9.2f}{row['steer_rate_rms_radps']:>16.3f}")
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(rows, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    write_json(args.out, rows)
     return 0
 
 

@@ -11,7 +11,6 @@ frames per second, writes JSON.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import time
 from collections.abc import Callable, Sequence
@@ -21,6 +20,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from common import write_json
 from kartpilot.control.lane_follow import LaneFollowConfig, LaneFollowState, lane_follow_step
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.types import FrameSet
@@ -104,9 +104,7 @@ def main() -> int:
           f"frames/s (target 300)")
     print(f"  three cameras + fusion   {result['three_cameras_ms']:8.2f} ms -> {result['three_cameras_fps']:.0f} "
           f"frames/s (target 150)")
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    write_json(args.out, result)
     return 0
 
 

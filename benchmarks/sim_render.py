@@ -10,13 +10,12 @@ with the stereo pair rendered, and physics and referee only. Prints a table and 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
-from pathlib import Path
 from typing import Any
 
+from common import write_json
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.dynamics import VehicleState
@@ -89,9 +88,7 @@ def main() -> int:
               "machine": {"cpus": os.cpu_count(), "python": platform.python_version()}}
     print(f"slowest track: {result['pairs_min']:.1f} stereo pairs/s (target: at least 25)")
     print("RTF: simulated seconds per wall-clock second (above 1: faster than real time)")
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(result, indent=2, default=float) + "\n")
-    print(f"wrote {args.out}")
+    write_json(args.out, result)
     return 0
 
 

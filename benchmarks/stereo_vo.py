@@ -10,15 +10,14 @@ repeats; prints a table and writes JSON.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
 
+from common import write_json
 from kartpilot.core.types import StereoFrame
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
 from kartpilot.runtime.demo_source import default_stereo_source
@@ -63,9 +62,7 @@ def main() -> int:
     for stage, ms in sorted(stages.items(), key=lambda item: -item[1]):
         print(f"  {stage:<16}{ms:8.2f} ms")
     print(f"  {'total':<16}{1000.0 / result['fps_median']:8.2f} ms  ->  {result['fps_median']:.1f} frames/s")
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    write_json(args.out, result)
     return 0
 
 
