@@ -405,15 +405,34 @@ def _texture(core: Any, image: Image, wrap: bool = True) -> Any:
     return tex
 
 
+def _interleave(first: Array, second: Array) -> Array:
+    """Rows first[0], second[0], first[1], second[1], ...: the vertex order of a ribbon."""
+    out = np.empty((2 * len(first), *np.shape(first)[1:]))
+    out[0::2], out[1::2] = first, second
+    return out
+
+
+def _ribbon_triangles(pairs: int, facing_up: bool = True, base: int = 0) -> NDArray[np.intp]:
+    """Triangle indices of a ribbon of ``pairs`` interleaved vertex pairs; ``facing_up`` winds them
+    counter-clockwise seen from above the first edge's left side (ground strips), else the other way."""
+    k = base + np.arange(pairs - 1) * 2
+    if facing_up:
+        return np.concatenate([np.stack([k, k + 1, k + 2], 1), np.stack([k + 1, k + 3, k + 2], 1)])
+    return np.concatenate([np.stack([k, k + 2, k + 1], 1), np.stack([k + 1, k + 2, k + 3], 1)])
+
+
+def _unit_tangents(line: Array) -> Array:
+    d = np.gradient(line, axis=0)
+    return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+
+
 def _strip_mesh(core: Any, left: Array, right: Array, tile_m: float = textures.SURFACE_TILE_M,
                 color: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)) -> Any:
     """A ribbon between two polylines, textured in world coordinates (so overlaps match seamlessly)."""
     n = len(left)
-    xy = np.empty((2 * n, 2))
-    xy[0::2], xy[1::2] = left, right
+    xy = _interleave(left, right)
     vertices = np.c_[xy, np.zeros(2 * n)]
-    k = np.arange(n - 1) * 2
-    triangles = np.concatenate([np.stack([k, k + 1, k + 2], 1), np.stack([k + 1, k + 3, k + 2], 1)])
+    triangles = _ribbon_triangles(n)
     colors = np.tile(np.asarray(color, np.float32), (2 * n, 1))
     return _mesh(core, vertices, triangles, colors=colors, uvs=xy / tile_m)
 
@@ -444,8 +463,7 @@ def _spatial_groups(points: Array, cell_m: float) -> list[NDArray[np.intp]]:
 
 
 def _offset_polyline(line: Array, offset_m: float) -> Array:
-    d = np.gradient(line, axis=0)
-    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    d = _unit_tangents(line)
     return line + offset_m * np.stack([-d[:, 1], d[:, 0]], axis=1)
 
 
@@ -485,14 +503,11 @@ def _tyre_marks(core: Any, track: Track, rng: np.random.Generator) -> Any:
             centre = route.xy_m[idx] + (offset + wheel)[:, None] * route.normal()[idx]
             left, right = _offset_polyline(centre, 0.1), _offset_polyline(centre, -0.1)
             n = len(centre)
-            xy = np.empty((2 * n, 2))
-            xy[0::2], xy[1::2] = left, right
-            strips_v.append(np.c_[xy, np.full(2 * n, 0.0)])
+            strips_v.append(np.c_[_interleave(left, right), np.zeros(2 * n)])
             fade = np.minimum(1.0, np.minimum(np.arange(n), np.arange(n)[::-1]) / 20.0)
             a = np.repeat(alpha * fade, 2)
             strips_c.append(np.c_[np.full((2 * n, 3), 0.08), a])
-            k = base + np.arange(n - 1) * 2
-            tris += [np.stack([k, k + 1, k + 2], 1), np.stack([k + 1, k + 3, k + 2], 1)]
+            tris.append(_ribbon_triangles(n, base=base))
             base += 2 * n
     if not strips_v:
         return _mesh(core, np.zeros((3, 3)), np.array([[0, 1, 2]]))
@@ -545,18 +560,11 @@ def _cones_mesh(core: Any, positions: Array, base_m: float, height_m: float) -> 
 def _wall_mesh(core: Any, line: Array, height_m: float, tile_m: float = 0.6) -> Any:
     n = len(line)
     s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(line, axis=0).T))]
-    vertices = np.empty((2 * n, 3))
-    vertices[0::2] = np.c_[line, np.zeros(n)]
-    vertices[1::2] = np.c_[line, np.full(n, height_m)]
-    uvs = np.empty((2 * n, 2))
-    uvs[0::2] = np.c_[s / tile_m, np.zeros(n)]
-    uvs[1::2] = np.c_[s / tile_m, np.ones(n)]
-    d = np.gradient(line, axis=0)
-    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    vertices = _interleave(np.c_[line, np.zeros(n)], np.c_[line, np.full(n, height_m)])
+    uvs = _interleave(np.c_[s / tile_m, np.zeros(n)], np.c_[s / tile_m, np.ones(n)])
+    d = _unit_tangents(line)
     normals = np.repeat(np.c_[-d[:, 1], d[:, 0], np.zeros(n)], 2, axis=0)
-    k = np.arange(n - 1) * 2
-    triangles = np.concatenate([np.stack([k, k + 2, k + 1], 1), np.stack([k + 1, k + 2, k + 3], 1)])
-    return _mesh(core, vertices, triangles, normals=normals, uvs=uvs)
+    return _mesh(core, vertices, _ribbon_triangles(n, facing_up=False), normals=normals, uvs=uvs)
 
 
 def _cylinder_mesh(core: Any, radius_m: float, low_deg: float, high_deg: float,
@@ -564,16 +572,10 @@ def _cylinder_mesh(core: Any, radius_m: float, low_deg: float, high_deg: float,
     """A band of a cylinder around the origin between two elevations; u goes once around."""
     a = np.linspace(0, 2 * np.pi, segments + 1)
     ring = np.c_[radius_m * np.cos(a), radius_m * np.sin(a)]
-    vertices = np.empty((2 * (segments + 1), 3))
-    vertices[0::2] = np.c_[ring, np.full(segments + 1, radius_m * math.tan(math.radians(low_deg)))]
-    vertices[1::2] = np.c_[ring, np.full(segments + 1, radius_m * math.tan(math.radians(high_deg)))]
-    uvs = np.empty((2 * (segments + 1), 2))
-    uvs[0::2] = np.c_[a / (2 * np.pi), np.zeros(segments + 1)]
-    uvs[1::2] = np.c_[a / (2 * np.pi), np.ones(segments + 1)]
+    vertices = _interleave(np.c_[ring, np.full(segments + 1, radius_m * math.tan(math.radians(low_deg)))],
+                           np.c_[ring, np.full(segments + 1, radius_m * math.tan(math.radians(high_deg)))])
+    uvs = _interleave(np.c_[a / (2 * np.pi), np.zeros(segments + 1)], np.c_[a / (2 * np.pi), np.ones(segments + 1)])
     colors = None
     if colours is not None:
-        colors = np.empty((2 * (segments + 1), 4))
-        colors[0::2], colors[1::2] = colours
-    k = np.arange(segments) * 2
-    triangles = np.concatenate([np.stack([k, k + 2, k + 1], 1), np.stack([k + 1, k + 2, k + 3], 1)])
-    return _mesh(core, vertices, triangles, colors=colors, uvs=uvs)
+        colors = _interleave(np.tile(colours[0], (segments + 1, 1)), np.tile(colours[1], (segments + 1, 1)))
+    return _mesh(core, vertices, _ribbon_triangles(segments + 1, facing_up=False), colors=colors, uvs=uvs)
