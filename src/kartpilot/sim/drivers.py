@@ -63,7 +63,8 @@ class CenterlineDriver:
         i = (here.index + steps) % len(route.s_m) if route.closed else min(here.index + steps, len(route.s_m) - 1)
         s_target = float(route.s_m[i])
         offset = cfg.edge_offset_m + cfg.weave_amplitude_m * math.sin(2 * math.pi * s_target / cfg.weave_period_m)
-        target = route.xy_m[i] + offset * route.normal()[i]
+        heading = float(route.heading_rad[i])  # one normal, not the whole route's every step
+        target = route.xy_m[i] + offset * np.array([-math.sin(heading), math.cos(heading)])
         steer = pure_pursuit_steer(state.x_m, state.y_m, state.yaw_rad, float(target[0]), float(target[1]),
                                    vehicle.wheelbase_m)
         steer = max(-vehicle.max_steer_rad, min(vehicle.max_steer_rad, steer))
