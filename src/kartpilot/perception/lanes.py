@@ -197,7 +197,7 @@ def detect_lanes(image: Image, config: LaneConfig = LaneConfig(), stages: LaneSt
         right_line = LaneLine(w - 1.0, y_bottom, w - 1.0, y_top)
     support = sum(min(1.0, _length(s).sum() / (0.6 * (h - top))) for s in (left, right)) / 2
     return LaneObservation(w, h, left_line, right_line, left_source, right_source,
-                           _intersection(left_line, right_line), float(support))
+                           intersection(left_line, right_line), float(support))
 
 
 def heading_deviation_rad(observation: LaneObservation, point: tuple[float, float] | None = None) -> float:
@@ -328,8 +328,6 @@ def _gray(image: Image) -> Image:
 
 
 def _lane_gray(image: Image, yellow_boost: float) -> Image:
-    if image is None or image.size == 0:
-        raise PerceptionError("empty image")
     if image.ndim == 2 or yellow_boost <= 0:
         return _gray(image)
     blue, green, red = cv2.split(image)
@@ -488,10 +486,6 @@ def _weighted_median(values: NDArray[np.float64], weights: NDArray[np.float64]) 
 
 def intersection(left: LaneLine, right: LaneLine) -> tuple[float, float] | None:
     """Where two boundary lines meet (None when parallel)."""
-    return _intersection(left, right)
-
-
-def _intersection(left: LaneLine, right: LaneLine) -> tuple[float, float] | None:
     # x = a y + b for both
     def coeffs(line: LaneLine) -> tuple[float, float]:
         a = (line.x_top - line.x_bottom) / (line.y_top - line.y_bottom)

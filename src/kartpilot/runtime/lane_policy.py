@@ -16,6 +16,7 @@ import numpy as np
 from kartpilot.control.lane_follow import LaneDecision, LaneFollowConfig, LaneFollowState, lane_follow_step
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import CalibrationError
+from kartpilot.core.geometry import invert_pose, transform_points
 from kartpilot.core.types import ActuatorCommand, FrameSet
 from kartpilot.perception.lanes import (
     LaneConfig,
@@ -54,8 +55,7 @@ def side_search_band(camera: PinholeCamera, side: str, near_m: float, far_m: flo
     sign = 1.0 if side == "left" else -1.0
     x = float(camera.pose_body_cam_array[0, 3])
     body = np.array([[x, sign * (half_width_m + far_m), 0.0], [x, sign * (half_width_m + near_m), 0.0]])
-    cam_from_body = np.linalg.inv(camera.pose_body_cam_array)
-    points = (cam_from_body[:3, :3] @ body.T).T + cam_from_body[:3, 3]
+    points = transform_points(invert_pose(camera.pose_body_cam_array), body)
     if np.any(points[:, 2] <= 0):
         raise CalibrationError(f"the {side} camera does not see the ground beside the kart")
     pixels = camera.project(points)
@@ -68,11 +68,10 @@ def side_search_band(camera: PinholeCamera, side: str, near_m: float, far_m: flo
 def _ground_row(camera: PinholeCamera, ahead_m: float) -> float:
     """The image row of the ground ``ahead_m`` in front of the camera, on the kart's centre line."""
     x = float(camera.pose_body_cam_array[0, 3]) + ahead_m
-    cam_from_body = np.linalg.inv(camera.pose_body_cam_array)
-    point = cam_from_body[:3, :3] @ np.array([x, 0.0, 0.0]) + cam_from_body[:3, 3]
-    if point[2] <= 0:
+    point = transform_points(invert_pose(camera.pose_body_cam_array), np.array([x, 0.0, 0.0]))
+    if point[0, 2] <= 0:
         raise CalibrationError("the centre camera does not look ahead")
-    return float(camera.project(point[None])[0, 1])
+    return float(camera.project(point)[0, 1])
 
 
 class LanePolicy:
