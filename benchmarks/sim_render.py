@@ -30,8 +30,8 @@ def render_rate(track_name: str, pairs: int) -> dict[str, float]:
     vehicle = get_vehicle("rc-kart")
     cams = {name: vehicle.camera(name) for name in ("left", "right")}
     route = track.route
-    step = 1  # one pose per 5 cm route sample, as at 1.5 m/s and 30 Hz
-    indices = [(track.start_index + k * step) % len(route.s_m) for k in range(pairs)]
+    # one pose per 5 cm route sample, as at 1.5 m/s and 30 Hz
+    indices = [(track.start_index + k) % len(route.s_m) for k in range(pairs)]
     poses = []
     for i in indices:
         body = body_pose(VehicleState(x_m=float(route.xy_m[i, 0]), y_m=float(route.xy_m[i, 1]),

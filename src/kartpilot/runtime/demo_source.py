@@ -1,4 +1,4 @@
-"""The embedded default input of ``kartpilot demo`` and the benchmarks."""
+"""The default input of the stereo VO benchmark (``kartpilot demo`` now drives the simulator)."""
 
 from __future__ import annotations
 
