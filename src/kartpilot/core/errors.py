@@ -12,6 +12,7 @@ __all__ = [
     "KartpilotError",
     "OdometryError",
     "PerceptionError",
+    "PlanningError",
     "RecordingError",
 ]
 
@@ -38,6 +39,10 @@ class PerceptionError(KartpilotError):
 
 class OdometryError(KartpilotError):
     """Visual odometry cannot go on (not raised for a single bad frame, which is bridged)."""
+
+
+class PlanningError(KartpilotError):
+    """A reference path is missing, unreadable or unusable."""
 
 
 class RecordingError(KartpilotError):

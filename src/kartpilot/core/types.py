@@ -4,11 +4,20 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 from numpy.typing import NDArray
 
-__all__ = ["ActuatorCommand", "CommandSink", "FrameSet", "FrameSink", "FrameSource", "Image", "StereoFrame"]
+__all__ = [
+    "ActuatorCommand",
+    "CommandSink",
+    "FrameSet",
+    "FrameSink",
+    "FrameSource",
+    "Image",
+    "StereoFrame",
+    "VehiclePose",
+]
 
 Image = NDArray[Any]
 """An 8-bit image (grayscale HxW or BGR HxWx3), as OpenCV returns it."""
@@ -69,6 +78,30 @@ class ActuatorCommand:
     def stop(cls, stamp_ns: int) -> ActuatorCommand:
         """The safe command: straight wheels, no throttle, full brake."""
         return cls(stamp_ns, 0.0, 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class VehiclePose:
+    """Where the kart is on the road plane, from odometry.
+
+    Attributes:
+        stamp_ns: the frame time the pose belongs to.
+        x_m, y_m, yaw_rad: the rear axle's position and heading in the odometry frame (the rear axle at
+            the start of the drive: x forward, y left, yaw positive to the left).
+        speed_mps, yaw_rate_radps: filtered motion along the heading and about the vertical.
+        status: ``ok`` (measured), ``bridged`` (predicted by the motion model for a short gap) or
+            ``lost`` (predicted for too long: stop).
+        reason: why the pose was not measured, if it was not.
+    """
+
+    stamp_ns: int
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    speed_mps: float
+    yaw_rate_radps: float
+    status: Literal["ok", "bridged", "lost"]
+    reason: str = ""
 
 
 class FrameSource(Protocol):
