@@ -39,3 +39,20 @@ def test_an_exception_in_the_pipeline_commands_a_stop_before_it_propagates():
         run_loop(ListSource(10), policy, sink)
     assert sink.commands[-1] == ActuatorCommand.stop(3000)  # stamped with the frame that failed
     assert sink.commands[-1].throttle == 0.0 and sink.commands[-1].brake == 1.0
+
+
+def test_a_slow_step_is_counted_as_a_missed_deadline_and_pacing_holds_the_rate():
+    import time
+
+    def slow(frames: FrameSet) -> ActuatorCommand:
+        if frames.index == 2:
+            time.sleep(0.03)
+        return ActuatorCommand(frames.stamp_ns, 0.0, 0.0, 0.0)
+
+    stats = run_loop(ListSource(4), slow, ListSink(), period_s=0.01)
+    assert stats.missed_deadlines == 1 and stats.worst_step_ms >= 30.0
+    start = time.perf_counter()
+    paced = run_loop(ListSource(5), lambda f: ActuatorCommand(f.stamp_ns, 0.0, 0.0, 0.0), ListSink(),
+                     period_s=0.02, pace=True)
+    assert paced.missed_deadlines == 0
+    assert time.perf_counter() - start >= 5 * 0.02 * 0.9  # the loop waited out each period

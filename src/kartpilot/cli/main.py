@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 
 from kartpilot import __version__
-from kartpilot.cli import commands
+from kartpilot.cli import commands, drive_commands
 from kartpilot.core.errors import KartpilotError
 
 __all__ = ["build_parser", "main"]
@@ -90,6 +90,53 @@ def build_parser() -> argparse.ArgumentParser:
     lanes.add_argument("--stages", action="store_true", help="draw the raw and clustered lines too")
     lanes.add_argument("--config", help="YAML file merged over the defaults (sections lane_detection, lane_policy)")
     lanes.set_defaults(handler=commands.lanes)
+
+    ref = sub.add_parser("reference", help="a reference path (and visual map) from a recorded drive")
+    ref.add_argument("recording", help="a kartpilot recording with a stereo pair")
+    ref.add_argument("--out", required=True, help="the path file (.csv or .yaml); the map goes beside it")
+    ref.add_argument("--from", dest="source", choices=("vo", "groundtruth"), default="vo",
+                     help="vo: stereo VO over the recording, with a visual map (default); groundtruth: the "
+                          "simulator's poses")
+    ref.add_argument("--vehicle", default="rc-kart", help="whose camera mount turns camera poses into kart poses")
+    ref.add_argument("--speed", type=float, help="cruise speed of the path's speed profile, m/s")
+    ref.add_argument("--config", help="YAML file merged over the defaults (sections stereo_vo, drive)")
+    ref.set_defaults(handler=drive_commands.reference)
+
+    drive = sub.add_parser("drive", help="follow a reference path with the stereo-VO pipeline")
+    drive.add_argument("--vehicle", default="rc-kart")
+    drive.add_argument("--pipeline", choices=("stereo-vo",), default="stereo-vo")
+    drive.add_argument("--reference", required=True, help="a path written by 'kartpilot reference'")
+    where = drive.add_mutually_exclusive_group()
+    where.add_argument("--sim", metavar="TRACK", help="drive in the simulator on this track")
+    where.add_argument("--replay", metavar="RECORDING", help="run the pipeline on a recording (open loop)")
+    drive.add_argument("--map", help="the visual map (default: the reference's .map.npz, if there)")
+    drive.add_argument("--no-map", action="store_true", help="localise with VO alone")
+    drive.add_argument("--speed", type=float, help="cap the path's speed profile, m/s")
+    drive.add_argument("--seed", type=int)
+    drive.add_argument("--rate", type=float, help="camera and control rate, Hz")
+    drive.add_argument("--steer-bias", type=float, help="the simulated kart's drag to one side, rad (+ left)")
+    drive.add_argument("--record", help="record the simulated drive here")
+    drive.add_argument("--video", help="write the camera view with the referee's state here (MP4)")
+    drive.add_argument("--result", help="write the result JSON here")
+    drive.add_argument("--log", help="write the pipeline's per-step log here (CSV)")
+    drive.add_argument("--config", help="YAML file merged over the defaults (sections sim, stereo_vo, drive)")
+    drive.add_argument("--no-progress", action="store_true")
+    drive.set_defaults(handler=drive_commands.drive)
+
+    experiment = sub.add_parser("experiment", help="reproduce an experiment of the thesis in the simulator")
+    experiment.add_argument("name", choices=("thesis-vo",),
+                            help="thesis-vo: teach, build the reference with stereo VO, repeat, score")
+    experiment.add_argument("--track", default="straight20")
+    experiment.add_argument("--speed", type=float, default=0.62, help="m/s")
+    experiment.add_argument("--seed", type=int, default=1)
+    experiment.add_argument("--rate", type=float, default=15.0, help="camera and control rate, Hz")
+    experiment.add_argument("--steer-bias", type=float, default=0.03, help="the kart's drag to one side, rad")
+    experiment.add_argument("--no-map", action="store_true", help="localise with VO alone, as the thesis did")
+    experiment.add_argument("--no-video", action="store_true")
+    experiment.add_argument("--out", required=True)
+    experiment.add_argument("--config", help="YAML file merged over the defaults (sections stereo_vo, drive)")
+    experiment.add_argument("--no-progress", action="store_true")
+    experiment.set_defaults(handler=drive_commands.experiment)
 
     demo = sub.add_parser("demo", help="the main job on an embedded default (see README)")
     demo.add_argument("--out", default="demo_out")

@@ -1,4 +1,4 @@
-"""Figures: estimated and true paths seen from above, and the error over distance."""
+"""Figures: estimated and true paths seen from above, the error over distance, path following."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 
 from kartpilot.core.trajectory import Trajectory
 
-__all__ = ["plot_trajectories"]
+__all__ = ["plot_path_following", "plot_steering", "plot_trajectories"]
 
 
 def plot_trajectories(reference: Trajectory | None, estimate: Trajectory, path: str | Path, title: str = "") -> None:
@@ -39,6 +39,56 @@ def plot_trajectories(reference: Trajectory | None, estimate: Trajectory, path: 
         side.set_ylabel("position error (m)")
         side.grid(True, alpha=0.3)
         side.set_title("position error over distance")
+    figure.tight_layout()
+    figure.savefig(str(path), dpi=110)
+    plt.close(figure)
+
+
+def plot_path_following(taught_xy: np.ndarray, reference_xy: np.ndarray, driven_xy: np.ndarray,
+                        estimated_xy: np.ndarray, distance_m: np.ndarray, path: str | Path, title: str = "") -> None:
+    """Top view of a repeat drive: the taught path (truth), the reference (VO), the driven path (truth)
+    and the pipeline's own estimate of it; beside it, ``distance_m``, each driven point's distance from
+    the taught path."""
+    figure, axes = plt.subplots(1, 2, figsize=(12, 5), squeeze=False)
+    top = axes[0, 0]
+    top.plot(taught_xy[:, 0], taught_xy[:, 1], "k-", lw=2.5, alpha=0.4, label="taught path (truth)")
+    top.plot(reference_xy[:, 0], reference_xy[:, 1], "b--", lw=1, label="reference (VO)")
+    top.plot(driven_xy[:, 0], driven_xy[:, 1], "r-", lw=1, label="driven (truth)")
+    top.plot(estimated_xy[:, 0], estimated_xy[:, 1], "g:", lw=1, label="driven (pipeline's estimate)")
+    top.set_xlabel("x (m, forward at the start)")
+    top.set_ylabel("y (m, left at the start)")
+    span = np.ptp(taught_xy, axis=0)
+    if max(span) < 8 * max(min(span), 0.5):
+        top.set_aspect("equal", adjustable="datalim")
+    else:  # a long straight: stretch the cross-track axis so a deviation shows
+        top.set_ylabel("y (m, left at the start; stretched)")
+    top.grid(True, alpha=0.3)
+    top.legend(fontsize=8)
+    top.set_title(title or "path versus reference")
+    side = axes[0, 1]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(driven_xy, axis=0), axis=1))])
+    side.plot(s, distance_m, "r-")
+    side.set_xlabel("distance driven (m)")
+    side.set_ylabel("distance from the taught path (m)")
+    side.grid(True, alpha=0.3)
+    side.set_title("tracking error (truth)")
+    figure.tight_layout()
+    figure.savefig(str(path), dpi=110)
+    plt.close(figure)
+
+
+def plot_steering(t_s: np.ndarray, steer_rad: np.ndarray, cross_track_m: np.ndarray, path: str | Path,
+                  title: str = "") -> None:
+    """Steering command and the controller's cross-track error over time."""
+    figure, axes = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
+    axes[0].plot(t_s, np.degrees(steer_rad), "b-", lw=1)
+    axes[0].set_ylabel("steer (deg, + left)")
+    axes[0].grid(True, alpha=0.3)
+    axes[0].set_title(title or "steering over time")
+    axes[1].plot(t_s, cross_track_m, "r-", lw=1)
+    axes[1].set_ylabel("cross-track error (m)")
+    axes[1].set_xlabel("time (s)")
+    axes[1].grid(True, alpha=0.3)
     figure.tight_layout()
     figure.savefig(str(path), dpi=110)
     plt.close(figure)

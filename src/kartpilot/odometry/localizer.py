@@ -5,16 +5,18 @@ Stereo VO reports the left camera's pose in the frame of the first left camera
 camera's mount on the body turns one into the other (:func:`ground_poses`), and
 the odometry frame is the rear axle at the first frame (x forward, y left).
 
-:class:`StereoVOLocalizer` runs VO frame by frame, filters the speed, bridges a
-missing or failed frame with the motion model (constant speed and yaw rate), and
-reports ``lost`` once it has bridged for longer than ``max_bridge_s``, so the
-caller can stop.
+:class:`StereoVOLocalizer` runs VO frame by frame, relocalises against the taught
+drive's visual map when it has one (:mod:`kartpilot.odometry.visual_map`), filters
+the speed, bridges a missing or failed frame with the motion model (constant speed
+and yaw rate), and reports ``lost`` once it has bridged for longer than
+``max_bridge_s``, so the caller can stop.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import time
 from dataclasses import dataclass, field
 
 import cv2
@@ -25,8 +27,9 @@ from kartpilot.core.errors import ConfigError, OdometryError, PerceptionError
 from kartpilot.core.geometry import Array, invert_pose
 from kartpilot.core.types import FrameSet, Image, StereoFrame, VehiclePose
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
+from kartpilot.odometry.visual_map import RelocConfig, VisualMap, relocalize
 
-__all__ = ["LocalizerConfig", "StereoVOLocalizer", "ground_poses"]
+__all__ = ["LocalizerConfig", "StereoVOLocalizer", "between_2d", "compose_2d", "ground_poses", "vo_ground_pose"]
 
 log = logging.getLogger(__name__)
 
@@ -46,16 +49,36 @@ def ground_poses(poses_world_cam: Array, pose_body_cam: Array) -> Array:
     return np.column_stack([relative[:, 0, 3], relative[:, 1, 3], yaw])
 
 
+def vo_ground_pose(pose_world_cam: Array, pose_body_cam: Array) -> tuple[float, float, float]:
+    """A camera pose in VO's world (the first camera) as the rear axle's planar ``x, y, yaw`` in the
+    odometry frame; the first body pose is ``inverse(pose_body_cam)`` in that world."""
+    relative = pose_body_cam @ pose_world_cam @ invert_pose(pose_body_cam)
+    return float(relative[0, 3]), float(relative[1, 3]), math.atan2(relative[1, 0], relative[0, 0])
+
+
+def compose_2d(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
+    """Planar pose ``a`` followed by the motion ``b`` expressed in ``a``'s frame."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], math.remainder(a[2] + b[2], math.tau)
+
+
+def between_2d(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
+    """The motion from planar pose ``a`` to ``b``, in ``a``'s frame (so ``compose_2d(a, between_2d(a, b)) == b``)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    return c * dx + s * dy, -s * dx + c * dy, math.remainder(b[2] - a[2], math.tau)
+
+
 @dataclass(frozen=True)
 class LocalizerConfig:
     """Attributes:
-        vo: the stereo VO's settings.
+        reloc: relocalisation against a visual map of the taught drive, when one is given.
         left_camera, right_camera: the stereo pair's names in the frame sets.
         max_bridge_s: how long the motion model may stand in for VO before the pose is ``lost``.
         speed_time_constant_s: low-pass time constant of the speed and yaw-rate estimates.
     """
 
-    vo: StereoVOConfig = field(default_factory=StereoVOConfig)
+    reloc: RelocConfig = field(default_factory=RelocConfig)
     left_camera: str = "left"
     right_camera: str = "right"
     max_bridge_s: float = 0.5
@@ -70,17 +93,31 @@ def _gray(image: Image) -> Image:
     return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
 
 
-class StereoVOLocalizer:
-    """Stereo VO turned into :class:`VehiclePose` messages. Holds the VO and the last pose."""
+Pose2D = tuple[float, float, float]
 
-    def __init__(self, rig: StereoRig, pose_body_cam: Array, config: LocalizerConfig | None = None) -> None:
+
+class StereoVOLocalizer:
+    """Stereo VO (and, with a map, relocalisation) turned into :class:`VehiclePose` messages.
+
+    The pose is carried forward by VO's frame-to-frame motion; each relocalisation against the
+    map pulls it a fraction ``reloc.gain`` of the way onto the map's estimate.
+    """
+
+    def __init__(self, rig: StereoRig, pose_body_cam: Array, vo_config: StereoVOConfig | None = None,
+                 config: LocalizerConfig | None = None, visual_map: VisualMap | None = None) -> None:
         self.config = config or LocalizerConfig()
-        self.vo = StereoVO(rig, self.config.vo)
+        self.vo = StereoVO(rig, vo_config)
+        self.rig = rig
+        self.map = visual_map if self.config.reloc.enabled else None
         self._body_cam = np.asarray(pose_body_cam, float)
-        self._body0_world: Array | None = None  # inverse of the first body pose in VO's world
+        self._raw: Pose2D | None = None  # VO's own ground pose at the last VO frame
+        self._raw_stamp_ns = 0
+        self._pose_at_raw: Pose2D = (0.0, 0.0, 0.0)  # the localizer's pose at that frame
         self._last: VehiclePose | None = None
         self._last_ok_ns: int | None = None
-        self.last_timing_ms: dict[str, float] = {}
+        self._keyframe = 0
+        self.relocalisations = 0
+        self.timing_ms: dict[str, float] = {}  # VO's stages (and reloc), summed over every frame
 
     def close(self) -> None:
         self.vo.close()
@@ -96,31 +133,57 @@ class StereoVOLocalizer:
             estimate = self.vo.process(StereoFrame(frames.index, frames.stamp_ns, _gray(left), _gray(right)))
         except (PerceptionError, OdometryError) as exc:
             return self._bridge(frames.stamp_ns, str(exc))
-        self.last_timing_ms = estimate.diagnostics.timing_ms
-        body = estimate.pose_world_cam @ invert_pose(self._body_cam)
-        if self._body0_world is None:
-            self._body0_world = invert_pose(body)
-        relative = self._body0_world @ body
-        x, y = float(relative[0, 3]), float(relative[1, 3])
-        yaw = math.atan2(relative[1, 0], relative[0, 0])
-        if estimate.status == "bridged":
-            # VO bridged with its own constant-velocity model; its pose is a prediction
-            pose = self._moved(frames.stamp_ns, x, y, yaw, "bridged", estimate.reason)
-            return self._check_lost(pose)
-        self._last_ok_ns = frames.stamp_ns
-        return self._remember(self._moved(frames.stamp_ns, x, y, yaw, "ok", ""))
+        for stage, ms in estimate.diagnostics.timing_ms.items():
+            self.timing_ms[stage] = self.timing_ms.get(stage, 0.0) + ms
+        raw = vo_ground_pose(estimate.pose_world_cam, self._body_cam)
+        step = (0.0, 0.0, 0.0) if self._raw is None else between_2d(self._raw, raw)
+        pose = compose_2d(self._pose_at_raw, step) if self._raw is not None else raw
+        dt = 0.0 if self._raw is None else (frames.stamp_ns - self._raw_stamp_ns) * 1e-9
+        self._raw, self._raw_stamp_ns = raw, frames.stamp_ns
+        if estimate.status != "bridged":
+            self._last_ok_ns = frames.stamp_ns
+            if self.map is not None:
+                pose = self._relocalize(pose)
+        self._pose_at_raw = pose
+        status = "bridged" if estimate.status == "bridged" else "ok"
+        result = self._with_motion(frames.stamp_ns, pose, step, dt, status, estimate.reason)
+        return self._check_lost(result) if status == "bridged" else self._remember(result)
 
-    def _moved(self, stamp_ns: int, x: float, y: float, yaw: float, status: str, reason: str) -> VehiclePose:
-        """A pose with speed and yaw rate filtered from the step since the last pose."""
+    def _relocalize(self, pose: Pose2D) -> Pose2D:
+        assert self.map is not None
+        t0 = time.perf_counter()
+        reloc = self.config.reloc
+        ground = self.map.ground_xy_yaw
+        window = slice(max(self._keyframe - 2, 0), min(self._keyframe + 4 * reloc.search_keyframes, len(ground)))
+        distance = np.hypot(ground[window, 0] - pose[0], ground[window, 1] - pose[1])
+        order = window.start + np.argsort(distance)
+        self._keyframe = int(order[0])
+        latest = self.vo.last_features()
+        for keyframe in order[: min(2, len(order))]:
+            if latest is None or abs(math.remainder(ground[keyframe, 2] - pose[2], math.tau)) > math.pi / 4:
+                continue
+            found = relocalize(self.map, int(keyframe), latest[0], self.rig.camera.matrix, reloc)
+            if found is None:
+                continue
+            measured = vo_ground_pose(found[0], self._body_cam)
+            error = between_2d(pose, measured)
+            if math.hypot(error[0], error[1]) > reloc.max_correction_m or abs(error[2]) > reloc.max_correction_rad:
+                continue
+            self.relocalisations += 1
+            pose = compose_2d(pose, (reloc.gain * error[0], reloc.gain * error[1], reloc.gain * error[2]))
+            break
+        self.timing_ms["reloc"] = self.timing_ms.get("reloc", 0.0) + (time.perf_counter() - t0) * 1e3
+        return pose
+
+    def _with_motion(self, stamp_ns: int, pose: Pose2D, step: Pose2D, dt: float, status: str,
+                     reason: str) -> VehiclePose:
+        """A pose with speed and yaw rate low-pass filtered from VO's own step (not the corrections)."""
         last = self._last
-        if last is None:
-            return VehiclePose(stamp_ns, x, y, yaw, 0.0, 0.0, "ok")
-        dt = max((stamp_ns - last.stamp_ns) * 1e-9, 1e-3)
-        heading = 0.5 * (yaw + last.yaw_rad)
-        speed = ((x - last.x_m) * math.cos(heading) + (y - last.y_m) * math.sin(heading)) / dt
-        rate = math.remainder(yaw - last.yaw_rad, math.tau) / dt
+        if last is None or dt <= 0:
+            return VehiclePose(stamp_ns, pose[0], pose[1], pose[2], 0.0, 0.0, "ok")
         a = dt / (dt + self.config.speed_time_constant_s)
-        return VehiclePose(stamp_ns, x, y, yaw, last.speed_mps + a * (speed - last.speed_mps),
+        speed, rate = step[0] / dt, step[2] / dt
+        return VehiclePose(stamp_ns, pose[0], pose[1], pose[2], last.speed_mps + a * (speed - last.speed_mps),
                            last.yaw_rate_radps + a * (rate - last.yaw_rate_radps),
                            "ok" if status == "ok" else "bridged", reason)
 

@@ -9,11 +9,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from kartpilot.core.errors import DataError, KartpilotError
+from kartpilot.core.geometry import Array
 from kartpilot.core.trajectory import Trajectory
+from kartpilot.odometry.localizer import vo_ground_pose
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig, VOEstimate
+from kartpilot.odometry.visual_map import MapBuilder, MapConfig, VisualMap
 from kartpilot.sensors.base import StereoSource
 
-__all__ = ["OdometryRun", "run_stereo_vo"]
+__all__ = ["OdometryRun", "run_stereo_vo", "run_teach"]
 
 
 @dataclass(frozen=True)
@@ -47,7 +50,7 @@ class OdometryRun:
 
 
 def run_stereo_vo(source: StereoSource, config: StereoVOConfig | None = None,
-                  on_frame: Callable[[VOEstimate], None] | None = None) -> OdometryRun:
+                  on_frame: Callable[[VOEstimate], None] | None = None, vo: StereoVO | None = None) -> OdometryRun:
     """Run VO over every frame of ``source``.
 
     A frame that cannot be read is skipped and counted (the next frame is matched to the
@@ -56,7 +59,7 @@ def run_stereo_vo(source: StereoSource, config: StereoVOConfig | None = None,
     """
     if len(source) == 0:
         raise DataError(f"{source.name} has no frames")
-    vo = StereoVO(source.rig, config)
+    vo = vo or StereoVO(source.rig, config)
     estimates: list[VOEstimate] = []
     unreadable: list[int] = []
     start = time.perf_counter()
@@ -78,3 +81,19 @@ def run_stereo_vo(source: StereoSource, config: StereoVOConfig | None = None,
         raise DataError(f"none of the {len(source)} frames of {source.name} could be read")
     trajectory = Trajectory.from_poses([e.pose_world_cam for e in estimates], [e.stamp_ns * 1e-9 for e in estimates])
     return OdometryRun(trajectory, tuple(estimates), tuple(unreadable), wall)
+
+
+def run_teach(source: StereoSource, pose_body_cam: Array, config: StereoVOConfig | None = None,
+              map_config: MapConfig | None = None) -> tuple[OdometryRun, VisualMap]:
+    """VO over a taught drive, keeping keyframes for a visual map as it goes."""
+    vo = StereoVO(source.rig, config)
+    builder = MapBuilder(map_config)
+
+    def keep(estimate: VOEstimate) -> None:
+        latest = vo.last_features()
+        if latest is not None and estimate.status != "bridged":
+            ground = np.array(vo_ground_pose(estimate.pose_world_cam, pose_body_cam))
+            builder.add(estimate.pose_world_cam, ground, *latest)
+
+    run = run_stereo_vo(source, on_frame=keep, vo=vo)
+    return run, builder.build()

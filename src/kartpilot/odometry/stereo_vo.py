@@ -176,6 +176,13 @@ class StereoVO:
     def pose_world_cam(self) -> Array:
         return self._pose_world_cam.copy()
 
+    def last_features(self) -> tuple[Features, Array] | None:
+        """The latest frame's left features and their 3D points in its camera frame (NaN rows where
+        stereo gave no depth), or None before the first frame. For building and matching maps."""
+        if self._previous is None:
+            return None
+        return self._previous.features, self._previous.points_m
+
     def process(self, frame: StereoFrame) -> VOEstimate:
         """Consume one rectified stereo frame and return the updated pose."""
         expected = (self.rig.camera.height_px, self.rig.camera.width_px)

@@ -45,7 +45,7 @@ class PathConfig:
     """How a trajectory becomes a reference path.
 
     Attributes:
-        spacing_m: distance between waypoints.
+        spacing_m: distance between waypoints (at most; the path is divided evenly so it keeps its end).
         smoothing_m: standard deviation of the Gaussian smoothing along the path (0: none).
         cruise_speed_mps: the speed on straights.
         max_lateral_accel_mps2: bends are taken at ``sqrt(a / |curvature|)`` at most.
@@ -121,8 +121,7 @@ def build_reference_path(xy_m: Array, config: PathConfig | None = None) -> Refer
     s_raw = np.concatenate([[0.0], np.cumsum(steps)])
     if len(xy) < 2 or s_raw[-1] < 2 * config.spacing_m:
         raise ConfigError(f"the trajectory is {s_raw[-1]:.2f} m long: too short for a path")
-    count = int(s_raw[-1] // config.spacing_m) + 1
-    s = np.arange(count) * config.spacing_m
+    s = _even_stations(s_raw[-1], config.spacing_m)
     x = np.interp(s, s_raw, xy[:, 0])
     y = np.interp(s, s_raw, xy[:, 1])
     sigma = config.smoothing_m / config.spacing_m
@@ -131,8 +130,7 @@ def build_reference_path(xy_m: Array, config: PathConfig | None = None) -> Refer
         # smoothing shortens bends a little: resample again to even spacing
         steps = np.hypot(np.diff(x), np.diff(y))
         s_smooth = np.concatenate([[0.0], np.cumsum(steps)])
-        count = max(int(s_smooth[-1] // config.spacing_m) + 1, 2)
-        s = np.arange(count) * config.spacing_m
+        s = _even_stations(s_smooth[-1], config.spacing_m)
         x, y = np.interp(s, s_smooth, x), np.interp(s, s_smooth, y)
     heading = np.unwrap(np.arctan2(np.gradient(y), np.gradient(x)))
     curvature = np.gradient(heading, s)
@@ -140,6 +138,11 @@ def build_reference_path(xy_m: Array, config: PathConfig | None = None) -> Refer
         curvature = gaussian_filter1d(curvature, max(sigma / 2, 1.0), mode="nearest")
     speed = speed_profile(s, curvature, config)
     return ReferencePath(s, x, y, heading, curvature, speed)
+
+
+def _even_stations(length_m: float, spacing_m: float) -> Array:
+    """Stations from 0 to ``length_m`` inclusive, evenly spaced at most ``spacing_m`` apart (the path keeps its end)."""
+    return np.linspace(0.0, length_m, max(math.ceil(length_m / spacing_m - 1e-9), 1) + 1)
 
 
 def _smooth_keeping_ends(values: Array, sigma: float) -> Array:

@@ -299,6 +299,9 @@ class RecordingStereoSource(StereoSource):
     def __len__(self) -> int:
         return len(self._pairs)
 
+    def stamp_ns(self, index: int) -> int:
+        return self._pairs[index][0]
+
     def frame(self, index: int) -> StereoFrame:
         stamp, left_path, right_path = self._pairs[index]
         left, right = read_gray(left_path), read_gray(right_path)

@@ -1,19 +1,23 @@
 """Replay from files: one image, a folder of images, a video, a kartpilot recording or a Donkey Car tub,
-all as frame sets with one camera (``center``), so a pipeline cannot tell them apart."""
+all as frame sets with one camera (``center``), so a pipeline cannot tell them apart; and a recording's
+stereo pair as a frame source (:class:`StereoReplaySource`)."""
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
 
-from kartpilot.core.errors import DataError
+from kartpilot.core.errors import DataError, KartpilotError
 from kartpilot.core.types import FrameSet
-from kartpilot.record.recording import RecordingReader
+from kartpilot.record.recording import RecordingReader, RecordingStereoSource
 from kartpilot.sensors.donkeycar import DonkeyTub, is_donkey_tub
 
-__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "open_frames"]
+__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "StereoReplaySource", "open_frames"]
+
+log = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".webm"}
@@ -75,3 +79,31 @@ def _recording(reader: RecordingReader, camera: str) -> Iterator[FrameSet]:
         if image is None:
             raise DataError(f"cannot read the recording's frame {path}")
         yield FrameSet(k, stamp, {"center": image})
+
+
+class StereoReplaySource:
+    """A recording's stereo pair as a frame source: frame sets keyed by the pair's camera names.
+
+    A pair that cannot be read is delivered without its images, so the pipeline bridges it
+    as it would a camera that skipped a frame.
+    """
+
+    def __init__(self, folder: str | Path) -> None:
+        self.stereo = RecordingStereoSource(folder)
+        pair = self.stereo.reader.stereo_pair
+        assert pair is not None  # RecordingStereoSource checked
+        self.left_name, self.right_name = pair
+        self.unreadable = 0
+        self._next = 0
+
+    def read(self) -> FrameSet | None:
+        if self._next >= len(self.stereo):
+            return None
+        index, self._next = self._next, self._next + 1
+        try:
+            frame = self.stereo.frame(index)
+        except KartpilotError as exc:
+            self.unreadable += 1
+            log.warning("frame %d of %s unreadable: %s", index, self.stereo.name, exc)
+            return FrameSet(index, self.stereo.stamp_ns(index), {})
+        return FrameSet(index, frame.stamp_ns, {self.left_name: frame.left, self.right_name: frame.right})

@@ -9,6 +9,9 @@ Example ``stack.yaml``::
       effects: {noise_sigma: 4.0, vibration_m: 0.003}
       render: {time_of_day_h: 18.5}
     centerline_driver: {weave_amplitude_m: 0.2}
+    drive:
+      follow: {controller: pure_pursuit, bias: {gain_rad_per_m_s: 0.0}}
+      localizer: {reloc: {gain: 0.5}}
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from kartpilot.core.config import load_yaml_mapping, merge_config
 from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.perception.lanes import LaneConfig
 from kartpilot.runtime.lane_policy import LanePolicyConfig
+from kartpilot.runtime.path_policy import DriveConfig
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import SimConfig
 
@@ -33,6 +37,7 @@ class StackConfig:
     centerline_driver: CenterlineDriverConfig = field(default_factory=CenterlineDriverConfig)
     lane_detection: LaneConfig = field(default_factory=LaneConfig)
     lane_policy: LanePolicyConfig = field(default_factory=LanePolicyConfig)
+    drive: DriveConfig = field(default_factory=DriveConfig)
 
 
 def load_stack_config(path: str | Path | None) -> StackConfig:

@@ -1,7 +1,10 @@
 """The loop every drive goes through: live, replayed or simulated.
 
 ``frames -> policy -> command -> sinks``, one step per frame set, with the
-per-stage time measured. Sources and sinks are interchangeable: the simulator
+per-stage time measured. With a ``period_s`` the loop has a deadline per step:
+a step whose policy and sinks take longer is counted and logged, and with ``pace`` the loop
+sleeps out the rest of each period (live driving; a simulator or a replay runs
+as fast as it can). Sources and sinks are interchangeable: the simulator
 is both, a recorder is one more sink. If anything raises, the actuators get
 the stop command before the error propagates, so a crash never leaves the
 last command standing.
@@ -32,6 +35,8 @@ class Recorder(FrameSink, CommandSink, Protocol):
 class LoopStats:
     steps: int = 0
     wall_time_s: float = 0.0
+    missed_deadlines: int = 0
+    worst_step_ms: float = 0.0
     stage_s: dict[str, float] = field(default_factory=lambda: {"source": 0.0, "policy": 0.0, "sinks": 0.0})
 
     def stage_ms(self) -> dict[str, float]:
@@ -40,13 +45,16 @@ class LoopStats:
 
 def run_loop(source: FrameSource, policy: Policy, actuators: CommandSink, recorders: Sequence[Recorder] = (),
              on_step: Callable[[FrameSet, ActuatorCommand], None] | None = None,
-             max_steps: int | None = None) -> LoopStats:
+             max_steps: int | None = None, period_s: float | None = None, pace: bool = False) -> LoopStats:
     """Run until the source ends (or ``max_steps``); return the step count and per-stage times."""
     stats = LoopStats()
     start = time.perf_counter()
+    next_tick = start
     last_stamp = 0
     try:
         while max_steps is None or stats.steps < max_steps:
+            if pace and period_s:
+                next_tick += period_s
             t0 = time.perf_counter()
             frames = source.read()
             t1 = time.perf_counter()
@@ -66,6 +74,19 @@ def run_loop(source: FrameSource, policy: Policy, actuators: CommandSink, record
             stats.stage_s["policy"] += t2 - t1
             stats.stage_s["sinks"] += t3 - t2
             stats.steps += 1
+            step_ms = (t3 - t1) * 1e3  # the pipeline's own work, not the wait for (or rendering of) frames
+            stats.worst_step_ms = max(stats.worst_step_ms, step_ms)
+            if period_s and step_ms > period_s * 1e3:
+                stats.missed_deadlines += 1
+                if stats.missed_deadlines == 1 or stats.missed_deadlines % 100 == 0:
+                    log.warning("step %d took %.1f ms, over the %.1f ms period (%d missed so far)", stats.steps,
+                                step_ms, period_s * 1e3, stats.missed_deadlines)
+            if pace and period_s:
+                delay = next_tick - time.perf_counter()
+                if delay > 0:
+                    time.sleep(delay)
+                else:
+                    next_tick = time.perf_counter()  # late: do not try to catch up
     except BaseException:
         log.error("the loop failed at step %d: commanding a stop", stats.steps)
         stop = ActuatorCommand.stop(last_stamp)

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import json
+import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -13,24 +14,42 @@ from tqdm import tqdm
 
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError, RecordingError
+from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image
+from kartpilot.odometry.localizer import StereoVOLocalizer
+from kartpilot.odometry.stereo_vo import StereoVOConfig
+from kartpilot.odometry.visual_map import VisualMap
+from kartpilot.planning.reference_path import ReferencePath
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 from kartpilot.runtime.lane_policy import LanePolicy, LanePolicyConfig
 from kartpilot.runtime.loop import Policy, Recorder, run_loop
+from kartpilot.runtime.path_policy import DriveConfig, DriveSample, PathFollowPolicy, write_drive_log
 from kartpilot.sim.drivers import CenterlineDriver, CenterlineDriverConfig, CommandsDriver
 from kartpilot.sim.referee import RunResult
 from kartpilot.sim.simulator import SimConfig, Simulator
 
-__all__ = ["SimRun", "load_commands", "run_simulation"]
+__all__ = ["DRIVERS", "SimRun", "load_commands", "run_simulation"]
+
+DRIVERS = ("centerline", "commands", "lanes", "path")
+STOPPED_BEFORE_END_S = 1.5  # a path drive ends this long after the pipeline decided to stop
 
 
 @dataclass(frozen=True)
 class SimRun:
+    """What a run produced. ``ground_truth`` is the main camera's true poses (the stereo pair's left);
+    ``drive`` the path follower's log (``path`` driver only)."""
+
     result: RunResult
     steps: int
     dropped_frames: int
     stage_ms: dict[str, float]
     record_dir: Path | None
+    ground_truth: Trajectory | None = None
+    ground_truth_camera: str = ""
+    drive: tuple[DriveSample, ...] = ()
+    stop_reason: str = ""
+    missed_deadlines: int = 0
+    extra: dict[str, object] = field(default_factory=dict)
 
 
 def load_commands(path: str | Path) -> list[ActuatorCommand]:
@@ -46,10 +65,20 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
                    driver_config: CenterlineDriverConfig | None = None, commands: str | Path | None = None,
                    record_dir: str | Path | None = None, video_path: str | Path | None = None,
                    result_path: str | Path | None = None, progress: bool = False,
-                   lane_config: LanePolicyConfig | None = None) -> SimRun:
-    """Drive one run and write what was asked for. The result JSON always goes next to the recording."""
+                   lane_config: LanePolicyConfig | None = None, reference: ReferencePath | None = None,
+                   drive_config: DriveConfig | None = None, drive_log: str | Path | None = None,
+                   visual_map: VisualMap | None = None, vo_config: StereoVOConfig | None = None) -> SimRun:
+    """Drive one run and write what was asked for. The result JSON always goes next to the recording.
+
+    The ``path`` driver is the stereo-VO pipeline following ``reference`` (relocalising against
+    ``visual_map`` if given); its run does not end at the
+    finish line but once the pipeline has stopped the kart (end of the reference, or localisation lost).
+    """
+    if driver == "path":
+        config = replace(config, referee=replace(config.referee, run_on_m=math.inf))
     with Simulator(config) as sim:
         policy: Policy
+        path_policy: PathFollowPolicy | None = None
         if driver == "centerline":
             policy = CenterlineDriver(sim, driver_config)
         elif driver == "commands":
@@ -60,8 +89,12 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
             if not config.render_images:
                 raise ConfigError("the lanes driver needs rendered images")
             policy = LanePolicy(sim.cameras, lane_config, config.camera_rate_hz)
+        elif driver == "path":
+            path_policy = _path_policy(sim, reference, drive_config or DriveConfig(), visual_map,
+                                       vo_config or StereoVOConfig())
+            policy = path_policy
         else:
-            raise ConfigError(f"unknown driver {driver!r} (centerline, commands or lanes)")
+            raise ConfigError(f"unknown driver {driver!r} ({', '.join(DRIVERS)})")
 
         recorders: list[Recorder] = []
         writer: RecordingWriter | None = None
@@ -83,29 +116,76 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
                 video.write(frames)
             bar.update(round(min(max(sim.referee.progress_m, 0.0), bar.total), 1) - bar.n)
 
+        source = _UntilStopped(sim, path_policy) if path_policy is not None else sim
         try:
-            stats = run_loop(sim, policy, sim, recorders, on_step)
+            stats = run_loop(source, policy, sim, recorders, on_step, period_s=sim.dt_s)
         finally:
             bar.close()
             wall = time.perf_counter() - start
             if video is not None:
                 video.close()
+            if path_policy is not None:
+                path_policy.close()
             if writer is not None:
                 if sim.stamps_ns:
                     writer.write_groundtruth(sim.ground_truth(_gt_camera(sim)))
                 writer.close()
         result = sim.result(wall)
+        stage_ms = stats.stage_ms()
+        extra: dict[str, object] = {}
+        if path_policy is not None:
+            steps = max(stats.steps, 1)
+            del stage_ms["policy"]
+            stage_ms.update({k: 1e3 * v / steps for k, v in path_policy.stage_s.items()})
+            stage_ms.update({f"vo.{k}": v / steps for k, v in path_policy.localizer.timing_ms.items()})
+            statuses = [sample.pose_status for sample in path_policy.samples]
+            extra = {"stop_reason": path_policy.stop_reason, "bridged_frames": statuses.count("bridged"),
+                     "lost_frames": statuses.count("lost"),
+                     "relocalised_frames": path_policy.localizer.relocalisations}
+            if drive_log is not None:
+                write_drive_log(path_policy.samples, drive_log)
         payload = {**result.to_json(), "track": sim.track.name, "vehicle": sim.vehicle.name, "seed": config.seed,
                    "driver": driver, "steps": stats.steps, "dropped_frames": sim.dropped_frames,
-                   "stage_ms": {k: round(v, 3) for k, v in stats.stage_ms().items()}}
+                   "missed_deadlines": stats.missed_deadlines, **extra,
+                   "stage_ms": {k: round(v, 3) for k, v in stage_ms.items()}}
         targets = [Path(result_path)] if result_path else []
         if record_dir is not None:
             targets.append(Path(record_dir) / "result.json")
         for target in targets:
             target.parent.mkdir(parents=True, exist_ok=True)
             target.write_text(json.dumps(payload, indent=2))
-        return SimRun(result, stats.steps, sim.dropped_frames, stats.stage_ms(),
-                      Path(record_dir) if record_dir else None)
+        return SimRun(result, stats.steps, sim.dropped_frames, stage_ms, Path(record_dir) if record_dir else None,
+                      sim.ground_truth(_gt_camera(sim)) if sim.stamps_ns else None, _gt_camera(sim),
+                      tuple(path_policy.samples) if path_policy else (), str(extra.get("stop_reason", "")),
+                      stats.missed_deadlines, extra)
+
+
+def _path_policy(sim: Simulator, reference: ReferencePath | None, config: DriveConfig,
+                 visual_map: VisualMap | None, vo_config: StereoVOConfig) -> PathFollowPolicy:
+    if reference is None:
+        raise ConfigError("the path driver needs a reference path")
+    vehicle = sim.vehicle
+    pair = vehicle.stereo_pair
+    if pair is None or not set(pair) <= set(sim.cameras) or not sim.config.render_images:
+        raise ConfigError(f"the stereo-VO pipeline needs the {vehicle.name}'s stereo pair rendered "
+                          f"(cameras {', '.join(pair) if pair else 'none on this vehicle'})")
+    localizer_config = replace(config.localizer, left_camera=pair[0], right_camera=pair[1])
+    localizer = StereoVOLocalizer(vehicle.stereo_rig(), sim.cameras[pair[0]].pose_body_cam_array, vo_config,
+                                  localizer_config, visual_map)
+    return PathFollowPolicy(localizer, reference, config.follow, vehicle.wheelbase_m, vehicle.max_steer_rad,
+                            sim.config.camera_rate_hz)
+
+
+class _UntilStopped:
+    """The simulator as a source that ends once the path policy has held its stop for a while."""
+
+    def __init__(self, sim: Simulator, policy: PathFollowPolicy) -> None:
+        self.sim, self.policy = sim, policy
+
+    def read(self) -> FrameSet | None:
+        if self.policy.stopped_for_s(self.sim.time_ns) >= STOPPED_BEFORE_END_S:
+            return None
+        return self.sim.read()
 
 
 def _gt_camera(sim: Simulator) -> str:

@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from kartpilot.core.errors import ConfigError
 from kartpilot.sim.dynamics import VehicleState
 from kartpilot.sim.track import Track, project_onto
 from kartpilot.sim.vehicle import VehicleParams
@@ -27,10 +28,13 @@ class RefereeConfig:
     """Attributes:
         laps: laps to drive on a closed track (open tracks end at their finish).
         stop_on_disqualification: end the run at the first disqualification (the rules do).
+        run_on_m: after the finish the run goes on for this distance before it ends (``inf``: the
+            driver ends it, for a kart that stops by itself at the end of its reference path).
     """
 
     laps: int = 1
     stop_on_disqualification: bool = True
+    run_on_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -66,7 +70,9 @@ class Referee:
         self.vehicle = vehicle
         self.config = config or RefereeConfig()
         if self.config.laps < 1:
-            raise ValueError("laps must be at least 1")
+            raise ConfigError("referee.laps must be at least 1")
+        if not self.config.run_on_m >= 0:
+            raise ConfigError("referee.run_on_m must not be negative")
         self._cones = np.array([c.xy_m for c in track.cones]) if cones and track.cones else np.zeros((0, 2))
         self._cone_tree = cKDTree(self._cones) if len(self._cones) else None
         marking = track.spec.left if track.spec.left.kind == "cones" else track.spec.right
@@ -81,6 +87,7 @@ class Referee:
         self.lap_time_s: float | None = None
         self.laps_completed = 0
         self.finished = False
+        self._finished_at_m = 0.0
         self.reason = ""
         self.disqualified = False
         self.dq_s: float | None = None
@@ -88,7 +95,8 @@ class Referee:
 
     @property
     def done(self) -> bool:
-        return self.finished or (self.disqualified and self.config.stop_on_disqualification)
+        ran_on = self.finished and self._progress_m - self._finished_at_m >= self.config.run_on_m
+        return ran_on or (self.disqualified and self.config.stop_on_disqualification)
 
     @property
     def progress_m(self) -> float:
@@ -123,12 +131,15 @@ class Referee:
             if laps > self.laps_completed:
                 self.laps_completed = laps
                 if laps >= self.config.laps:
-                    self.lap_time_s = time_s
-                    self.finished = True
+                    self._finish(time_s)
         elif here.s_m >= self.track.finish_s_m:
             self.laps_completed = 1
-            self.lap_time_s = time_s
-            self.finished = True
+            self._finish(time_s)
+
+    def _finish(self, time_s: float) -> None:
+        self.lap_time_s = time_s
+        self.finished = True
+        self._finished_at_m = self._progress_m
 
     def result(self, wall_time_s: float) -> RunResult:
         offsets = np.asarray(self._offsets) if self._offsets else np.zeros(1)

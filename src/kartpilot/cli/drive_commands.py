@@ -1,0 +1,146 @@
+"""Subcommands of the waypoint-following pipeline: ``reference``, ``drive`` and ``experiment``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import replace
+from pathlib import Path
+
+from kartpilot.core.errors import ConfigError, RecordingError
+from kartpilot.core.types import ActuatorCommand
+from kartpilot.odometry.localizer import StereoVOLocalizer, ground_poses
+from kartpilot.odometry.run import run_teach
+from kartpilot.odometry.visual_map import VisualMap, load_visual_map, map_path_for
+from kartpilot.planning.reference_path import build_reference_path, load_reference_path, save_reference_path
+from kartpilot.record.recording import RecordingReader, RecordingStereoSource
+from kartpilot.record.replay import StereoReplaySource
+from kartpilot.runtime.config import load_stack_config
+from kartpilot.runtime.experiment import ThesisVOConfig, run_thesis_vo
+from kartpilot.runtime.loop import run_loop
+from kartpilot.runtime.path_policy import PathFollowPolicy, write_drive_log
+from kartpilot.runtime.simulate import run_simulation
+from kartpilot.sim.simulator import SimConfig
+from kartpilot.sim.vehicle import VehicleParams, get_vehicle
+
+__all__ = ["drive", "experiment", "reference"]
+
+
+def _stereo_vehicle(name: str) -> tuple[VehicleParams, tuple[str, str]]:
+    vehicle = get_vehicle(name)
+    if vehicle.stereo_pair is None:
+        raise ConfigError(f"the {vehicle.name} has no stereo pair: the stereo-VO pipeline needs one (rc-kart)")
+    return vehicle, vehicle.stereo_pair
+
+
+def reference(args: argparse.Namespace) -> int:
+    """A reference path (and, from VO, its visual map) from a recorded drive."""
+    stack = load_stack_config(args.config)
+    vehicle, pair = _stereo_vehicle(args.vehicle)
+    body_cam = vehicle.camera(pair[0]).pose_body_cam_array
+    path_config = stack.drive.path if args.speed is None else replace(stack.drive.path, cruise_speed_mps=args.speed)
+    out = Path(args.out)
+    if args.source == "vo":
+        run, visual_map = run_teach(RecordingStereoSource(args.recording), body_cam, stack.stereo_vo, stack.drive.map)
+        print(f"stereo VO: {run.summary()}")
+        poses = run.trajectory.poses
+    else:
+        truth = RecordingReader(args.recording).groundtruth()
+        if truth is None:
+            raise RecordingError(f"{args.recording} has no ground truth (only simulator recordings do)")
+        poses, visual_map = truth.poses, None
+    path = build_reference_path(ground_poses(poses, body_cam)[:, :2], path_config)
+    save_reference_path(path, out)
+    print(f"reference: {len(path)} waypoints over {path.length_m:.1f} m, speed {path.speed_mps.min():.2f} to "
+          f"{path.speed_mps.max():.2f} m/s, written to {out}")
+    if visual_map is not None:
+        target = visual_map.save(map_path_for(out))
+        print(f"visual map: {len(visual_map)} keyframes, written to {target}")
+    return 0
+
+
+def _visual_map(args: argparse.Namespace) -> VisualMap | None:
+    if args.no_map:
+        return None
+    if args.map:
+        return load_visual_map(args.map)
+    default = map_path_for(args.reference)
+    if default.is_file():
+        return load_visual_map(default)
+    print(f"no visual map at {default}: localising with VO alone (it drifts; build the reference from VO "
+          "to get a map)")
+    return None
+
+
+class _CommandLog:
+    """The command sink of a replay: nothing moves, the commands are kept."""
+
+    def __init__(self) -> None:
+        self.commands: list[ActuatorCommand] = []
+
+    def send(self, command: ActuatorCommand) -> None:
+        self.commands.append(command)
+
+
+def drive(args: argparse.Namespace) -> int:
+    """Follow a reference with the stereo-VO pipeline: in the simulator, on a replayed recording."""
+    stack = load_stack_config(args.config)
+    vehicle, pair = _stereo_vehicle(args.vehicle)
+    path = load_reference_path(args.reference)
+    visual_map = _visual_map(args)
+    follow = stack.drive.follow if args.speed is None else replace(stack.drive.follow, max_speed_mps=args.speed)
+    drive_config = replace(stack.drive, follow=follow)
+    if args.sim:
+        overrides = {"track": args.sim, "vehicle": vehicle.name, "seed": args.seed, "camera_rate_hz": args.rate}
+        sim: SimConfig = replace(stack.sim, cameras=pair, **{k: v for k, v in overrides.items() if v is not None})
+        if args.steer_bias is not None:
+            sim = replace(sim, disturbances=replace(sim.disturbances, steer_bias_rad=args.steer_bias))
+        run = run_simulation(sim, "path", record_dir=args.record, video_path=args.video, result_path=args.result,
+                             progress=not args.no_progress, reference=path, drive_config=drive_config,
+                             drive_log=args.log, visual_map=visual_map, vo_config=stack.stereo_vo)
+        result = run.result
+        verdict = f"DISQUALIFIED: {result.reason}" if result.disqualified else result.reason
+        print(f"{verdict} | {result.distance_m:.1f} m driven, centre offset max {result.max_center_offset_m:.3f} m, "
+              f"stopped: {run.stop_reason or 'no'} | {run.steps} steps, {run.missed_deadlines} over the deadline")
+        print("per step (ms): " + ", ".join(f"{k} {v:.1f}" for k, v in run.stage_ms.items()))
+        return 0
+    if args.replay:
+        source = StereoReplaySource(args.replay)
+        body_cam = vehicle.camera(pair[0]).pose_body_cam_array
+        localizer = StereoVOLocalizer(source.stereo.rig, body_cam, stack.stereo_vo,
+                                      replace(drive_config.localizer, left_camera=source.left_name,
+                                              right_camera=source.right_name), visual_map)
+        rate = args.rate or stack.sim.camera_rate_hz
+        policy = PathFollowPolicy(localizer, path, follow, vehicle.wheelbase_m, vehicle.max_steer_rad, rate)
+        sink = _CommandLog()
+        try:
+            stats = run_loop(source, policy, sink, period_s=1.0 / rate)
+        finally:
+            policy.close()
+        if args.log:
+            write_drive_log(policy.samples, args.log)
+        summary = {"steps": stats.steps, "unreadable_frames": source.unreadable, "stop_reason": policy.stop_reason,
+                   "relocalised_frames": localizer.relocalisations, "missed_deadlines": stats.missed_deadlines,
+                   "stage_ms": {k: round(1e3 * v / max(stats.steps, 1), 3) for k, v in policy.stage_s.items()}}
+        print(json.dumps(summary))
+        if args.result:
+            Path(args.result).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.result).write_text(json.dumps(summary, indent=2))
+        return 0
+    raise ConfigError("drive needs --sim TRACK or --replay RECORDING: this build has no live camera and CAN "
+                      "interface for the kart yet")
+
+
+def experiment(args: argparse.Namespace) -> int:
+    """``thesis-vo``: teach, build the reference with VO, repeat, score."""
+    stack = load_stack_config(args.config)
+    config = ThesisVOConfig(track=args.track, speed_mps=args.speed, seed=args.seed, camera_rate_hz=args.rate,
+                            steer_bias_rad=args.steer_bias, use_map=not args.no_map, drive=stack.drive,
+                            vo=stack.stereo_vo)
+    result = run_thesis_vo(config, args.out, progress=not args.no_progress, video=not args.no_video)
+    verdict = f"DISQUALIFIED: {result['reason']}" if result["disqualified"] else str(result["reason"])
+    print(f"{verdict} | end point {result['end_error_along_m']:+.3f} m along, {result['end_error_across_m']:+.3f} m "
+          f"across (the thesis: {result['thesis_end_error_m']} m) | max {result['max_distance_from_taught_path_m']:.3f}"
+          f" m from the taught path, centre offset max {result['max_center_offset_m']:.3f} m")
+    print(f"wrote {Path(args.out) / 'result.json'}, path.png, steering.png")
+    return 0

@@ -1,0 +1,169 @@
+"""The thesis's autonomous-run experiment in one call, in the simulator.
+
+1. **Teach**: the ``centerline`` driver drives the track once while every stereo pair
+   is recorded (the thesis's manual drive).
+2. **Reference**: stereo VO runs over the recording; its trajectory becomes the
+   reference path (resampled, smoothed, with a speed profile), saved as CSV.
+3. **Repeat**: the kart starts again from the same place and follows the reference
+   with the live stereo-VO pipeline and the path follower, until it stops at the end.
+4. **Score**: the referee's verdict, the end point against the teach drive's end point
+   (along and across the track, the thesis's 1.5 m), the distance between the two
+   true paths, and plots of path versus reference and steering over time.
+
+The kart's drag to one side and the track's cross-slope are switched on in both drives.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import shutil
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from kartpilot.core.errors import ConfigError
+from kartpilot.core.geometry import Array
+from kartpilot.eval.plots import plot_path_following, plot_steering
+from kartpilot.odometry.localizer import ground_poses
+from kartpilot.odometry.run import run_teach
+from kartpilot.odometry.stereo_vo import StereoVOConfig
+from kartpilot.odometry.visual_map import map_path_for
+from kartpilot.planning.reference_path import ReferencePath, build_reference_path, save_reference_path
+from kartpilot.record.recording import RecordingStereoSource
+from kartpilot.runtime.path_policy import DriveConfig
+from kartpilot.runtime.simulate import SimRun, run_simulation
+from kartpilot.sim.drivers import CenterlineDriverConfig
+from kartpilot.sim.simulator import DisturbanceConfig, SimConfig
+from kartpilot.sim.vehicle import get_vehicle
+
+__all__ = ["ThesisVOConfig", "end_errors", "path_distance", "run_thesis_vo"]
+
+log = logging.getLogger(__name__)
+
+THESIS_END_ERROR_M = 1.5
+
+
+@dataclass(frozen=True)
+class ThesisVOConfig:
+    """Attributes:
+        track, speed_mps, seed: the experiment (the thesis: a 20 m straight at 0.62 m/s).
+        camera_rate_hz: the pipeline's frame rate (the thesis ran at 12 to 13 FPS).
+        steer_bias_rad: the kart's drag to one side (positive pulls left).
+        use_map: relocalise against the taught drive's visual map (False: VO alone, as the thesis).
+        drive: the pipeline's settings; its path's cruise speed is set to ``speed_mps``.
+        vo: the stereo VO's settings, for the reference and the repeat drive alike.
+    """
+
+    track: str = "straight20"
+    speed_mps: float = 0.62
+    seed: int = 1
+    camera_rate_hz: float = 15.0
+    steer_bias_rad: float = 0.03
+    use_map: bool = True
+    drive: DriveConfig = field(default_factory=DriveConfig)
+    vo: StereoVOConfig = field(default_factory=StereoVOConfig)
+
+    def __post_init__(self) -> None:
+        if self.speed_mps <= 0 or self.camera_rate_hz <= 0:
+            raise ConfigError("the experiment's speed and camera rate must be positive")
+
+
+def end_errors(reference_xy_yaw: Array, run_xy: Array) -> tuple[float, float]:
+    """The run's last position against the reference's last pose: (along, across) its heading, in metres.
+
+    Along is positive past the reference's end; across is positive to its left.
+    """
+    x, y, yaw = reference_xy_yaw[-1]
+    dx, dy = run_xy[-1, 0] - x, run_xy[-1, 1] - y
+    return float(dx * math.cos(yaw) + dy * math.sin(yaw)), float(-dx * math.sin(yaw) + dy * math.cos(yaw))
+
+
+def path_distance(reference_xy: Array, run_xy: Array, spacing_m: float = 0.02) -> Array:
+    """For every run point, the distance to the reference polyline (densely resampled)."""
+    steps = np.linalg.norm(np.diff(reference_xy, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(steps)])
+    dense_s = np.arange(0.0, s[-1] + spacing_m, spacing_m)
+    dense = np.column_stack([np.interp(dense_s, s, reference_xy[:, 0]), np.interp(dense_s, s, reference_xy[:, 1])])
+    distance, _ = cKDTree(dense).query(run_xy)
+    return np.asarray(distance)
+
+
+def run_thesis_vo(config: ThesisVOConfig, out: str | Path, progress: bool = False, video: bool = True
+                  ) -> dict[str, object]:
+    """Teach, build the reference, repeat, score; write ``out/result.json`` and the plots. Returns the result."""
+    out = Path(out)
+    vehicle = get_vehicle("rc-kart")
+    pair = vehicle.stereo_pair
+    assert pair is not None
+    sim = SimConfig(track=config.track, vehicle=vehicle.name, seed=config.seed, camera_rate_hz=config.camera_rate_hz,
+                    cameras=pair,
+                    disturbances=DisturbanceConfig(steer_bias_rad=config.steer_bias_rad, cross_slope=True))
+    body_cam = vehicle.camera(pair[0]).pose_body_cam_array
+
+    teach_dir = out / "teach"
+    if teach_dir.exists():
+        shutil.rmtree(teach_dir)
+    print(f"1/3 teach: the centerline driver drives {config.track} at {config.speed_mps} m/s, recording")
+    teach = run_simulation(replace(sim, referee=replace(sim.referee, run_on_m=0.5)), "centerline",
+                           CenterlineDriverConfig(speed_mps=config.speed_mps), record_dir=teach_dir, progress=progress)
+    if teach.ground_truth is None or teach.result.disqualified:
+        raise ConfigError(f"the teach drive failed: {teach.result.reason}")
+
+    print("2/3 reference: stereo VO over the recording" + (", keeping a visual map" if config.use_map else ""))
+    vo_run, visual_map = run_teach(RecordingStereoSource(teach_dir), body_cam, config.vo,
+                                   config.drive.map)
+    vo_ground = ground_poses(vo_run.trajectory.poses, body_cam)
+    path_config = replace(config.drive.path, cruise_speed_mps=config.speed_mps)
+    reference = build_reference_path(vo_ground[:, :2], path_config)
+    save_reference_path(reference, out / "reference.csv")
+    visual_map.save(map_path_for(out / "reference.csv"))
+
+    print("3/3 repeat: the stereo-VO pipeline follows the reference")
+    drive = replace(config.drive, path=path_config)
+    repeat = run_simulation(sim, "path", record_dir=None, video_path=(out / "repeat.mp4") if video else None,
+                            progress=progress, reference=reference, drive_config=drive,
+                            drive_log=out / "drive_log.csv", result_path=out / "repeat_result.json",
+                            visual_map=visual_map if config.use_map else None, vo_config=config.vo)
+    return score(config, out, teach, repeat, reference, vo_ground, body_cam, vo_run.summary())
+
+
+def score(config: ThesisVOConfig, out: Path, teach: SimRun, repeat: SimRun, reference: ReferencePath,
+          vo_ground: Array, body_cam: Array, vo_summary: str) -> dict[str, object]:
+    """The result JSON and the plots of one experiment."""
+    assert teach.ground_truth is not None and repeat.ground_truth is not None
+    teach_truth = ground_poses(teach.ground_truth.poses, body_cam)
+    repeat_truth = ground_poses(repeat.ground_truth.poses, body_cam)
+    along, across = end_errors(teach_truth, repeat_truth[:, :2])
+    distance = path_distance(teach_truth[:, :2], repeat_truth[:, :2])
+    samples = repeat.drive
+    steer = np.array([s.steer_rad for s in samples])
+    t = np.array([s.stamp_ns for s in samples]) * 1e-9
+    steer_rate = np.diff(steer) * config.camera_rate_hz if len(steer) > 1 else np.zeros(1)
+    result: dict[str, object] = {
+        **repeat.result.to_json(),
+        "end_error_along_m": round(along, 4),
+        "end_error_across_m": round(across, 4),
+        "thesis_end_error_m": THESIS_END_ERROR_M,
+        "max_distance_from_taught_path_m": round(float(distance.max()), 4),
+        "mean_distance_from_taught_path_m": round(float(distance.mean()), 4),
+        "steer_rate_rms_radps": round(float(np.sqrt(np.mean(steer_rate**2))), 4),
+        "reference_length_m": round(reference.length_m, 3),
+        "reference_vo": vo_summary,
+        "teach": teach.result.to_json(),
+        "track": config.track, "speed_mps": config.speed_mps, "seed": config.seed,
+        "camera_rate_hz": config.camera_rate_hz, "steer_bias_rad": config.steer_bias_rad,
+        "localisation": "VO and the taught drive's visual map" if config.use_map else "VO alone",
+        "stop_reason": repeat.stop_reason, "missed_deadlines": repeat.missed_deadlines,
+        **{k: v for k, v in repeat.extra.items() if k != "stop_reason"},
+        "stage_ms": {k: round(v, 3) for k, v in repeat.stage_ms.items()},
+    }
+    (out / "result.json").write_text(json.dumps(result, indent=2))
+    plot_path_following(teach_truth[:, :2], reference.xy_m, repeat_truth[:, :2],
+                        np.array([[s.x_m, s.y_m] for s in samples]), distance, out / "path.png",
+                        title=f"{config.track} at {config.speed_mps} m/s")
+    plot_steering(t, steer, np.array([s.cross_track_m for s in samples]), out / "steering.png")
+    return result
