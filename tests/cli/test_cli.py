@@ -39,6 +39,8 @@ def test_eval_command(tmp_path, capsys) -> None:
         (["sim", "--cameras", "rear", "--no-render"], "has no camera 'rear'"),
         (["sim", "--no-render", "--record", "out"], "--no-render cannot record"),
         (["lanes", "/does/not/exist.jpg", "--out", "x.txt"], "input not found"),
+        (["drive", "--reference", "/does/not/exist.csv", "--sim", "straight20"], "no such reference path"),
+        (["reference", "/does/not/exist", "--out", "x.csv"], "not a kartpilot recording"),
     ],
 )
 def test_user_mistakes_give_one_line_and_exit_1(argv: list[str], message: str, capsys, tmp_path) -> None:
@@ -94,3 +96,29 @@ def test_lanes_writes_one_row_per_frame_with_the_documented_columns(tmp_path, ca
                                                 "steer", "confidence"]
     assert rows[0]["left_source"] == "detected" and abs(float(rows[0]["left_x1"]) - 100) < 15
     assert len(list((tmp_path / "overlay").glob("*.png"))) == 3
+
+
+def test_teach_reference_and_drive_it_in_the_simulator_and_on_the_replay(tmp_path, capsys) -> None:
+    """The workflow by hand: record a short drive, build its reference and map, drive it twice."""
+    config = tmp_path / "short.yaml"
+    config.write_text("sim:\n  max_time_s: 4.0\n")
+    record = tmp_path / "teach"
+    assert main(["sim", "--track", "straight20", "--vehicle", "rc-kart", "--cameras", "left,right", "--rate", "10",
+                 "--speed", "0.8", "--record", str(record), "--config", str(config), "--no-progress"]) == 0
+    reference = tmp_path / "ref.csv"
+    assert main(["reference", str(record), "--out", str(reference), "--speed", "0.8"]) == 0
+    out = capsys.readouterr().out
+    assert "visual map:" in out and (tmp_path / "ref.map.npz").is_file()
+    log = tmp_path / "log.csv"
+    assert main(["drive", "--reference", str(reference), "--replay", str(record), "--log", str(log)]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["steps"] == 40 and summary["relocalised_frames"] > 30
+    assert len(log.read_text().splitlines()) == 41
+    result = tmp_path / "drive.json"
+    assert main(["drive", "--reference", str(reference), "--sim", "straight20", "--rate", "10", "--result",
+                 str(result), "--no-progress"]) == 0
+    data = json.loads(result.read_text())
+    assert data["stop_reason"] == "reached the end of the reference" and not data["disqualified"]
+    assert "vo.detect" in data["stage_ms"] and "missed_deadlines" in data
+    assert main(["drive", "--reference", str(reference)]) == 1
+    assert "needs --sim TRACK or --replay RECORDING" in capsys.readouterr().err

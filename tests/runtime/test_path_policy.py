@@ -1,0 +1,34 @@
+"""The stereo-VO path-following policy fails closed."""
+
+import numpy as np
+
+from kartpilot.control.path_follow import PathFollowConfig
+from kartpilot.core.types import ActuatorCommand, FrameSet
+from kartpilot.odometry.localizer import LocalizerConfig, StereoVOLocalizer
+from kartpilot.planning.reference_path import PathConfig, build_reference_path
+from kartpilot.runtime.path_policy import PathFollowPolicy, write_drive_log
+from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
+from kartpilot.sim.vehicle import camera_pose_on_body
+
+
+def test_losing_vo_stops_the_kart_and_it_stays_stopped(tmp_path):
+    source = SyntheticStereoSource(SyntheticStereoConfig(frames=16, speed_mps=1.0, yaw_rate_dps=0.0))
+    localizer = StereoVOLocalizer(source.rig, np.array(camera_pose_on_body(0.0, 0.0, 0.6)),
+                                  config=LocalizerConfig(max_bridge_s=0.3))
+    path = build_reference_path(np.column_stack([np.linspace(0, 30, 301), np.zeros(301)]), PathConfig())
+    policy = PathFollowPolicy(localizer, path, PathFollowConfig(), 0.35, 0.45, 10.0)
+    commands: list[ActuatorCommand] = []
+    try:
+        for i in range(16):
+            frame = source.frame(i)
+            images = {} if 6 <= i < 12 else {"left": frame.left, "right": frame.right}  # the cameras stall
+            commands.append(policy(FrameSet(i, frame.stamp_ns, images)))
+    finally:
+        policy.close()
+    assert all(c.brake == 0.0 and c.throttle > 0.0 for c in commands[1:6])  # driving
+    assert commands[6].brake == 0.0  # a short gap is bridged by the motion model
+    stopped = [i for i, c in enumerate(commands) if c == ActuatorCommand.stop(c.stamp_ns)]
+    assert stopped == list(range(stopped[0], 16)) and stopped[0] <= 10  # lost: stop, and stay stopped
+    assert policy.stop_reason.startswith("localisation lost")
+    log = write_drive_log(policy.samples, tmp_path / "log.csv").read_text().splitlines()
+    assert log[0].startswith("stamp_ns,x_m,y_m,yaw_rad,speed_mps,pose_status") and len(log) == 17
