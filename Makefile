@@ -26,6 +26,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/stereo_vo.py --data $(DATA) --out benchmarks/results/stereo_vo.json
 	$(BIN)/python benchmarks/sim_render.py --out benchmarks/results/sim_render.json
 	$(BIN)/python benchmarks/lanes.py --data $(DATA) --out benchmarks/results/lanes.json
+	$(BIN)/python benchmarks/drive.py --out benchmarks/results/drive.json
 
 demo: $(STAMP)
 	$(BIN)/kartpilot demo --out demo_out

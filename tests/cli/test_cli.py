@@ -119,6 +119,6 @@ def test_teach_reference_and_drive_it_in_the_simulator_and_on_the_replay(tmp_pat
                  str(result), "--no-progress"]) == 0
     data = json.loads(result.read_text())
     assert data["stop_reason"] == "reached the end of the reference" and not data["disqualified"]
-    assert "vo.detect" in data["stage_ms"] and "missed_deadlines" in data
+    assert "localize.detect" in data["stage_ms"] and "missed_deadlines" in data
     assert main(["drive", "--reference", str(reference)]) == 1
     assert "needs --sim TRACK or --replay RECORDING" in capsys.readouterr().err

@@ -6,7 +6,6 @@ import argparse
 import csv
 import json
 import math
-import shutil
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -28,12 +27,12 @@ from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
 from kartpilot.runtime.config import load_stack_config
+from kartpilot.runtime.experiment import ThesisVOConfig, run_thesis_vo
 from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.donkeycar import DonkeyTub
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
-from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.referee import RunResult
 from kartpilot.sim.simulator import SimConfig
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
@@ -241,21 +240,24 @@ class _Overlay:
 
 
 def demo(args: argparse.Namespace) -> int:
-    """Closed loop in the simulator: drive straight20 with the rc-kart, record it, then run stereo VO on the
-    recording and score it against the simulator's ground truth."""
+    """The showcase, closed loop in the simulator: the lane-following lap of sdc-assen (sdc-kart, three
+    cameras) and the stereo-VO teach-and-repeat lap of utrack (rc-kart), each with a video of the
+    pipeline's view and the referee's result."""
     out = Path(args.out)
-    record = out / "straight20-run"
-    if record.exists():
-        shutil.rmtree(record)
-    config = SimConfig(track="straight20", vehicle="rc-kart", cameras=("left", "right", "center"), seed=1)
-    print("driving straight20 with the rc-kart (centerline driver, 1.0 m/s), recording every camera ...")
-    run = run_simulation(config, "centerline", CenterlineDriverConfig(speed_mps=1.0), record_dir=record,
-                         video_path=out / "straight20.mp4", progress=True)
+    out.mkdir(parents=True, exist_ok=True)
+    print("1/2 lane following: the sdc-kart drives a lap of sdc-assen on its three cameras (15 km/h mode) ...")
+    lanes_config = SimConfig(track="sdc-assen", vehicle="sdc-kart", speed_mode_mps=15 / 3.6, camera_rate_hz=30.0,
+                             seed=1)
+    run = run_simulation(lanes_config, "lanes", video_path=out / "sdc-assen-lanes.mp4",
+                         result_path=out / "sdc-assen-lanes.json", progress=True)
     _print_result(run.result, run)
-    print("stereo VO on the recording, against the simulator's ground truth:")
-    _, metrics = run_and_report(RecordingStereoSource(record), StereoVOConfig(), out / "trajectory.txt", "kitti",
-                                out / "trajectory.png", progress=True)
-    if metrics is not None:
-        _write_json(out / "metrics.json", metrics.as_dict())
-    print(f"wrote {record}, {out / 'straight20.mp4'}, {out / 'trajectory.txt'}, {out / 'trajectory.png'}")
+    print(f"2/2 waypoint following: the rc-kart is taught a lap of utrack at {args.vo_speed} m/s, builds its "
+          "reference with stereo VO, then drives it on VO and the taught map ...")
+    result = run_thesis_vo(ThesisVOConfig(track="utrack", speed_mps=args.vo_speed, seed=1), out / "utrack-vo",
+                           progress=True)
+    verdict = f"DISQUALIFIED: {result['reason']}" if result["disqualified"] else str(result["reason"])
+    print(f"{verdict} | max {result['max_distance_from_taught_path_m']:.3f} m from the taught path, centre offset "
+          f"max {result['max_center_offset_m']:.3f} m, end point {result['end_error_along_m']:+.3f} m along / "
+          f"{result['end_error_across_m']:+.3f} m across")
+    print(f"wrote {out / 'sdc-assen-lanes.mp4'}, {out / 'utrack-vo' / 'repeat.mp4'} and their result JSON and plots")
     return 0

@@ -140,6 +140,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser("demo", help="the main job on an embedded default (see README)")
     demo.add_argument("--out", default="demo_out")
+    demo.add_argument("--vo-speed", type=float, default=2.0, help="speed of the utrack lap, m/s")
     demo.set_defaults(handler=commands.demo)
     return parser
 

@@ -109,7 +109,7 @@ class StereoVOLocalizer:
         self.vo = StereoVO(rig, vo_config)
         self.rig = rig
         self.map = visual_map if self.config.reloc.enabled else None
-        self._body_cam = np.asarray(pose_body_cam, float)
+        self.body_cam = np.asarray(pose_body_cam, float)
         self._raw: Pose2D | None = None  # VO's own ground pose at the last VO frame
         self._raw_stamp_ns = 0
         self._pose_at_raw: Pose2D = (0.0, 0.0, 0.0)  # the localizer's pose at that frame
@@ -135,7 +135,7 @@ class StereoVOLocalizer:
             return self._bridge(frames.stamp_ns, str(exc))
         for stage, ms in estimate.diagnostics.timing_ms.items():
             self.timing_ms[stage] = self.timing_ms.get(stage, 0.0) + ms
-        raw = vo_ground_pose(estimate.pose_world_cam, self._body_cam)
+        raw = vo_ground_pose(estimate.pose_world_cam, self.body_cam)
         step = (0.0, 0.0, 0.0) if self._raw is None else between_2d(self._raw, raw)
         pose = compose_2d(self._pose_at_raw, step) if self._raw is not None else raw
         dt = 0.0 if self._raw is None else (frames.stamp_ns - self._raw_stamp_ns) * 1e-9
@@ -165,7 +165,7 @@ class StereoVOLocalizer:
             found = relocalize(self.map, int(keyframe), latest[0], self.rig.camera.matrix, reloc)
             if found is None:
                 continue
-            measured = vo_ground_pose(found[0], self._body_cam)
+            measured = vo_ground_pose(found[0], self.body_cam)
             error = between_2d(pose, measured)
             if math.hypot(error[0], error[1]) > reloc.max_correction_m or abs(error[2]) > reloc.max_correction_rad:
                 continue

@@ -17,13 +17,14 @@ from kartpilot.control.lane_follow import LaneDecision, LaneFollowConfig, LaneFo
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import CalibrationError
 from kartpilot.core.geometry import invert_pose, transform_points
-from kartpilot.core.types import ActuatorCommand, FrameSet
+from kartpilot.core.types import ActuatorCommand, FrameSet, Image
 from kartpilot.perception.lanes import (
     LaneConfig,
     LaneObservation,
     SideSearchConfig,
     detect_lanes,
     detect_side_boundary,
+    draw_lanes,
 )
 
 __all__ = ["LanePolicy", "LanePolicyConfig", "side_search_band"]
@@ -107,3 +108,11 @@ class LanePolicy:
                                                 away.get("right", 0.0), self.dt_s)
         self.last_observation, self.last_decision = observation, decision
         return ActuatorCommand(frames.stamp_ns, decision.steer_rad, decision.throttle, decision.brake)
+
+    def overlay(self, frames: FrameSet) -> Image | None:
+        """The pipeline's view: the centre image with the boundaries it found and its steer."""
+        image = frames.images.get("center")
+        if image is None or self.last_observation is None:
+            return None
+        steer = self.last_decision.steer_rad if self.last_decision is not None else None
+        return draw_lanes(image, self.last_observation, steer)

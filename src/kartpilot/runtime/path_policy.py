@@ -10,12 +10,17 @@ from __future__ import annotations
 
 import csv
 import logging
+import math
 import time
 from dataclasses import astuple, dataclass, field, fields
 from pathlib import Path
 
+import cv2
+import numpy as np
+
 from kartpilot.control.path_follow import PathFollowConfig, PathFollowState, path_follow_step
-from kartpilot.core.types import ActuatorCommand, FrameSet
+from kartpilot.core.geometry import invert_pose, transform_points
+from kartpilot.core.types import ActuatorCommand, FrameSet, Image
 from kartpilot.odometry.localizer import LocalizerConfig, StereoVOLocalizer
 from kartpilot.odometry.visual_map import MapConfig
 from kartpilot.planning.reference_path import PathConfig, ReferencePath
@@ -105,6 +110,33 @@ class PathFollowPolicy:
 
     def close(self) -> None:
         self.localizer.close()
+
+    def overlay(self, frames: FrameSet) -> Image | None:
+        """The pipeline's view: the left image with the reference path ahead drawn where the pipeline
+        believes it lies on the road, and its state."""
+        image = frames.images.get(self.localizer.config.left_camera)
+        if image is None or not self.samples:
+            return None
+        canvas = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image.copy()
+        last = self.samples[-1]
+        path = self.path
+        ahead = slice(last.path_index, int(np.searchsorted(path.s_m, path.s_m[last.path_index] + 8.0)))
+        c, s = math.cos(last.yaw_rad), math.sin(last.yaw_rad)
+        dx, dy = path.x_m[ahead] - last.x_m, path.y_m[ahead] - last.y_m
+        body = np.column_stack([c * dx + s * dy, -s * dx + c * dy, np.zeros_like(dx)])
+        in_camera = transform_points(invert_pose(self.localizer.body_cam), body)
+        in_camera = in_camera[in_camera[:, 2] > 0.2]
+        if len(in_camera) >= 2:
+            pixels = self.localizer.rig.camera.project(in_camera)
+            cv2.polylines(canvas, [np.round(pixels).astype(np.int32).reshape(-1, 1, 2)], False, (0, 220, 0), 3,
+                          cv2.LINE_AA)
+        status = "STOPPED: " + self.stop_reason if self.stopped else f"pose {last.pose_status}"
+        text = (f"{status} | cross-track {last.cross_track_m * 100:+.1f} cm | v {last.speed_mps:.2f} / "
+                f"{last.target_speed_mps:.2f} m/s | relocalised {self.localizer.relocalisations}")
+        y = canvas.shape[0] - 14
+        cv2.putText(canvas, text, (12, y), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(canvas, text, (12, y), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA)
+        return canvas
 
 
 def write_drive_log(samples: list[DriveSample], target: str | Path) -> Path:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -105,7 +106,7 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
                 "source": "kartpilot sim", "driver": driver, "sim": config_to_dict(config),
                 "groundtruth_camera": _gt_camera(sim)}, queue_frames=8, drop_when_full=False)
             recorders.append(writer)
-        video = _VideoSink(video_path, sim) if video_path is not None else None
+        video = _VideoSink(video_path, sim, getattr(policy, "overlay", None)) if video_path is not None else None
         bar = tqdm(total=round(_goal_m(sim), 1), unit="m", disable=(not progress) or None, leave=False)
         start = time.perf_counter()
 
@@ -137,7 +138,7 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
             steps = max(stats.steps, 1)
             del stage_ms["policy"]
             stage_ms.update({k: 1e3 * v / steps for k, v in path_policy.stage_s.items()})
-            stage_ms.update({f"vo.{k}": v / steps for k, v in path_policy.localizer.timing_ms.items()})
+            stage_ms.update({f"localize.{k}": v / steps for k, v in path_policy.localizer.timing_ms.items()})
             statuses = [sample.pose_status for sample in path_policy.samples]
             extra = {"stop_reason": path_policy.stop_reason, "bridged_frames": statuses.count("bridged"),
                      "lost_frames": statuses.count("lost"),
@@ -203,15 +204,19 @@ def _goal_m(sim: Simulator) -> float:
 
 
 class _VideoSink:
-    """Writes the main camera's view with the referee's state drawn on it."""
+    """Writes the pipeline's view (the policy's ``overlay``, if it has one) or the main camera's image,
+    with the referee's state drawn on it."""
 
-    def __init__(self, path: str | Path, sim: Simulator) -> None:
+    def __init__(self, path: str | Path, sim: Simulator,
+                 overlay: Callable[[FrameSet], Image | None] | None = None) -> None:
         if not sim.config.render_images:
             raise ConfigError("a video needs rendered images")
         self.sim = sim
+        self.overlay = overlay
         self.camera = "center" if "center" in sim.cameras else next(iter(sim.cameras))
         cam = sim.cameras[self.camera]
         Path(path).parent.mkdir(parents=True, exist_ok=True)
+        self._size_hw = (cam.height_px, cam.width_px)
         self._writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), sim.config.camera_rate_hz,
                                        (cam.width_px, cam.height_px))
         if not self._writer.isOpened():
@@ -219,9 +224,12 @@ class _VideoSink:
         self._last: Image | None = None
 
     def write(self, frames: FrameSet) -> None:
-        image = frames.images.get(self.camera, self._last)
+        view = self.overlay(frames) if self.overlay is not None else None
+        image = view if view is not None else frames.images.get(self.camera, self._last)
         if image is None:
             return
+        if image.shape[:2] != self._size_hw:
+            image = cv2.resize(image, self._size_hw[::-1])
         self._last = image
         sim, ref = self.sim, self.sim.referee
         canvas = image.copy()
