@@ -64,16 +64,17 @@ def main() -> None:
     stages = {f"localize.{k}": v / count for k, v in localizer.timing_ms.items()}
     stages["control"] = 1e3 * policy.stage_s["control"] / count
     median = float(np.median(step_ms))
+    stage_ms = {k: round(v, 3) for k, v in stages.items()}
     result = {
         "frames": count, "image_size": [int(frames[0].left.shape[1]), int(frames[0].left.shape[0])],
         "keyframes": len(visual_map), "relocalised_frames": localizer.relocalisations,
-        "stage_ms_mean": {k: round(v, 3) for k, v in stages.items()},
+        "stage_ms_mean": stage_ms,
         "step_ms_median": round(median, 2), "step_ms_p95": round(float(np.percentile(step_ms, 95)), 2),
         "frames_per_second": round(1000.0 / median, 1),
         "machine": {"processor": platform.processor() or platform.machine(), "python": platform.python_version(),
                     "opencv_threads": 1},
     }
-    for name, ms in result["stage_ms_mean"].items():
+    for name, ms in stage_ms.items():
         print(f"{name:28s} {ms:7.2f} ms")
     print(f"step: median {median:.1f} ms, p95 {result['step_ms_p95']} ms -> {result['frames_per_second']} frames/s "
           f"({count} frames, {localizer.relocalisations} relocalised against {len(visual_map)} keyframes)")

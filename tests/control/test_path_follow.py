@@ -65,7 +65,7 @@ def test_stanley_law_signs_and_softening() -> None:
     assert stanley_steer(config, 0.2, 0.0, 0.0) == pytest.approx(-math.atan(1.2 * 0.2 / 0.5))
     # in a steady bend (heading error (L + look-ahead) * curvature) the feed-forward leaves exactly atan(L k)
     ff = replace(config, curvature_feedforward=True)
-    steady = (0.35 + ff.heading_lookahead_m) * 0.5
+    steady = (0.35 + ff.heading_lookahead_m + ff.heading_lookahead_time_s * 1.0) * 0.5
     assert stanley_steer(ff, 0.0, steady, 1.0, 0.5, 0.35) == pytest.approx(math.atan(0.175))
 
 
@@ -116,7 +116,8 @@ def test_recorded_path_noise_no_longer_shakes_the_steering() -> None:
     """The thesis's configuration (raw path, heading at the nearest waypoint, hand-measured speed) against ours."""
     noisy = straight(30.0, noise_m=0.01)
     thesis_path = build_reference_path(noisy, PathConfig(smoothing_m=0.0, spacing_m=0.04, cruise_speed_mps=0.62))
-    thesis = PathFollowConfig(stanley=StanleyConfig(heading_lookahead_m=0.0, curvature_feedforward=False),
+    thesis = PathFollowConfig(stanley=StanleyConfig(heading_lookahead_m=0.0, heading_lookahead_time_s=0.0,
+                                                    curvature_feedforward=False),
                               bias=BiasConfig(gain_rad_per_m_s=0.0), max_steer_rate_radps=100.0,
                               speed_control="constant_throttle", speed_input="assumed")
     ours_path = build_reference_path(noisy, PathConfig(cruise_speed_mps=0.62))

@@ -21,7 +21,7 @@ from typing import Literal
 
 from kartpilot.control.longitudinal import SpeedPIConfig, SpeedPIState, speed_pi
 from kartpilot.control.pure_pursuit import pure_pursuit_steer
-from kartpilot.control.stanley import StanleyConfig, stanley_steer
+from kartpilot.control.stanley import StanleyConfig, heading_lookahead_m, stanley_steer
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import VehiclePose
 from kartpilot.planning.reference_path import ReferencePath, advance_progress, index_ahead, lateral_offset
@@ -148,7 +148,7 @@ def path_follow_step(config: PathFollowConfig, state: PathFollowState, path: Ref
         fx, fy = pose.x_m + wheelbase_m * c, pose.y_m + wheelbase_m * s
         front = advance_progress(path, fx, fy, index, wheelbase_m + config.search_ahead_m)
         _, cross = lateral_offset(path, front, fx, fy)
-        ahead = index_ahead(path, front, config.stanley.heading_lookahead_m)
+        ahead = index_ahead(path, front, heading_lookahead_m(config.stanley, speed))
         heading_error = math.remainder(float(path.heading_rad[ahead]) - pose.yaw_rad, math.tau)
         steer = stanley_steer(config.stanley, cross, heading_error, speed, float(path.curvature_per_m[ahead]),
                               wheelbase_m)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from kartpilot.core.errors import ConfigError
 
-__all__ = ["StanleyConfig", "stanley_steer"]
+__all__ = ["StanleyConfig", "heading_lookahead_m", "stanley_steer"]
 
 
 @dataclass(frozen=True)
@@ -16,8 +16,9 @@ class StanleyConfig:
         k_heading: gain on the heading error (the thesis: 0.5).
         k_cross_track: gain on the cross-track error (the thesis: 1.2), per second.
         softening_mps: ``k_s``; keeps the cross-track term finite and calm at low speed.
-        heading_lookahead_m: the path heading is taken this far ahead of the front axle's nearest
-            point (the thesis's suggestion), which damps the heading noise of a recorded path.
+        heading_lookahead_m, heading_lookahead_time_s: the path heading is taken
+            ``heading_lookahead_m + heading_lookahead_time_s * speed`` ahead of the front axle's nearest
+            point (the thesis's suggestion), which anticipates bends and damps a recorded path's noise.
         curvature_feedforward: add ``atan(L * curvature)`` less what the heading term gives in a steady
             bend (where the heading error is ``(L + look-ahead) * curvature``), so the kart holds a
             bend with no cross-track error; the gains then act only on deviations.
@@ -26,12 +27,19 @@ class StanleyConfig:
     k_heading: float = 0.5
     k_cross_track: float = 1.2
     softening_mps: float = 0.5
-    heading_lookahead_m: float = 0.3
+    heading_lookahead_m: float = 0.2
+    heading_lookahead_time_s: float = 0.15
     curvature_feedforward: bool = True
 
     def __post_init__(self) -> None:
-        if self.k_heading < 0 or self.k_cross_track < 0 or self.softening_mps <= 0 or self.heading_lookahead_m < 0:
+        if (self.k_heading < 0 or self.k_cross_track < 0 or self.softening_mps <= 0 or self.heading_lookahead_m < 0
+                or self.heading_lookahead_time_s < 0):
             raise ConfigError("stanley: gains and look-ahead must not be negative, softening_mps must be positive")
+
+
+def heading_lookahead_m(config: StanleyConfig, speed_mps: float) -> float:
+    """How far ahead of the front axle the path heading is taken at this speed."""
+    return config.heading_lookahead_m + config.heading_lookahead_time_s * abs(speed_mps)
 
 
 def stanley_steer(config: StanleyConfig, cross_track_m: float, heading_error_rad: float, speed_mps: float,
@@ -46,6 +54,6 @@ def stanley_steer(config: StanleyConfig, cross_track_m: float, heading_error_rad
     steer = config.k_heading * heading_error_rad - math.atan(
         config.k_cross_track * cross_track_m / (config.softening_mps + abs(speed_mps)))
     if config.curvature_feedforward:
-        steady_heading_error = (wheelbase_m + config.heading_lookahead_m) * curvature_per_m
+        steady_heading_error = (wheelbase_m + heading_lookahead_m(config, speed_mps)) * curvature_per_m
         steer += math.atan(wheelbase_m * curvature_per_m) - config.k_heading * steady_heading_error
     return steer
