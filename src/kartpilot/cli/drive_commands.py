@@ -135,7 +135,8 @@ def experiment(args: argparse.Namespace) -> int:
     """``thesis-vo``: teach, build the reference with VO, repeat, score."""
     stack = load_stack_config(args.config)
     config = ThesisVOConfig(track=args.track, speed_mps=args.speed, seed=args.seed, camera_rate_hz=args.rate,
-                            steer_bias_rad=args.steer_bias, use_map=not args.no_map, drive=stack.drive,
+                            steer_bias_rad=args.steer_bias, use_map=not args.no_map, controller=args.controller,
+                            drive=stack.drive,
                             vo=stack.stereo_vo)
     result = run_thesis_vo(config, args.out, progress=not args.no_progress, video=not args.no_video)
     verdict = f"DISQUALIFIED: {result['reason']}" if result["disqualified"] else str(result["reason"])

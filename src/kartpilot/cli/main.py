@@ -132,6 +132,8 @@ def build_parser() -> argparse.ArgumentParser:
     experiment.add_argument("--rate", type=float, default=15.0, help="camera and control rate, Hz")
     experiment.add_argument("--steer-bias", type=float, default=0.03, help="the kart's drag to one side, rad")
     experiment.add_argument("--no-map", action="store_true", help="localise with VO alone, as the thesis did")
+    experiment.add_argument("--controller", choices=("kartpilot", "thesis"), default="kartpilot",
+                            help="thesis: the thesis's pipeline as it ran, for comparison")
     experiment.add_argument("--no-video", action="store_true")
     experiment.add_argument("--out", required=True)
     experiment.add_argument("--config", help="YAML file merged over the defaults (sections stereo_vo, drive)")

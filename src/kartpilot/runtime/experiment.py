@@ -21,10 +21,13 @@ import math
 import shutil
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from kartpilot.control.path_follow import BiasConfig, PathFollowConfig
+from kartpilot.control.stanley import StanleyConfig
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array
 from kartpilot.eval.plots import plot_path_following, plot_steering
@@ -32,15 +35,15 @@ from kartpilot.odometry.localizer import ground_poses
 from kartpilot.odometry.run import run_teach
 from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.odometry.visual_map import map_path_for
-from kartpilot.planning.reference_path import ReferencePath, build_reference_path, save_reference_path
+from kartpilot.planning.reference_path import PathConfig, ReferencePath, build_reference_path, save_reference_path
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.runtime.path_policy import DriveConfig
 from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import DisturbanceConfig, SimConfig
-from kartpilot.sim.vehicle import get_vehicle
+from kartpilot.sim.vehicle import VehicleParams, get_vehicle
 
-__all__ = ["ThesisVOConfig", "end_errors", "path_distance", "run_thesis_vo"]
+__all__ = ["ThesisVOConfig", "end_errors", "path_distance", "run_thesis_vo", "thesis_drive_config"]
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +57,10 @@ class ThesisVOConfig:
         camera_rate_hz: the pipeline's frame rate (the thesis ran at 12 to 13 FPS).
         steer_bias_rad: the kart's drag to one side (positive pulls left).
         use_map: relocalise against the taught drive's visual map (False: VO alone, as the thesis).
+        controller: ``kartpilot`` (``drive``'s settings) or ``thesis``: the thesis's pipeline as it ran,
+            for comparison (unsmoothed reference, Stanley with the heading at the nearest waypoint, no
+            feed-forward, bias compensation or rate limit, a constant throttle and a hand-set speed,
+            VO alone).
         drive: the pipeline's settings; its path's cruise speed is set to ``speed_mps``.
         vo: the stereo VO's settings, for the reference and the repeat drive alike.
     """
@@ -64,12 +71,26 @@ class ThesisVOConfig:
     camera_rate_hz: float = 15.0
     steer_bias_rad: float = 0.03
     use_map: bool = True
+    controller: Literal["kartpilot", "thesis"] = "kartpilot"
     drive: DriveConfig = field(default_factory=DriveConfig)
     vo: StereoVOConfig = field(default_factory=StereoVOConfig)
 
     def __post_init__(self) -> None:
         if self.speed_mps <= 0 or self.camera_rate_hz <= 0:
             raise ConfigError("the experiment's speed and camera rate must be positive")
+        if self.controller not in ("kartpilot", "thesis"):
+            raise ConfigError(f"unknown controller {self.controller!r} (kartpilot or thesis)")
+
+
+def thesis_drive_config(speed_mps: float, vehicle: VehicleParams) -> DriveConfig:
+    """The thesis's autonomous mode: every fix of issue 5 switched off, throttle set by hand for ``speed_mps``."""
+    drag = vehicle.rolling_decel_mps2 / (vehicle.max_accel_mps2 * (1.0 - speed_mps / vehicle.top_speed_mps))
+    follow = PathFollowConfig(
+        stanley=StanleyConfig(k_heading=0.5, k_cross_track=1.2, heading_lookahead_m=0.0, heading_lookahead_time_s=0.0,
+                              curvature_feedforward=False),
+        bias=BiasConfig(gain_rad_per_m_s=0.0), max_steer_rate_radps=100.0, speed_control="constant_throttle",
+        constant_throttle=min(max(drag, 0.0), 1.0), speed_input="assumed", assumed_speed_mps=speed_mps)
+    return DriveConfig(path=PathConfig(spacing_m=0.05, smoothing_m=0.0, cruise_speed_mps=speed_mps), follow=follow)
 
 
 def end_errors(reference_xy_yaw: Array, run_xy: Array) -> tuple[float, float]:
@@ -113,31 +134,34 @@ def run_thesis_vo(config: ThesisVOConfig, out: str | Path, progress: bool = Fals
     if teach.ground_truth is None or teach.result.disqualified:
         raise ConfigError(f"the teach drive failed: {teach.result.reason}")
 
-    print("2/3 reference: stereo VO over the recording" + (", keeping a visual map" if config.use_map else ""))
+    drive = config.drive if config.controller == "kartpilot" else thesis_drive_config(config.speed_mps, vehicle)
+    use_map = config.use_map and config.controller == "kartpilot"
+    print("2/3 reference: stereo VO over the recording" + (", keeping a visual map" if use_map else ""))
     vo_run, visual_map = run_teach(RecordingStereoSource(teach_dir), body_cam, config.vo,
                                    config.drive.map)
     vo_ground = ground_poses(vo_run.trajectory.poses, body_cam)
-    path_config = replace(config.drive.path, cruise_speed_mps=config.speed_mps)
+    path_config = replace(drive.path, cruise_speed_mps=config.speed_mps)
     reference = build_reference_path(vo_ground[:, :2], path_config)
     save_reference_path(reference, out / "reference.csv")
     visual_map.save(map_path_for(out / "reference.csv"))
 
     print("3/3 repeat: the stereo-VO pipeline follows the reference")
-    drive = replace(config.drive, path=path_config)
+    drive = replace(drive, path=path_config)
     repeat = run_simulation(sim, "path", record_dir=None, video_path=(out / "repeat.mp4") if video else None,
                             progress=progress, reference=reference, drive_config=drive,
                             drive_log=out / "drive_log.csv", result_path=out / "repeat_result.json",
-                            visual_map=visual_map if config.use_map else None, vo_config=config.vo)
-    return score(config, out, teach, repeat, reference, vo_ground, body_cam, vo_run.summary())
+                            visual_map=visual_map if use_map else None, vo_config=config.vo)
+    return score(config, out, teach, repeat, reference, body_cam, vo_run.summary())
 
 
 def score(config: ThesisVOConfig, out: Path, teach: SimRun, repeat: SimRun, reference: ReferencePath,
-          vo_ground: Array, body_cam: Array, vo_summary: str) -> dict[str, object]:
+          body_cam: Array, vo_summary: str) -> dict[str, object]:
     """The result JSON and the plots of one experiment."""
     assert teach.ground_truth is not None and repeat.ground_truth is not None
     teach_truth = ground_poses(teach.ground_truth.poses, body_cam)
     repeat_truth = ground_poses(repeat.ground_truth.poses, body_cam)
     along, across = end_errors(teach_truth, repeat_truth[:, :2])
+    relocalised = bool(repeat.extra.get("relocalised_frames"))
     distance = path_distance(teach_truth[:, :2], repeat_truth[:, :2])
     samples = repeat.drive
     steer = np.array([s.steer_rad for s in samples])
@@ -156,7 +180,8 @@ def score(config: ThesisVOConfig, out: Path, teach: SimRun, repeat: SimRun, refe
         "teach": teach.result.to_json(),
         "track": config.track, "speed_mps": config.speed_mps, "seed": config.seed,
         "camera_rate_hz": config.camera_rate_hz, "steer_bias_rad": config.steer_bias_rad,
-        "localisation": "VO and the taught drive's visual map" if config.use_map else "VO alone",
+        "controller": config.controller,
+        "localisation": "VO and the taught drive's visual map" if relocalised else "VO alone",
         "stop_reason": repeat.stop_reason, "missed_deadlines": repeat.missed_deadlines,
         **{k: v for k, v in repeat.extra.items() if k != "stop_reason"},
         "stage_ms": {k: round(v, 3) for k, v in repeat.stage_ms.items()},
