@@ -8,7 +8,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from kartpilot.control.path_follow import BiasConfig, PathFollowConfig, PathFollowState, path_follow_step
+from kartpilot.control.path_follow import (
+    BiasConfig,
+    PathFollowConfig,
+    PathFollowState,
+    path_follow_step,
+    steer_bias_of_drive,
+)
 from kartpilot.control.stanley import StanleyConfig, stanley_steer
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import ActuatorCommand, VehiclePose
@@ -36,7 +42,7 @@ def drive(path: ReferencePath, config: PathFollowConfig, start: VehicleState, se
     """Close the loop with the true pose (plus noise) as the odometry."""
     dt = 1.0 / RATE_HZ
     rng = np.random.default_rng(1)
-    state, follow = start, PathFollowState()
+    state, follow = start, PathFollowState.start(config)
     log: dict[str, list[float]] = {k: [] for k in ("t", "cross", "steer", "speed", "x", "y")}
     for k in range(int(seconds * RATE_HZ)):
         noise = rng.normal(0.0, pose_noise_m, 2)
@@ -127,6 +133,21 @@ def test_recorded_path_noise_no_longer_shakes_the_steering() -> None:
     print(f"steer-rate RMS: thesis {rate['thesis']:.2f} rad/s, kartpilot {rate['kartpilot']:.2f} rad/s")
     assert rate["kartpilot"] < rate["thesis"] / 3
     assert np.abs(runs["kartpilot"]["y"]).max() < 0.05
+
+
+def test_the_bias_is_estimated_from_a_recorded_drive_and_removes_the_start_transient() -> None:
+    path = build_reference_path(straight(40.0), PathConfig(cruise_speed_mps=2.0))
+    bias = 0.04
+    taught = drive(path, PathFollowConfig(), VehicleState(), 20.0, bias)
+    poses = np.column_stack([taught["x"], taught["y"], np.zeros_like(taught["x"])])
+    stamps = np.round(taught["t"] * 1e9).astype(np.int64)
+    estimate = steer_bias_of_drive(path, poses, stamps, stamps, taught["steer"], KART.wheelbase_m)
+    print(f"steering bias {bias} rad, estimated from the drive {estimate:.4f} rad")
+    assert estimate == pytest.approx(bias, abs=0.005)
+    cold = drive(path, PathFollowConfig(), VehicleState(), 10.0, bias)
+    warm = drive(path, PathFollowConfig(bias=BiasConfig(initial_rad=estimate)), VehicleState(), 10.0, bias)
+    print(f"largest offset at 2 m/s: {np.abs(cold['y']).max():.3f} m cold, {np.abs(warm['y']).max():.3f} m warm")
+    assert np.abs(warm["y"]).max() < 0.3 * np.abs(cold["y"]).max()
 
 
 def test_limits_and_the_end_of_the_path() -> None:

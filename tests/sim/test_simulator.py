@@ -93,3 +93,16 @@ def test_motion_blur_smooths_the_image_of_a_moving_kart():
         return float(np.var(np.diff(gray[300:], axis=0)))
 
     assert sharpness(4) < 0.8 * sharpness(1)
+
+
+def test_the_centerline_driver_trims_against_a_kart_that_pulls_to_one_side():
+    from kartpilot.sim.simulator import DisturbanceConfig
+
+    pulled = SimConfig(track="utrack", vehicle="rc-kart", render_images=False,
+                       disturbances=DisturbanceConfig(steer_bias_rad=0.03, cross_slope=True))
+    runs = {trim: run_simulation(pulled, driver_config=CenterlineDriverConfig(
+        speed_mps=2.0, trim_gain_rad_per_m_s=trim)).result for trim in (0.0, 0.1)}
+    print(f"utrack at 2 m/s pulled 0.03 rad left: mean centre offset {runs[0.0].mean_center_offset_m:.3f} m "
+          f"untrimmed, {runs[0.1].mean_center_offset_m:.3f} m trimmed")
+    assert runs[0.0].mean_center_offset_m > 0.1
+    assert runs[0.1].mean_center_offset_m < 0.02 and runs[0.1].finished

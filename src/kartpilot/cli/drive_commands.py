@@ -7,6 +7,9 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
+from kartpilot.control.path_follow import steer_bias_of_drive
 from kartpilot.core.errors import ConfigError, RecordingError
 from kartpilot.core.types import ActuatorCommand
 from kartpilot.odometry.localizer import StereoVOLocalizer, ground_poses
@@ -44,13 +47,22 @@ def reference(args: argparse.Namespace) -> int:
         run, visual_map = run_teach(RecordingStereoSource(args.recording), body_cam, stack.stereo_vo, stack.drive.map)
         print(f"stereo VO: {run.summary()}")
         poses = run.trajectory.poses
+        stamps_ns = np.array([e.stamp_ns for e in run.estimates], np.int64)
     else:
         truth = RecordingReader(args.recording).groundtruth()
         if truth is None:
             raise RecordingError(f"{args.recording} has no ground truth (only simulator recordings do)")
         poses, visual_map = truth.poses, None
-    path = build_reference_path(ground_poses(poses, body_cam)[:, :2], path_config)
+        stamps_ns = np.round(np.asarray(truth.stamps_s) * 1e9).astype(np.int64)
+    ground = ground_poses(poses, body_cam)
+    path = build_reference_path(ground[:, :2], path_config)
     save_reference_path(path, out)
+    commands = RecordingReader(args.recording).commands()
+    if commands:
+        bias = steer_bias_of_drive(path, ground, stamps_ns, np.array([c.stamp_ns for c in commands]),
+                                   np.array([c.steer_rad for c in commands]), vehicle.wheelbase_m)
+        print(f"the drive shows a steering pull of {bias:+.3f} rad (positive left); to start from it, set "
+              f"drive: {{follow: {{bias: {{initial_rad: {bias:.3f}}}}}}}")
     print(f"reference: {len(path)} waypoints over {path.length_m:.1f} m, speed {path.speed_mps.min():.2f} to "
           f"{path.speed_mps.max():.2f} m/s, written to {out}")
     if visual_map is not None:

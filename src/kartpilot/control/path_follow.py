@@ -19,10 +19,13 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
+import numpy as np
+
 from kartpilot.control.longitudinal import SpeedPIConfig, SpeedPIState, speed_pi
 from kartpilot.control.pure_pursuit import pure_pursuit_steer
 from kartpilot.control.stanley import StanleyConfig, heading_lookahead_m, stanley_steer
 from kartpilot.core.errors import ConfigError
+from kartpilot.core.geometry import Array
 from kartpilot.core.types import VehiclePose
 from kartpilot.planning.reference_path import ReferencePath, advance_progress, index_ahead, lateral_offset
 
@@ -32,7 +35,9 @@ __all__ = [
     "PathFollowOutput",
     "PathFollowState",
     "PurePursuitConfig",
+    "estimate_steer_bias",
     "path_follow_step",
+    "steer_bias_of_drive",
 ]
 
 
@@ -49,7 +54,8 @@ class PurePursuitConfig:
 
 @dataclass(frozen=True)
 class BiasConfig:
-    """Integral action against a steady steering offset.
+    """Integral action against a steady steering offset: the kart's pull (positive left) is estimated
+    and steered against.
 
     Attributes:
         gain_rad_per_m_s: the estimate changes by this much per second per metre of cross-track error
@@ -57,12 +63,49 @@ class BiasConfig:
         limit_rad: the estimate's bound.
         within_m: integrate only while the error is smaller than this (not during a large correction).
         min_speed_mps: integrate only while moving at least this fast.
+        initial_rad: the estimate to start from (a kart's known drag, e.g. from
+            :func:`estimate_steer_bias` on the taught drive), so the first metres need no correction.
     """
 
     gain_rad_per_m_s: float = 0.15
     limit_rad: float = 0.1
     within_m: float = 0.3
     min_speed_mps: float = 0.2
+    initial_rad: float = 0.0
+
+
+def estimate_steer_bias(steer_rad: Array, curvature_per_m: Array, speed_mps: Array, wheelbase_m: float,
+                        max_abs_curvature_per_m: float = 0.02, min_speed_mps: float = 0.3) -> float:
+    """The steady steering offset of a drive: what the kart turned (``atan(L * curvature)``) minus what it
+    was commanded, the median over moving samples on gentle curvature (where the kinematic model holds).
+
+    Positive when the kart pulls left (it turns more to the left than commanded). 0 without samples.
+    """
+    steer, curvature, speed = (np.asarray(a, float) for a in (steer_rad, curvature_per_m, speed_mps))
+    use = (np.abs(curvature) < max_abs_curvature_per_m) & (speed > min_speed_mps) & np.isfinite(steer)
+    if not np.any(use):
+        return 0.0
+    return float(np.median(np.arctan(wheelbase_m * curvature[use]) - steer[use]))
+
+
+def steer_bias_of_drive(path: ReferencePath, ground_xy_yaw: Array, stamps_ns: np.ndarray,
+                        command_stamps_ns: np.ndarray, command_steer_rad: Array, wheelbase_m: float) -> float:
+    """:func:`estimate_steer_bias` of a recorded drive: its poses (``(N, 3)`` at ``stamps_ns``, the path's
+    frame), the path built from them (for curvature) and the commands it was driven with (held until
+    the next one)."""
+    poses = np.asarray(ground_xy_yaw, float)
+    stamps = np.asarray(stamps_ns, np.int64)
+    if len(poses) < 3 or len(command_stamps_ns) == 0:
+        return 0.0
+    active = np.searchsorted(np.asarray(command_stamps_ns, np.int64), stamps, side="right") - 1
+    steer = np.where(active >= 0, np.asarray(command_steer_rad, float)[np.clip(active, 0, None)], np.nan)
+    index, curvature = 0, np.empty(len(poses))
+    for k, (x, y, _) in enumerate(poses):
+        index = advance_progress(path, float(x), float(y), index, 2.0)
+        curvature[k] = path.curvature_per_m[index]
+    dt = np.maximum(np.diff(stamps) * 1e-9, 1e-3)
+    speed = np.r_[0.0, np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1])) / dt]
+    return estimate_steer_bias(steer, curvature, speed, wheelbase_m)
 
 
 @dataclass(frozen=True)
@@ -110,12 +153,17 @@ class PathFollowConfig:
 
 @dataclass(frozen=True)
 class PathFollowState:
-    """What one step hands to the next."""
+    """What one step hands to the next. ``bias_rad`` is the estimated pull of the kart (positive left)."""
 
     index: int = 0
     bias_rad: float = 0.0
     steer_rad: float = 0.0
     speed: SpeedPIState = field(default_factory=SpeedPIState)
+
+    @classmethod
+    def start(cls, config: PathFollowConfig) -> PathFollowState:
+        """The state at the start of a drive (the bias estimate from the config)."""
+        return cls(bias_rad=config.bias.initial_rad)
 
 
 @dataclass(frozen=True)
@@ -167,9 +215,9 @@ def path_follow_step(config: PathFollowConfig, state: PathFollowState, path: Ref
     bias = state.bias_rad
     b = config.bias
     if b.gain_rad_per_m_s > 0 and abs(cross) < b.within_m and abs(speed) >= b.min_speed_mps and not done:
-        bias = min(max(bias - b.gain_rad_per_m_s * cross * dt_s, -b.limit_rad), b.limit_rad)
+        bias = min(max(bias + b.gain_rad_per_m_s * cross * dt_s, -b.limit_rad), b.limit_rad)
     limit = min(max_steer_rad, config.max_steer_rad) if config.max_steer_rad > 0 else max_steer_rad
-    steer = min(max(steer + bias, -limit), limit)
+    steer = min(max(steer - bias, -limit), limit)  # cancel the estimated pull
     step = config.max_steer_rate_radps * dt_s
     steer = min(max(steer, state.steer_rad - step), state.steer_rad + step)
 

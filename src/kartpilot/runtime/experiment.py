@@ -26,7 +26,7 @@ from typing import Literal
 import numpy as np
 from scipy.spatial import cKDTree
 
-from kartpilot.control.path_follow import BiasConfig, PathFollowConfig
+from kartpilot.control.path_follow import BiasConfig, PathFollowConfig, steer_bias_of_drive
 from kartpilot.control.stanley import StanleyConfig
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array
@@ -36,7 +36,7 @@ from kartpilot.odometry.run import run_teach
 from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.odometry.visual_map import map_path_for
 from kartpilot.planning.reference_path import PathConfig, ReferencePath, build_reference_path, save_reference_path
-from kartpilot.record.recording import RecordingStereoSource
+from kartpilot.record.recording import RecordingReader, RecordingStereoSource
 from kartpilot.runtime.path_policy import DriveConfig
 from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
@@ -145,8 +145,15 @@ def run_thesis_vo(config: ThesisVOConfig, out: str | Path, progress: bool = Fals
     save_reference_path(reference, out / "reference.csv")
     visual_map.save(map_path_for(out / "reference.csv"))
 
-    print("3/3 repeat: the stereo-VO pipeline follows the reference")
     drive = replace(drive, path=path_config)
+    if config.controller == "kartpilot":
+        commands = RecordingReader(teach_dir).commands()
+        bias = steer_bias_of_drive(reference, vo_ground, np.array([e.stamp_ns for e in vo_run.estimates]),
+                                   np.array([c.stamp_ns for c in commands]), np.array([c.steer_rad for c in commands]),
+                                   vehicle.wheelbase_m)
+        print(f"   the teach drive shows a steering bias of {bias:+.3f} rad: the follower starts from it")
+        drive = replace(drive, follow=replace(drive.follow, bias=replace(drive.follow.bias, initial_rad=bias)))
+    print("3/3 repeat: the stereo-VO pipeline follows the reference")
     repeat = run_simulation(sim, "path", record_dir=None, video_path=(out / "repeat.mp4") if video else None,
                             progress=progress, reference=reference, drive_config=drive,
                             drive_log=out / "drive_log.csv", result_path=out / "repeat_result.json",

@@ -70,7 +70,7 @@ class PathFollowPolicy:
         self.wheelbase_m = wheelbase_m
         self.max_steer_rad = max_steer_rad
         self.period_s = 1.0 / rate_hz
-        self.state = PathFollowState()
+        self.state = PathFollowState.start(config)
         self.samples: list[DriveSample] = []
         self.stop_reason = ""
         self.stopped_at_ns: int | None = None

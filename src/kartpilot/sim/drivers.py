@@ -31,6 +31,10 @@ class CenterlineDriverConfig:
         lookahead_m, lookahead_time_s: look-ahead distance = lookahead_m + lookahead_time_s * speed.
         edge_offset_m: drive this far left (+) or right (-) of the centre line.
         weave_amplitude_m, weave_period_m: a sinusoidal zig-zag around that line.
+        trim_gain_rad_per_m_s: how fast the driver trims the steering against a steady pull (a kart that
+            drags to one side, a sloped track), per metre of offset and second, as a human driver does
+            (0: no trim). It learns on straights only: in bends pure pursuit cuts inside by design.
+        trim_limit_rad: the trim's bound.
     """
 
     speed_mps: float = 1.0
@@ -39,6 +43,8 @@ class CenterlineDriverConfig:
     edge_offset_m: float = 0.0
     weave_amplitude_m: float = 0.0
     weave_period_m: float = 12.0
+    trim_gain_rad_per_m_s: float = 0.1
+    trim_limit_rad: float = 0.1
     speed_control: SpeedPIConfig = field(default_factory=SpeedPIConfig)
 
 
@@ -52,12 +58,20 @@ class CenterlineDriver:
             raise ConfigError("the centerline driver's speed must be positive")
         self._speed_state = SpeedPIState()
         self._hint = sim.track.start_index
+        self._trim_rad = 0.0
 
     def __call__(self, frames: FrameSet) -> ActuatorCommand:
         sim, cfg = self.sim, self.config
         state, route, vehicle = sim.state, sim.track.route, sim.vehicle
         here = project_onto(route, np.array([state.x_m, state.y_m]), self._hint)
         self._hint = here.index
+        offset_now = cfg.edge_offset_m + cfg.weave_amplitude_m * math.sin(
+            2 * math.pi * float(route.s_m[here.index]) / cfg.weave_period_m)
+        error = here.offset_m - offset_now
+        straight = abs(float(route.curvature_1pm[here.index])) < 0.01  # in bends pure pursuit cuts inside
+        if cfg.trim_gain_rad_per_m_s > 0 and state.vx_mps > 0.2 and straight:
+            self._trim_rad -= cfg.trim_gain_rad_per_m_s * min(max(error, -0.2), 0.2) * sim.dt_s
+            self._trim_rad = min(max(self._trim_rad, -cfg.trim_limit_rad), cfg.trim_limit_rad)
         lookahead = cfg.lookahead_m + cfg.lookahead_time_s * max(state.vx_mps, cfg.speed_mps)
         steps = round(lookahead / SAMPLE_SPACING_M)
         i = (here.index + steps) % len(route.s_m) if route.closed else min(here.index + steps, len(route.s_m) - 1)
@@ -66,7 +80,7 @@ class CenterlineDriver:
         heading = float(route.heading_rad[i])  # one normal, not the whole route's every step
         target = route.xy_m[i] + offset * np.array([-math.sin(heading), math.cos(heading)])
         steer = pure_pursuit_steer(state.x_m, state.y_m, state.yaw_rad, float(target[0]), float(target[1]),
-                                   vehicle.wheelbase_m)
+                                   vehicle.wheelbase_m) + self._trim_rad
         steer = max(-vehicle.max_steer_rad, min(vehicle.max_steer_rad, steer))
         throttle, brake, self._speed_state = speed_pi(cfg.speed_control, self._speed_state, cfg.speed_mps,
                                                       state.vx_mps, sim.dt_s)
