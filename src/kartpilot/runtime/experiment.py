@@ -196,6 +196,7 @@ def score(config: ThesisVOConfig, out: Path, teach: SimRun, repeat: SimRun, refe
     (out / "result.json").write_text(json.dumps(result, indent=2))
     plot_path_following(teach_truth[:, :2], reference.xy_m, repeat_truth[:, :2],
                         np.array([[s.x_m, s.y_m] for s in samples]), distance, out / "path.png",
-                        title=f"{config.track} at {config.speed_mps} m/s")
-    plot_steering(t, steer, np.array([s.cross_track_m for s in samples]), out / "steering.png")
+                        title=f"{config.track} at {config.speed_mps} m/s, {config.controller} pipeline")
+    label = f"{config.track} at {config.speed_mps} m/s, {config.controller} pipeline ({result['localisation']})"
+    plot_steering(t, steer, np.array([s.cross_track_m for s in samples]), out / "steering.png", title=label)
     return result
