@@ -129,8 +129,8 @@ def drive(args: argparse.Namespace) -> int:
             stats = run_loop(source, policy, sink, period_s=1.0 / rate)
         finally:
             policy.close()
-        if args.log:
-            write_drive_log(policy.samples, args.log)
+            if args.log:
+                write_drive_log(policy.samples, args.log)
         summary = {"steps": stats.steps, "unreadable_frames": source.unreadable, "stop_reason": policy.stop_reason,
                    "relocalised_frames": localizer.relocalisations, "missed_deadlines": stats.missed_deadlines,
                    "stage_ms": {k: round(1e3 * v / max(stats.steps, 1), 3) for k, v in policy.stage_s.items()}}

@@ -46,7 +46,6 @@ class SimRun:
     stage_ms: dict[str, float]
     record_dir: Path | None
     ground_truth: Trajectory | None = None
-    ground_truth_camera: str = ""
     drive: tuple[DriveSample, ...] = ()
     stop_reason: str = ""
     missed_deadlines: int = 0
@@ -72,8 +71,8 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
     """Drive one run and write what was asked for. The result JSON always goes next to the recording.
 
     The ``path`` driver is the stereo-VO pipeline following ``reference`` (relocalising against
-    ``visual_map`` if given); its run does not end at the
-    finish line but once the pipeline has stopped the kart (end of the reference, or localisation lost).
+    ``visual_map`` if given); its run does not end at the finish line but once the pipeline has
+    stopped the kart (end of the reference, or localisation lost).
     """
     if driver == "path":
         config = replace(config, referee=replace(config.referee, run_on_m=math.inf))
@@ -127,6 +126,8 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
                 video.close()
             if path_policy is not None:
                 path_policy.close()
+                if drive_log is not None:  # written even when the run failed: it says why
+                    write_drive_log(path_policy.samples, drive_log)
             if writer is not None:
                 if sim.stamps_ns:
                     writer.write_groundtruth(sim.ground_truth(_gt_camera(sim)))
@@ -143,8 +144,6 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
             extra = {"stop_reason": path_policy.stop_reason, "bridged_frames": statuses.count("bridged"),
                      "lost_frames": statuses.count("lost"),
                      "relocalised_frames": path_policy.localizer.relocalisations}
-            if drive_log is not None:
-                write_drive_log(path_policy.samples, drive_log)
         payload = {**result.to_json(), "track": sim.track.name, "vehicle": sim.vehicle.name, "seed": config.seed,
                    "driver": driver, "steps": stats.steps, "dropped_frames": sim.dropped_frames,
                    "missed_deadlines": stats.missed_deadlines, **extra,
@@ -156,7 +155,7 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
             target.parent.mkdir(parents=True, exist_ok=True)
             target.write_text(json.dumps(payload, indent=2))
         return SimRun(result, stats.steps, sim.dropped_frames, stage_ms, Path(record_dir) if record_dir else None,
-                      sim.ground_truth(_gt_camera(sim)) if sim.stamps_ns else None, _gt_camera(sim),
+                      sim.ground_truth(_gt_camera(sim)) if sim.stamps_ns else None,
                       tuple(path_policy.samples) if path_policy else (), str(extra.get("stop_reason", "")),
                       stats.missed_deadlines, extra)
 
