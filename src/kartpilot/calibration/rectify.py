@@ -8,7 +8,7 @@ rectified ones. The maps are computed once and reused for every frame.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -27,13 +27,15 @@ class StereoRectification:
 
     Attributes:
         rig: the rectified stereo rig (shared K, baseline in metres).
-        rotation_rect_left: 3x3 rotation from the raw left camera frame to the rectified left frame.
+        rotation_rect_left, rotation_rect_right: 3x3 rotations from each raw camera frame to its
+            rectified frame.
     """
 
     rig: StereoRig
     rotation_rect_left: Array
     left_maps: tuple[np.ndarray, np.ndarray]
     right_maps: tuple[np.ndarray, np.ndarray]
+    rotation_rect_right: Array = field(default_factory=lambda: np.eye(3))
 
     def rectify(self, left: Image, right: Image) -> tuple[Image, Image]:
         """Rectify a raw pair (bilinear interpolation)."""
@@ -72,4 +74,5 @@ def rectify_stereo(left: PinholeCamera, right: PinholeCamera, pose_right_left: A
     right_maps = cv2.initUndistortRectifyMap(
         right.matrix, right.distortion_array, R2, P2, right.size_wh, cv2.CV_16SC2)
     rig = StereoRig.from_projections(P1, P2, left.size_wh)
-    return StereoRectification(rig, np.asarray(R1, dtype=np.float64), left_maps, right_maps)
+    return StereoRectification(rig, np.asarray(R1, dtype=np.float64), left_maps, right_maps,
+                               np.asarray(R2, dtype=np.float64))

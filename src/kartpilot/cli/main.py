@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 
 from kartpilot import __version__
-from kartpilot.cli import commands, drive_commands
+from kartpilot.cli import calibrate_commands, commands, drive_commands
 from kartpilot.core.errors import KartpilotError
 
 __all__ = ["build_parser", "main"]
@@ -90,6 +90,25 @@ def build_parser() -> argparse.ArgumentParser:
     lanes.add_argument("--stages", action="store_true", help="draw the raw and clustered lines too")
     lanes.add_argument("--config", help="YAML file merged over the defaults (sections lane_detection, lane_policy)")
     lanes.set_defaults(handler=commands.lanes)
+
+    calibrate = sub.add_parser("calibrate", help="camera intrinsics (mono) or a stereo pair, from board images")
+    cal_sub = calibrate.add_subparsers(dest="mode", required=True, metavar="MODE")
+    mono = cal_sub.add_parser("mono", help="one camera")
+    mono.add_argument("images", nargs="+")
+    mono.add_argument("--name", default="center", help="the camera's name in the rig file")
+    stereo = cal_sub.add_parser("stereo", help="a stereo pair (images paired by name: left03.jpg, right03.jpg)")
+    stereo.add_argument("--left", nargs="+", required=True)
+    stereo.add_argument("--right", nargs="+", required=True)
+    for cal in (mono, stereo):
+        cal.add_argument("--board", default="9x6", help="inner corners COLUMNSxROWS (ChArUco: squares)")
+        cal.add_argument("--square", type=float, default=0.025, help="square side, m")
+        cal.add_argument("--charuco", action="store_true", help="a ChArUco board instead of a chessboard")
+        cal.add_argument("--marker", type=float, help="ChArUco marker side, m (default 0.75 of a square)")
+        cal.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco dictionary")
+        cal.add_argument("--mount", help="the (left) camera's pose on the kart: X,Y,Z[,YAW_DEG,PITCH_DOWN_DEG]")
+        cal.add_argument("--out", required=True, help="the rig file to write (YAML)")
+        cal.add_argument("--json", action="store_true", help="print a machine-readable summary")
+        cal.set_defaults(handler=calibrate_commands.calibrate)
 
     ref = sub.add_parser("reference", help="a reference path (and visual map) from a recorded drive")
     ref.add_argument("recording", help="a kartpilot recording with a stereo pair")

@@ -7,11 +7,11 @@ the rear axle (the point pure pursuit steers). Cameras use OpenCV's frame
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from kartpilot.calibration.rig import mount_pose
 from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.errors import ConfigError
 
@@ -98,13 +98,7 @@ class VehicleParams:
 def camera_pose_on_body(x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0,
                         pitch_down_deg: float = 0.0) -> tuple[tuple[float, ...], ...]:
     """The 4x4 pose of an OpenCV camera on the body, looking forward then yawed left and pitched down."""
-    base = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # camera axes in body axes
-    yaw, pitch = math.radians(yaw_deg), math.radians(pitch_down_deg)
-    rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
-    ry = np.array([[math.cos(pitch), 0, math.sin(pitch)], [0, 1, 0], [-math.sin(pitch), 0, math.cos(pitch)]])
-    pose = np.eye(4)
-    pose[:3, :3] = rz @ ry @ base
-    pose[:3, 3] = (x_m, y_m, z_m)
+    pose = mount_pose(x_m, y_m, z_m, yaw_deg, pitch_down_deg)
     return tuple(tuple(float(v) for v in row) for row in pose)
 
 

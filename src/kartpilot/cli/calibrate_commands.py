@@ -1,0 +1,99 @@
+"""``kartpilot calibrate mono|stereo``: a rig file from images of a calibration board."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from kartpilot.calibration.board import BoardConfig, MonoCalibration, calibrate_mono, calibrate_stereo, read_views
+from kartpilot.calibration.rig import Rig, mount_pose, save_rig
+from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.errors import ConfigError
+from kartpilot.core.geometry import invert_pose
+
+__all__ = ["calibrate"]
+
+
+def _board(args: argparse.Namespace) -> BoardConfig:
+    try:
+        columns, rows = (int(v) for v in args.board.lower().split("x"))
+    except ValueError as exc:
+        raise ConfigError(f"--board {args.board!r}: expected COLUMNSxROWS, such as 9x6") from exc
+    return BoardConfig(kind="charuco" if args.charuco else "chessboard", columns=columns, rows=rows,
+                       square_m=args.square, marker_m=args.marker or 0.0, dictionary=args.dictionary)
+
+
+def _mount(text: str | None) -> np.ndarray:
+    if not text:
+        return mount_pose()  # at the body's origin, looking forward
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError as exc:
+        raise ConfigError(f"--mount {text!r}: expected X,Y,Z[,YAW_DEG,PITCH_DOWN_DEG] in metres") from exc
+    if len(values) not in (3, 4, 5):
+        raise ConfigError(f"--mount {text!r}: expected 3 to 5 numbers")
+    return mount_pose(*values)
+
+
+def _with_pose(camera: PinholeCamera, pose: np.ndarray) -> PinholeCamera:
+    return PinholeCamera(camera.fx_px, camera.fy_px, camera.cx_px, camera.cy_px, camera.width_px, camera.height_px,
+                         camera.distortion, tuple(tuple(float(v) for v in row) for row in pose))
+
+
+def _camera_json(calibration: MonoCalibration) -> dict[str, Any]:
+    cam = calibration.camera
+    return {"fx": cam.fx_px, "fy": cam.fy_px, "cx": cam.cx_px, "cy": cam.cy_px, "distortion": list(cam.distortion),
+            "rms_px": calibration.rms_px, "per_image_rms_px": calibration.per_view_rms_px}
+
+
+def _print_camera(name: str, calibration: MonoCalibration) -> None:
+    cam = calibration.camera
+    print(f"{name}: fx {cam.fx_px:.2f} fy {cam.fy_px:.2f} cx {cam.cx_px:.2f} cy {cam.cy_px:.2f} px, distortion "
+          f"{', '.join(f'{d:+.4f}' for d in cam.distortion)}, RMS {calibration.rms_px:.3f} px")
+    for image, rms in calibration.per_view_rms_px.items():
+        print(f"  {image}: {rms:.3f} px")
+
+
+def calibrate(args: argparse.Namespace) -> int:
+    board = _board(args)
+    if args.mode == "mono":
+        views, skipped, size = read_views(args.images, board)
+        result = calibrate_mono(views, size)
+        rig = Rig({args.name: _with_pose(result.camera, _mount(args.mount))})
+        summary: dict[str, Any] = {"rms_px": result.rms_px, "used": [v.name for v in views], "skipped": skipped,
+                                   "cameras": {args.name: _camera_json(result)}}
+        if not args.json:
+            _print_camera(args.name, result)
+    else:
+        left_views, left_skipped, size = read_views(args.left, board)
+        right_views, right_skipped, right_size = read_views(args.right, board)
+        if size != right_size:
+            raise ConfigError(f"the left images are {size[0]}x{size[1]}, the right {right_size[0]}x{right_size[1]}")
+        stereo = calibrate_stereo(left_views, right_views, size)
+        pose_left = _mount(args.mount)
+        pose_right = pose_left @ invert_pose(stereo.pose_right_left)
+        rig = Rig({"left": _with_pose(stereo.left.camera, pose_left),
+                   "right": _with_pose(stereo.right.camera, pose_right)}, ("left", "right"))
+        rows = list(stereo.row_error_px.values())
+        summary = {"rms_px": stereo.rms_px, "used": list(stereo.pairs), "skipped": left_skipped + right_skipped,
+                   "cameras": {"left": _camera_json(stereo.left), "right": _camera_json(stereo.right)},
+                   "baseline_m": stereo.baseline_m, "rectified_focal_px": stereo.rectification.rig.camera.fx_px,
+                   "rectified_row_error_px": {"median": float(np.median(rows)), "max": float(np.max(rows))}}
+        if not args.json:
+            _print_camera("left", stereo.left)
+            _print_camera("right", stereo.right)
+            print(f"stereo: RMS {stereo.rms_px:.3f} px over {len(stereo.pairs)} pairs, baseline "
+                  f"{stereo.baseline_m:.4f} m, rectified focal {summary['rectified_focal_px']:.2f} px, "
+                  f"rows after rectification differ by {np.median(rows):.3f} px (median; max {np.max(rows):.3f})")
+    save_rig(rig, args.out)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        for line in summary["skipped"]:
+            print(f"skipped {line}")
+        print(f"rig written to {Path(args.out)}")
+    return 0
