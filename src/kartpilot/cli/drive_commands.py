@@ -16,7 +16,7 @@ from kartpilot.odometry.localizer import StereoVOLocalizer, ground_poses
 from kartpilot.odometry.run import run_teach
 from kartpilot.odometry.visual_map import VisualMap, load_visual_map, map_path_for
 from kartpilot.planning.reference_path import build_reference_path, load_reference_path, save_reference_path
-from kartpilot.record.recording import RecordingReader, RecordingStereoSource
+from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.record.replay import StereoReplaySource
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.experiment import ThesisVOConfig, run_thesis_vo
@@ -39,17 +39,18 @@ def _stereo_vehicle(name: str) -> tuple[VehicleParams, tuple[str, str]]:
 def reference(args: argparse.Namespace) -> int:
     """A reference path (and, from VO, its visual map) from a recorded drive."""
     stack = load_stack_config(args.config)
-    vehicle, pair = _stereo_vehicle(args.vehicle)
-    body_cam = vehicle.camera(pair[0]).pose_body_cam_array
+    vehicle, _ = _stereo_vehicle(args.vehicle)
+    source = RecordingStereoSource(args.recording)
+    body_cam = source.pose_body_left  # the recording's own rig: where its left camera sat on the kart
     path_config = stack.drive.path if args.speed is None else replace(stack.drive.path, cruise_speed_mps=args.speed)
     out = Path(args.out)
     if args.source == "vo":
-        run, visual_map = run_teach(RecordingStereoSource(args.recording), body_cam, stack.stereo_vo, stack.drive.map)
+        run, visual_map = run_teach(source, body_cam, stack.stereo_vo, stack.drive.map)
         print(f"stereo VO: {run.summary()}")
         poses = run.trajectory.poses
         stamps_ns = np.array([e.stamp_ns for e in run.estimates], np.int64)
     else:
-        truth = RecordingReader(args.recording).groundtruth()
+        truth = source.reader.groundtruth()
         if truth is None:
             raise RecordingError(f"{args.recording} has no ground truth (only simulator recordings do)")
         poses, visual_map = truth.poses, None
@@ -57,7 +58,7 @@ def reference(args: argparse.Namespace) -> int:
     ground = ground_poses(poses, body_cam)
     path = build_reference_path(ground[:, :2], path_config)
     save_reference_path(path, out)
-    commands = RecordingReader(args.recording).commands()
+    commands = source.reader.commands()
     if commands:
         bias = steer_bias_of_drive(path, ground, stamps_ns, np.array([c.stamp_ns for c in commands]),
                                    np.array([c.steer_rad for c in commands]), vehicle.wheelbase_m)
@@ -118,8 +119,7 @@ def drive(args: argparse.Namespace) -> int:
         return 0
     if args.replay:
         source = StereoReplaySource(args.replay)
-        body_cam = vehicle.camera(pair[0]).pose_body_cam_array
-        localizer = StereoVOLocalizer(source.stereo.rig, body_cam, stack.stereo_vo,
+        localizer = StereoVOLocalizer(source.stereo.rig, source.stereo.pose_body_left, stack.stereo_vo,
                                       replace(drive_config.localizer, left_camera=source.left_name,
                                               right_camera=source.right_name), visual_map)
         rate = args.rate or stack.sim.camera_rate_hz

@@ -116,7 +116,8 @@ def build_parser() -> argparse.ArgumentParser:
     ref.add_argument("--from", dest="source", choices=("vo", "groundtruth"), default="vo",
                      help="vo: stereo VO over the recording, with a visual map (default); groundtruth: the "
                           "simulator's poses")
-    ref.add_argument("--vehicle", default="rc-kart", help="whose camera mount turns camera poses into kart poses")
+    ref.add_argument("--vehicle", default="rc-kart", help="the kart (its wheelbase); camera mounts come from the "
+                     "recording's rig")
     ref.add_argument("--speed", type=float, help="cruise speed of the path's speed profile, m/s")
     ref.add_argument("--config", help="YAML file merged over the defaults (sections stereo_vo, drive)")
     ref.set_defaults(handler=drive_commands.reference)

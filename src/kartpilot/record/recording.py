@@ -33,7 +33,7 @@ import numpy as np
 from kartpilot.calibration.rectify import StereoRectification, rectify_stereo
 from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.errors import CalibrationError, RecordingError
-from kartpilot.core.geometry import invert_pose
+from kartpilot.core.geometry import Array, invert_pose
 from kartpilot.core.trajectory import Trajectory, read_tum, write_tum
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image, StereoFrame
 from kartpilot.sensors.base import StereoSource, read_gray
@@ -295,6 +295,17 @@ class RecordingStereoSource(StereoSource):
     @property
     def rig(self) -> StereoRig:
         return self._rig
+
+    @property
+    def pose_body_left(self) -> Array:
+        """The (rectified) left camera's pose on the kart, from the recording's rig."""
+        assert self.reader.stereo_pair is not None
+        pose = self.reader.cameras[self.reader.stereo_pair[0]].pose_body_cam_array
+        if self._rectification is None:
+            return pose
+        rect_raw = np.eye(4)
+        rect_raw[:3, :3] = self._rectification.rotation_rect_left.T  # rectified axes in the raw camera frame
+        return pose @ rect_raw
 
     def __len__(self) -> int:
         return len(self._pairs)
