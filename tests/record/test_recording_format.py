@@ -74,3 +74,33 @@ def test_refuses_to_overwrite_and_rejects_foreign_folders(tmp_path, source: Synt
         RecordingReader(tmp_path / "other")
     with pytest.raises(RecordingError, match="no stereo pair"):
         RecordingStereoSource(folder)
+
+
+def test_recordings_info_reports_frames_skew_and_commands_of_a_cut_off_recording(tmp_path, capsys):
+    import json
+
+    import numpy as np
+
+    from kartpilot.cli.main import main
+    from kartpilot.core.camera import PinholeCamera
+    from kartpilot.core.types import ActuatorCommand
+    from kartpilot.record.recording import RecordingWriter
+
+    camera = PinholeCamera(100.0, 100.0, 31.5, 23.5, 64, 48)
+    writer = RecordingWriter(tmp_path / "run", {"left": camera, "right": camera}, stereo_pair=("left", "right"))
+    image = np.zeros((48, 64), np.uint8)
+    for k in range(10):
+        stamp = k * 100_000_000
+        writer.write_frame("left", stamp, image)
+        writer.write_frame("right", stamp + 3_000_000, image)  # the right camera 3 ms late
+        writer.send(ActuatorCommand(stamp, 0.1 * (k % 2), 0.5, 0.0 if k < 8 else 1.0))
+    writer.count_dropped(2)
+    # no close(): the run was cut off
+    assert main(["recordings", "info", str(tmp_path / "run"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["closed"] is False and info["duration_s"] == 0.903
+    assert info["cameras"]["left"]["frames"] == 10 and info["cameras"]["left"]["rate_hz"] == 10.0
+    assert info["cameras"]["right"]["skew_to_left_ms"] == {"median": 3.0, "max": 3.0}
+    assert info["commands"]["count"] == 10 and info["commands"]["braking_fraction"] == 0.2
+    assert main(["recordings", "info", str(tmp_path / "run")]) == 0
+    assert "NOT closed properly" in capsys.readouterr().out

@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 
 from kartpilot import __version__
-from kartpilot.cli import calibrate_commands, commands, drive_commands
+from kartpilot.cli import calibrate_commands, commands, drive_commands, record_commands
 from kartpilot.core.errors import KartpilotError
 
 __all__ = ["build_parser", "main"]
@@ -109,6 +109,13 @@ def build_parser() -> argparse.ArgumentParser:
         cal.add_argument("--out", required=True, help="the rig file to write (YAML)")
         cal.add_argument("--json", action="store_true", help="print a machine-readable summary")
         cal.set_defaults(handler=calibrate_commands.calibrate)
+
+    recordings = sub.add_parser("recordings", help="inspect recordings")
+    rec_sub = recordings.add_subparsers(dest="action", required=True, metavar="ACTION")
+    info = rec_sub.add_parser("info", help="duration, frames per camera, drops, sync skew, command statistics")
+    info.add_argument("recording")
+    info.add_argument("--json", action="store_true")
+    info.set_defaults(handler=record_commands.recordings_info)
 
     ref = sub.add_parser("reference", help="a reference path (and visual map) from a recorded drive")
     ref.add_argument("recording", help="a kartpilot recording with a stereo pair")
