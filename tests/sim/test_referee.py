@@ -55,7 +55,9 @@ def test_touching_a_painted_line_and_hitting_a_cone_disqualify():
         result = sim.result(1.0)
     assert result.disqualified and "touched the right line" in result.reason
     with physics_only("utrack") as sim:
-        run_loop(sim, CenterlineDriver(sim, CenterlineDriverConfig(speed_mps=1.0, edge_offset_m=0.5)), sim)
+        # no trim: the run is to cross the line where a cone stands
+        driver = CenterlineDriverConfig(speed_mps=1.0, edge_offset_m=0.5, trim_gain_rad_per_m_s=0.0)
+        run_loop(sim, CenterlineDriver(sim, driver), sim)
         result = sim.result(1.0)
     assert result.disqualified and result.cones_hit == 1 and "cone" in result.reason
 
