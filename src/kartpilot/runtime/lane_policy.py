@@ -110,9 +110,9 @@ class LanePolicy:
         return ActuatorCommand(frames.stamp_ns, decision.steer_rad, decision.throttle, decision.brake)
 
     def overlay(self, frames: FrameSet) -> Image | None:
-        """The pipeline's view: the centre image with the boundaries it found and its steer."""
+        """The pipeline's view: the centre image with the boundaries it found and where they meet (the
+        video's caption gives the steer)."""
         image = frames.images.get("center")
         if image is None or self.last_observation is None:
             return None
-        steer = self.last_decision.steer_rad if self.last_decision is not None else None
-        return draw_lanes(image, self.last_observation, steer)
+        return draw_lanes(image, self.last_observation)
