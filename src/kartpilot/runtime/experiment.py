@@ -189,7 +189,7 @@ def score(config: ThesisVOConfig, out: Path, teach: SimRun, repeat: SimRun, refe
         "camera_rate_hz": config.camera_rate_hz, "steer_bias_rad": config.steer_bias_rad,
         "controller": config.controller,
         "localisation": "VO and the taught drive's visual map" if relocalised else "VO alone",
-        "stop_reason": repeat.stop_reason, "missed_deadlines": repeat.missed_deadlines,
+        "stop_reason": repeat.stop_reason, "steps": repeat.steps, "missed_deadlines": repeat.missed_deadlines,
         **{k: v for k, v in repeat.extra.items() if k != "stop_reason"},
         "stage_ms": {k: round(v, 3) for k, v in repeat.stage_ms.items()},
     }
