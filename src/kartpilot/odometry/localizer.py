@@ -154,7 +154,7 @@ class StereoVOLocalizer:
         t0 = time.perf_counter()
         reloc = self.config.reloc
         ground = self.map.ground_xy_yaw
-        window = slice(max(self._keyframe - 2, 0), min(self._keyframe + 4 * reloc.search_keyframes, len(ground)))
+        window = slice(max(self._keyframe - 2, 0), min(self._keyframe + reloc.search_keyframes, len(ground)))
         distance = np.hypot(ground[window, 0] - pose[0], ground[window, 1] - pose[1])
         order = window.start + np.argsort(distance)
         self._keyframe = int(order[0])

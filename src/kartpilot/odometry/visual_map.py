@@ -46,7 +46,8 @@ class MapConfig:
 class RelocConfig:
     """Attributes:
         enabled: use the map when there is one.
-        search_keyframes: keyframes tried around the nearest, ahead of the last one matched.
+        search_keyframes: how many keyframes ahead of the last nearest one (and two behind) are searched
+            for the nearest; it and the next nearest are tried.
         min_inliers: fewest PnP inliers for a relocalisation to count.
         max_correction_m, max_correction_rad: a relocalisation further than this from the current
             estimate is taken for a mismatch and ignored.
@@ -55,7 +56,7 @@ class RelocConfig:
     """
 
     enabled: bool = True
-    search_keyframes: int = 6
+    search_keyframes: int = 24
     min_inliers: int = 15
     max_correction_m: float = 1.5
     max_correction_rad: float = 0.35
