@@ -60,9 +60,12 @@ def test_the_localizer_tracks_bridges_a_gap_and_reports_lost(source: SyntheticSt
         assert [p.status for p in gap] == ["bridged", "bridged", "lost", "lost"]  # 0.1 s per frame
         assert "left camera delivered nothing" in gap[0].reason
         assert gap[1].x_m > poses[-1].x_m + 0.3  # the motion model carries it on
-        back = localizer.update(frames_of(source, 16))
+        black = FrameSet(16, source.frame(16).stamp_ns, {"left": np.zeros_like(source.frame(16).left),
+                                                          "right": source.frame(16).right})
+        assert "left camera's frame is black" in localizer.update(black).reason
+        back = localizer.update(frames_of(source, 17))
         assert back.status == "ok"
-        assert np.hypot(back.x_m - truth[16, 0], back.y_m - truth[16, 1]) < 0.1
+        assert np.hypot(back.x_m - truth[17, 0], back.y_m - truth[17, 1]) < 0.1
     finally:
         localizer.close()
 

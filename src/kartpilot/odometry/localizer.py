@@ -28,6 +28,7 @@ from kartpilot.core.geometry import Array, invert_pose
 from kartpilot.core.types import FrameSet, Image, StereoFrame, VehiclePose
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
 from kartpilot.odometry.visual_map import RelocConfig, VisualMap, relocalize
+from kartpilot.sensors.health import HealthConfig, frame_problem
 
 __all__ = ["LocalizerConfig", "StereoVOLocalizer", "between_2d", "compose_2d", "ground_poses", "vo_ground_pose"]
 
@@ -73,12 +74,14 @@ def between_2d(a: tuple[float, float, float], b: tuple[float, float, float]) -> 
 class LocalizerConfig:
     """Attributes:
         reloc: relocalisation against a visual map of the taught drive, when one is given.
+        health: when a frame counts as black, blank or frozen (such a frame is bridged, not used).
         left_camera, right_camera: the stereo pair's names in the frame sets.
         max_bridge_s: how long the motion model may stand in for VO before the pose is ``lost``.
         speed_time_constant_s: low-pass time constant of the speed and yaw-rate estimates.
     """
 
     reloc: RelocConfig = field(default_factory=RelocConfig)
+    health: HealthConfig = field(default_factory=HealthConfig)
     left_camera: str = "left"
     right_camera: str = "right"
     max_bridge_s: float = 0.5
@@ -116,6 +119,7 @@ class StereoVOLocalizer:
         self._last: VehiclePose | None = None
         self._last_ok_ns: int | None = None
         self._keyframe = 0
+        self._previous_images: dict[str, Image] = {}
         self.relocalisations = 0
         self.timing_ms: dict[str, float] = {}  # VO's stages (and reloc), summed over every frame
 
@@ -129,6 +133,12 @@ class StereoVOLocalizer:
         if left is None or right is None:
             missing = cfg.left_camera if left is None else cfg.right_camera
             return self._bridge(frames.stamp_ns, f"the {missing} camera delivered nothing")
+        for name, image in ((cfg.left_camera, left), (cfg.right_camera, right)):
+            # a black or frozen frame would read as a standing kart: it is a missing frame
+            problem = frame_problem(image, self._previous_images.get(name), cfg.health)
+            self._previous_images[name] = image
+            if problem:
+                return self._bridge(frames.stamp_ns, f"the {name} camera's frame is {problem}")
         try:
             estimate = self.vo.process(StereoFrame(frames.index, frames.stamp_ns, _gray(left), _gray(right)))
         except (PerceptionError, OdometryError) as exc:
