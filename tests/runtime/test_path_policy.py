@@ -32,3 +32,21 @@ def test_losing_vo_stops_the_kart_and_it_stays_stopped(tmp_path):
     assert policy.stop_reason.startswith("localisation lost")
     log = write_drive_log(policy.samples, tmp_path / "log.csv").read_text().splitlines()
     assert log[0].startswith("stamp_ns,x_m,y_m,yaw_rad,speed_mps,pose_status") and len(log) == 17
+
+
+def test_a_kart_that_drives_past_the_whole_reference_is_stopped_whatever_its_pose_says():
+    from kartpilot.core.types import VehiclePose
+
+    class StuckLocalizer:  # a pose pinned in place while the speed says the kart moves
+        def update(self, frames: FrameSet) -> VehiclePose:
+            return VehiclePose(frames.stamp_ns, 1.0, 0.0, 0.0, 1.0, 0.0, "ok")
+
+        def close(self) -> None:
+            pass
+
+    path = build_reference_path(np.column_stack([np.linspace(0, 10, 101), np.zeros(101)]), PathConfig())
+    policy = PathFollowPolicy(StuckLocalizer(), path, PathFollowConfig(), 0.35, 0.45, 10.0)  # type: ignore[arg-type]
+    commands = [policy(FrameSet(i, i * 100_000_000, {})) for i in range(140)]
+    stop_at = next(i for i, c in enumerate(commands) if c.brake == 1.0)
+    assert 125 <= stop_at <= 132  # 1.1 x 10 m + 2 m at 1 m/s, 10 Hz
+    assert policy.stop_reason.startswith("drove 13.")

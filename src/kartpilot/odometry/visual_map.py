@@ -50,7 +50,8 @@ class RelocConfig:
             for the nearest; it and the next nearest are tried.
         min_inliers: fewest PnP inliers for a relocalisation to count.
         max_correction_m, max_correction_rad: a relocalisation further than this from the current
-            estimate is taken for a mismatch and ignored.
+            estimate is taken for a mismatch and ignored. Under half the spacing of repeated structure
+            (cones every metre), so PnP locked onto the neighbouring cones is rejected.
         gain: the fraction of the difference applied per relocalisation (a complementary filter:
             VO carries the pose between relocalisations, the map pulls it onto the reference).
     """
@@ -58,8 +59,8 @@ class RelocConfig:
     enabled: bool = True
     search_keyframes: int = 24
     min_inliers: int = 15
-    max_correction_m: float = 1.5
-    max_correction_rad: float = 0.35
+    max_correction_m: float = 0.4
+    max_correction_rad: float = 0.1
     gain: float = 0.3
     matching: MatchConfig = field(default_factory=lambda: MatchConfig(ratio=0.8))
     pnp: PnpConfig = field(default_factory=lambda: PnpConfig(reprojection_px=2.0, translation_min_disparity_px=0.0))

@@ -1,7 +1,8 @@
 """The stereo-VO pipeline as a policy: frames -> VO pose -> progress on the reference -> command.
 
 It fails closed: once the localizer reports ``lost`` (VO bridged for longer than it
-may), or the end of the reference is reached, the command is a stop, and it stays a
+may), the end of the reference is reached, or the kart has driven clearly further than
+the whole reference (whatever the pose says), the command is a stop, and it stays a
 stop. Every step is logged as a :class:`DriveSample` for plots and CSV, and the time
 spent in each stage is accumulated for the profile.
 """
@@ -26,6 +27,8 @@ from kartpilot.odometry.visual_map import MapConfig
 from kartpilot.planning.reference_path import PathConfig, ReferencePath
 
 __all__ = ["DriveConfig", "DriveSample", "PathFollowPolicy", "write_drive_log"]
+
+OVERRUN_FACTOR, OVERRUN_M = 1.1, 2.0  # stop after driving 10 % + 2 m more than the reference is long
 
 log = logging.getLogger(__name__)
 
@@ -76,6 +79,7 @@ class PathFollowPolicy:
         self.stopped_at_ns: int | None = None
         self.stage_s: dict[str, float] = {"localize": 0.0, "control": 0.0}
         self._last_stamp_ns: int | None = None
+        self.odometer_m = 0.0
 
     @property
     def stopped(self) -> bool:
@@ -94,8 +98,15 @@ class PathFollowPolicy:
         self._last_stamp_ns = frames.stamp_ns
         out, self.state = path_follow_step(self.config, self.state, self.path, pose, dt, self.wheelbase_m,
                                            self.max_steer_rad)
-        if not self.stopped and (out.done or pose.status == "lost"):
-            self.stop_reason = "reached the end of the reference" if out.done else f"localisation lost: {pose.reason}"
+        self.odometer_m += abs(pose.speed_mps) * dt
+        overrun = self.odometer_m > OVERRUN_FACTOR * self.path.length_m + OVERRUN_M
+        if not self.stopped and (out.done or pose.status == "lost" or overrun):
+            if out.done:
+                self.stop_reason = "reached the end of the reference"
+            elif overrun:  # whatever the pose says, the kart has driven further than the whole reference
+                self.stop_reason = f"drove {self.odometer_m:.1f} m on a {self.path.length_m:.1f} m reference"
+            else:
+                self.stop_reason = f"localisation lost: {pose.reason}"
             self.stopped_at_ns = frames.stamp_ns
             (log.info if out.done else log.error)("stopping: %s", self.stop_reason)
         command = (ActuatorCommand.stop(frames.stamp_ns) if self.stopped
