@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -40,8 +41,7 @@ def _mount(text: str | None) -> np.ndarray:
 
 
 def _with_pose(camera: PinholeCamera, pose: np.ndarray) -> PinholeCamera:
-    return PinholeCamera(camera.fx_px, camera.fy_px, camera.cx_px, camera.cy_px, camera.width_px, camera.height_px,
-                         camera.distortion, tuple(tuple(float(v) for v in row) for row in pose))
+    return replace(camera, pose_body_cam=tuple(tuple(float(v) for v in row) for row in pose))
 
 
 def _camera_json(calibration: MonoCalibration) -> dict[str, Any]:

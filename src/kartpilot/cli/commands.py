@@ -27,7 +27,7 @@ from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
 from kartpilot.runtime.config import load_stack_config
-from kartpilot.runtime.experiment import ThesisVOConfig, run_thesis_vo
+from kartpilot.runtime.experiment import ThesisVOConfig, run_thesis_vo, summary_line
 from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.donkeycar import DonkeyTub
@@ -255,9 +255,6 @@ def demo(args: argparse.Namespace) -> int:
           "reference with stereo VO, then drives it on VO and the taught map ...")
     result = run_thesis_vo(ThesisVOConfig(track="utrack", speed_mps=args.vo_speed, seed=1), out / "utrack-vo",
                            progress=True)
-    verdict = f"DISQUALIFIED: {result['reason']}" if result["disqualified"] else str(result["reason"])
-    print(f"{verdict} | max {result['max_distance_from_taught_path_m']:.3f} m from the taught path, centre offset "
-          f"max {result['max_center_offset_m']:.3f} m, end point {result['end_error_along_m']:+.3f} m along / "
-          f"{result['end_error_across_m']:+.3f} m across")
+    print(summary_line(result))
     print(f"wrote {out / 'sdc-assen-lanes.mp4'}, {out / 'utrack-vo' / 'repeat.mp4'} and their result JSON and plots")
     return 0

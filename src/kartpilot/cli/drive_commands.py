@@ -12,16 +12,16 @@ import numpy as np
 from kartpilot.control.path_follow import steer_bias_of_drive
 from kartpilot.core.errors import ConfigError, RecordingError
 from kartpilot.core.types import ActuatorCommand
-from kartpilot.odometry.localizer import StereoVOLocalizer, ground_poses
+from kartpilot.odometry.localizer import ground_poses
 from kartpilot.odometry.run import run_teach
 from kartpilot.odometry.visual_map import VisualMap, load_visual_map, map_path_for
 from kartpilot.planning.reference_path import build_reference_path, load_reference_path, save_reference_path
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.record.replay import StereoReplaySource
 from kartpilot.runtime.config import load_stack_config
-from kartpilot.runtime.experiment import ThesisVOConfig, run_thesis_vo
+from kartpilot.runtime.experiment import ThesisVOConfig, run_thesis_vo, summary_line
 from kartpilot.runtime.loop import run_loop
-from kartpilot.runtime.path_policy import PathFollowPolicy, write_drive_log
+from kartpilot.runtime.path_policy import stereo_vo_policy, write_drive_log
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.simulator import SimConfig
 from kartpilot.sim.vehicle import VehicleParams, get_vehicle
@@ -119,11 +119,10 @@ def drive(args: argparse.Namespace) -> int:
         return 0
     if args.replay:
         source = StereoReplaySource(args.replay)
-        localizer = StereoVOLocalizer(source.stereo.rig, source.stereo.pose_body_left, stack.stereo_vo,
-                                      replace(drive_config.localizer, left_camera=source.left_name,
-                                              right_camera=source.right_name), visual_map)
         rate = args.rate or stack.sim.camera_rate_hz
-        policy = PathFollowPolicy(localizer, path, follow, vehicle.wheelbase_m, vehicle.max_steer_rad, rate)
+        policy = stereo_vo_policy(source.stereo.rig, source.stereo.pose_body_left,
+                                  (source.left_name, source.right_name), path, drive_config, stack.stereo_vo,
+                                  visual_map, vehicle.wheelbase_m, vehicle.max_steer_rad, rate)
         sink = _CommandLog()
         try:
             stats = run_loop(source, policy, sink, period_s=1.0 / rate)
@@ -132,7 +131,7 @@ def drive(args: argparse.Namespace) -> int:
             if args.log:
                 write_drive_log(policy.samples, args.log)
         summary = {"steps": stats.steps, "unreadable_frames": source.unreadable, "stop_reason": policy.stop_reason,
-                   "relocalised_frames": localizer.relocalisations, "missed_deadlines": stats.missed_deadlines,
+                   "relocalised_frames": policy.localizer.relocalisations, "missed_deadlines": stats.missed_deadlines,
                    "stage_ms": {k: round(1e3 * v / max(stats.steps, 1), 3) for k, v in policy.stage_s.items()}}
         print(json.dumps(summary))
         if args.result:
@@ -151,9 +150,6 @@ def experiment(args: argparse.Namespace) -> int:
                             drive=stack.drive,
                             vo=stack.stereo_vo)
     result = run_thesis_vo(config, args.out, progress=not args.no_progress, video=not args.no_video)
-    verdict = f"DISQUALIFIED: {result['reason']}" if result["disqualified"] else str(result["reason"])
-    print(f"{verdict} | end point {result['end_error_along_m']:+.3f} m along, {result['end_error_across_m']:+.3f} m "
-          f"across (the thesis: {result['thesis_end_error_m']} m) | max {result['max_distance_from_taught_path_m']:.3f}"
-          f" m from the taught path, centre offset max {result['max_center_offset_m']:.3f} m")
+    print(summary_line(result))
     print(f"wrote {Path(args.out) / 'result.json'}, path.png, steering.png")
     return 0

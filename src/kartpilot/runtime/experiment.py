@@ -43,7 +43,7 @@ from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import DisturbanceConfig, SimConfig
 from kartpilot.sim.vehicle import VehicleParams, get_vehicle
 
-__all__ = ["ThesisVOConfig", "end_errors", "path_distance", "run_thesis_vo", "thesis_drive_config"]
+__all__ = ["ThesisVOConfig", "end_errors", "path_distance", "run_thesis_vo", "summary_line", "thesis_drive_config"]
 
 log = logging.getLogger(__name__)
 
@@ -159,6 +159,15 @@ def run_thesis_vo(config: ThesisVOConfig, out: str | Path, progress: bool = Fals
                             drive_log=out / "drive_log.csv", result_path=out / "repeat_result.json",
                             visual_map=visual_map if use_map else None, vo_config=config.vo)
     return score(config, out, teach, repeat, reference, body_cam, vo_run.summary())
+
+
+def summary_line(result: dict[str, object]) -> str:
+    """One line for a person: the verdict, the end point against the thesis's, the tracking error."""
+    verdict = f"DISQUALIFIED: {result['reason']}" if result["disqualified"] else str(result["reason"])
+    return (f"{verdict} | end point {result['end_error_along_m']:+.3f} m along, {result['end_error_across_m']:+.3f} m "
+            f"across (the thesis: {result['thesis_end_error_m']} m) | max "
+            f"{result['max_distance_from_taught_path_m']:.3f} m from the taught path, centre offset max "
+            f"{result['max_center_offset_m']:.3f} m")
 
 
 def score(config: ThesisVOConfig, out: Path, teach: SimRun, repeat: SimRun, reference: ReferencePath,

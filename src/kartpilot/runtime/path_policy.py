@@ -13,20 +13,22 @@ import csv
 import logging
 import math
 import time
-from dataclasses import astuple, dataclass, field, fields
+from dataclasses import astuple, dataclass, field, fields, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from kartpilot.control.path_follow import PathFollowConfig, PathFollowState, path_follow_step
-from kartpilot.core.geometry import invert_pose, transform_points
+from kartpilot.core.camera import StereoRig
+from kartpilot.core.geometry import Array, invert_pose, transform_points
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image
 from kartpilot.odometry.localizer import LocalizerConfig, StereoVOLocalizer
-from kartpilot.odometry.visual_map import MapConfig
+from kartpilot.odometry.stereo_vo import StereoVOConfig
+from kartpilot.odometry.visual_map import MapConfig, VisualMap
 from kartpilot.planning.reference_path import PathConfig, ReferencePath
 
-__all__ = ["DriveConfig", "DriveSample", "PathFollowPolicy", "write_drive_log"]
+__all__ = ["DriveConfig", "DriveSample", "PathFollowPolicy", "stereo_vo_policy", "write_drive_log"]
 
 OVERRUN_FACTOR, OVERRUN_M = 1.1, 2.0  # stop after driving 10 % + 2 m more than the reference is long
 
@@ -148,6 +150,15 @@ class PathFollowPolicy:
         cv2.putText(canvas, text, (12, y), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 3, cv2.LINE_AA)
         cv2.putText(canvas, text, (12, y), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA)
         return canvas
+
+
+def stereo_vo_policy(rig: StereoRig, pose_body_cam: Array, pair: tuple[str, str], reference: ReferencePath,
+                     config: DriveConfig, vo_config: StereoVOConfig | None, visual_map: VisualMap | None,
+                     wheelbase_m: float, max_steer_rad: float, rate_hz: float) -> PathFollowPolicy:
+    """The stereo-VO pipeline on the pair named ``pair`` (left, right), following ``reference``."""
+    localizer = StereoVOLocalizer(rig, pose_body_cam, vo_config,
+                                  replace(config.localizer, left_camera=pair[0], right_camera=pair[1]), visual_map)
+    return PathFollowPolicy(localizer, reference, config.follow, wheelbase_m, max_steer_rad, rate_hz)
 
 
 def write_drive_log(samples: list[DriveSample], target: str | Path) -> Path:

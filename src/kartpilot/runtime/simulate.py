@@ -17,14 +17,19 @@ from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError, RecordingError
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image
-from kartpilot.odometry.localizer import StereoVOLocalizer
 from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.odometry.visual_map import VisualMap
 from kartpilot.planning.reference_path import ReferencePath
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 from kartpilot.runtime.lane_policy import LanePolicy, LanePolicyConfig
 from kartpilot.runtime.loop import Policy, Recorder, run_loop
-from kartpilot.runtime.path_policy import DriveConfig, DriveSample, PathFollowPolicy, write_drive_log
+from kartpilot.runtime.path_policy import (
+    DriveConfig,
+    DriveSample,
+    PathFollowPolicy,
+    stereo_vo_policy,
+    write_drive_log,
+)
 from kartpilot.sim.drivers import CenterlineDriver, CenterlineDriverConfig, CommandsDriver
 from kartpilot.sim.referee import RunResult
 from kartpilot.sim.simulator import SimConfig, Simulator
@@ -47,9 +52,13 @@ class SimRun:
     record_dir: Path | None
     ground_truth: Trajectory | None = None
     drive: tuple[DriveSample, ...] = ()
-    stop_reason: str = ""
     missed_deadlines: int = 0
     extra: dict[str, object] = field(default_factory=dict)
+
+    @property
+    def stop_reason(self) -> str:
+        """Why the path driver stopped the kart (empty for other drivers)."""
+        return str(self.extra.get("stop_reason", ""))
 
 
 def load_commands(path: str | Path) -> list[ActuatorCommand]:
@@ -156,8 +165,7 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
             target.write_text(json.dumps(payload, indent=2))
         return SimRun(result, stats.steps, sim.dropped_frames, stage_ms, Path(record_dir) if record_dir else None,
                       sim.ground_truth(_gt_camera(sim)) if sim.stamps_ns else None,
-                      tuple(path_policy.samples) if path_policy else (), str(extra.get("stop_reason", "")),
-                      stats.missed_deadlines, extra)
+                      tuple(path_policy.samples) if path_policy else (), stats.missed_deadlines, extra)
 
 
 def _path_policy(sim: Simulator, reference: ReferencePath | None, config: DriveConfig,
@@ -169,10 +177,8 @@ def _path_policy(sim: Simulator, reference: ReferencePath | None, config: DriveC
     if pair is None or not set(pair) <= set(sim.cameras) or not sim.config.render_images:
         raise ConfigError(f"the stereo-VO pipeline needs the {vehicle.name}'s stereo pair rendered "
                           f"(cameras {', '.join(pair) if pair else 'none on this vehicle'})")
-    localizer_config = replace(config.localizer, left_camera=pair[0], right_camera=pair[1])
-    localizer = StereoVOLocalizer(vehicle.stereo_rig(), sim.cameras[pair[0]].pose_body_cam_array, vo_config,
-                                  localizer_config, visual_map)
-    return PathFollowPolicy(localizer, reference, config.follow, vehicle.wheelbase_m, vehicle.max_steer_rad,
+    return stereo_vo_policy(vehicle.stereo_rig(), sim.cameras[pair[0]].pose_body_cam_array, pair, reference, config,
+                            vo_config, visual_map, vehicle.wheelbase_m, vehicle.max_steer_rad,
                             sim.config.camera_rate_hz)
 
 

@@ -65,9 +65,7 @@ class CenterlineDriver:
         state, route, vehicle = sim.state, sim.track.route, sim.vehicle
         here = project_onto(route, np.array([state.x_m, state.y_m]), self._hint)
         self._hint = here.index
-        offset_now = cfg.edge_offset_m + cfg.weave_amplitude_m * math.sin(
-            2 * math.pi * float(route.s_m[here.index]) / cfg.weave_period_m)
-        error = here.offset_m - offset_now
+        error = here.offset_m - self._wanted_offset(float(route.s_m[here.index]))
         straight = abs(float(route.curvature_1pm[here.index])) < 0.01  # in bends pure pursuit cuts inside
         if cfg.trim_gain_rad_per_m_s > 0 and state.vx_mps > 0.2 and straight:
             self._trim_rad -= cfg.trim_gain_rad_per_m_s * min(max(error, -0.2), 0.2) * sim.dt_s
@@ -76,7 +74,7 @@ class CenterlineDriver:
         steps = round(lookahead / SAMPLE_SPACING_M)
         i = (here.index + steps) % len(route.s_m) if route.closed else min(here.index + steps, len(route.s_m) - 1)
         s_target = float(route.s_m[i])
-        offset = cfg.edge_offset_m + cfg.weave_amplitude_m * math.sin(2 * math.pi * s_target / cfg.weave_period_m)
+        offset = self._wanted_offset(s_target)
         heading = float(route.heading_rad[i])  # one normal, not the whole route's every step
         target = route.xy_m[i] + offset * np.array([-math.sin(heading), math.cos(heading)])
         steer = pure_pursuit_steer(state.x_m, state.y_m, state.yaw_rad, float(target[0]), float(target[1]),
@@ -85,6 +83,11 @@ class CenterlineDriver:
         throttle, brake, self._speed_state = speed_pi(cfg.speed_control, self._speed_state, cfg.speed_mps,
                                                       state.vx_mps, sim.dt_s)
         return ActuatorCommand(frames.stamp_ns, steer, throttle, brake)
+
+    def _wanted_offset(self, s_m: float) -> float:
+        """Where the driver wants to be left of the centre line at ``s_m``: the edge offset plus the weave."""
+        cfg = self.config
+        return cfg.edge_offset_m + cfg.weave_amplitude_m * math.sin(2 * math.pi * s_m / cfg.weave_period_m)
 
 
 class CommandsDriver:
