@@ -1,11 +1,12 @@
 import json
+import math
 
 import numpy as np
 import pytest
 
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import RecordingError
-from kartpilot.core.types import ActuatorCommand
+from kartpilot.core.types import ActuatorCommand, FrameSet
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource, RecordingWriter
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
 
@@ -94,7 +95,7 @@ def test_recordings_info_reports_frames_skew_and_commands_of_a_cut_off_recording
         writer.write_frame("left", stamp, image)
         writer.write_frame("right", stamp + 3_000_000, image)  # the right camera 3 ms late
         writer.send(ActuatorCommand(stamp, 0.1 * (k % 2), 0.5, 0.0 if k < 8 else 1.0))
-    writer.count_dropped(2)
+    writer.count_dropped("right", 2)
     # no close(): the run was cut off
     assert main(["recordings", "info", str(tmp_path / "run"), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
@@ -104,3 +105,55 @@ def test_recordings_info_reports_frames_skew_and_commands_of_a_cut_off_recording
     assert info["commands"]["count"] == 10 and info["commands"]["braking_fraction"] == 0.2
     assert main(["recordings", "info", str(tmp_path / "run")]) == 0
     assert "NOT closed properly" in capsys.readouterr().out
+
+
+def test_outputs_can_traffic_and_capture_stamps_round_trip_through_the_writer_thread(tmp_path):
+    camera = PinholeCamera(100.0, 100.0, 31.5, 23.5, 64, 48)
+    folder = tmp_path / "run"
+    image = np.full((48, 64), 90, np.uint8)
+    with RecordingWriter(folder, {"a": camera, "b": camera}, queue_frames=4, drop_when_full=False) as writer:
+        for k in range(5):
+            stamp = 1_000 + k * 50_000_000
+            images = {"a": image} if k == 2 else {"a": image, "b": image}  # b delivered nothing once
+            writer.write_frames(FrameSet(k, stamp, images, {"a": stamp - 2_000_000, "b": stamp + 1_000_000}))
+            writer.write_outputs(stamp, {"pose": {"x_m": 0.5 * k, "status": "ok" if k else "bridged"},
+                                         "lanes": {"steer_rad": -0.01 * k, "left_x_bottom_px": math.nan}})
+            writer.write_can(stamp, 0x101, bytes([k, 255]))
+        with pytest.raises(RecordingError, match="columns x_m, status"):
+            writer.write_output("pose", 9, {"y_m": 1.0})
+        with pytest.raises(RecordingError, match="topic"):
+            writer.write_output("Bad Topic", 9, {"y_m": 1.0})
+    reader = RecordingReader(folder)
+    assert reader.output_topics() == ["lanes", "pose"]
+    pose = reader.outputs("pose")
+    assert [row["x_m"] for row in pose] == [0.0, 0.5, 1.0, 1.5, 2.0] and pose[0]["status"] == "bridged"
+    assert math.isnan(float(reader.outputs("lanes")[0]["left_x_bottom_px"]))
+    assert reader.can_frames()[3] == (1_000 + 150_000_000, "tx", 0x101, bytes([3, 255]))
+    assert reader.manifest["dropped_frames"] == {"a": 0, "b": 1}
+    assert reader.capture_stamps("b")[0] == 1_000 + 1_000_000
+    assert reader.frames("b")[0][0] == 1_000  # grouped under the set's time
+    with pytest.raises(RecordingError, match="no output 'odometry'"):
+        reader.outputs("odometry")
+
+
+def test_a_live_recorder_drops_frames_it_cannot_keep_up_with_and_counts_them(tmp_path, monkeypatch):
+    import threading
+
+    camera = PinholeCamera(100.0, 100.0, 31.5, 23.5, 64, 48)
+    gate = threading.Event()
+    writer = RecordingWriter(tmp_path / "run", {"a": camera}, queue_frames=2, drop_when_full=True)
+    original = writer._write_image
+
+    def slow_disk(*args):
+        gate.wait(5)
+        original(*args)
+
+    monkeypatch.setattr(writer, "_write_image", slow_disk)
+    image = np.full((48, 64), 90, np.uint8)
+    for k in range(10):  # the caller never waits: 1 frame being written, 2 queued, the rest dropped
+        writer.write_frame("a", k, image)
+    gate.set()
+    writer.close()
+    reader = RecordingReader(tmp_path / "run")
+    written = len(reader.frames("a"))
+    assert written + reader.manifest["dropped_frames"]["a"] == 10 and 2 <= written <= 3

@@ -56,3 +56,27 @@ def test_a_slow_step_is_counted_as_a_missed_deadline_and_pacing_holds_the_rate()
                      period_s=0.02, pace=True)
     assert paced.missed_deadlines == 0
     assert time.perf_counter() - start >= 5 * 0.02 * 0.9  # the loop waited out each period
+
+
+def test_a_policy_s_outputs_are_recorded_beside_its_commands(tmp_path):
+    from kartpilot.core.camera import PinholeCamera
+    from kartpilot.record.recording import RecordingReader, RecordingWriter
+
+    class Counting:
+        def __init__(self) -> None:
+            self.steps = 0
+
+        def __call__(self, frames: FrameSet) -> ActuatorCommand:
+            self.steps += 1
+            return ActuatorCommand(frames.stamp_ns, 0.0, 0.2, 0.0)
+
+        def outputs(self) -> dict:
+            return {"diagnostics": {"steps": self.steps, "state": "ok"}}
+
+    camera = PinholeCamera(100.0, 100.0, 31.5, 23.5, 64, 48)
+    with RecordingWriter(tmp_path / "run", {"center": camera}) as writer:
+        run_loop(ListSource(4), Counting(), ListSink(), [writer])
+    reader = RecordingReader(tmp_path / "run")
+    assert [row["steps"] for row in reader.outputs("diagnostics")] == [1, 2, 3, 4]
+    assert len(reader.commands()) == 4
+    assert reader.manifest["dropped_frames"] == {"center": 4}  # the source delivered no images

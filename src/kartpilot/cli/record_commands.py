@@ -31,5 +31,11 @@ def recordings_info(args: argparse.Namespace) -> int:
               f"braking {100 * commands['braking_fraction']:.0f} % of the time")
     else:
         print("  commands: none")
+    if info["outputs"]:
+        print("  pipeline outputs: " + ", ".join(f"{topic} ({rows} rows)" for topic, rows in info["outputs"].items()))
+    if info["can_frames"]:
+        print(f"  CAN frames: {info['can_frames']}")
+    if info["dropped_lines"]:
+        print(f"  lines dropped from the recording (queue full): {info['dropped_lines']}")
     print(f"  ground truth: {'yes' if info['has_groundtruth'] else 'no'}; stereo pair: {info['stereo_pair']}")
     return 0

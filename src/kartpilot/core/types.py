@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
 from numpy.typing import NDArray
@@ -51,11 +51,14 @@ class FrameSet:
         index: position of the set in its source (0-based).
         stamp_ns: capture time of the set in nanoseconds.
         images: camera name -> image. A camera missing from the mapping delivered nothing.
+        capture_ns: camera name -> when that camera's image was captured, where it differs from
+            ``stamp_ns`` (live cameras are grouped by time; their own stamps show the skew).
     """
 
     index: int
     stamp_ns: int
     images: Mapping[str, Image]
+    capture_ns: Mapping[str, int] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

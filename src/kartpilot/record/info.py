@@ -24,7 +24,8 @@ def _skew_ms(reference_ns: np.ndarray, other_ns: np.ndarray) -> tuple[float, flo
 
 def recording_info(reader: RecordingReader) -> dict[str, Any]:
     """A summary of the recording (what ``kartpilot recordings info`` prints)."""
-    stamps = {name: np.array([s for s, _ in reader.frames(name)], np.int64) for name in reader.cameras}
+    # each camera's own capture times: the skew within a synchronised set shows there
+    stamps = {name: np.array(reader.capture_stamps(name), np.int64) for name in reader.cameras}
     every = np.concatenate([s for s in stamps.values() if len(s)] or [np.zeros(0, np.int64)])
     commands = reader.commands()
     command_stamps = np.array([c.stamp_ns for c in commands], np.int64)
@@ -48,6 +49,9 @@ def recording_info(reader: RecordingReader) -> dict[str, Any]:
         "stereo_pair": list(reader.stereo_pair) if reader.stereo_pair else None,
         "has_groundtruth": (reader.folder / "groundtruth.tum").is_file(),
         "commands": {"count": len(commands)},
+        "outputs": {topic: len(reader.outputs(topic)) for topic in reader.output_topics()},
+        "can_frames": len(reader.can_frames()),
+        "dropped_lines": int(reader.manifest.get("dropped_lines", 0) or 0),
         "metadata": reader.manifest.get("metadata", {}),
     }
     if commands:

@@ -6,14 +6,19 @@ Layout (format version 1)::
       manifest.json        format, version, rig (cameras with intrinsics, distortion,
                            resolution and pose on the kart), stereo pair names,
                            counts, and whether the recording was closed properly
-      cameras/<cam>/frames.csv   index,stamp_ns,file  (one line per frame, flushed)
+      cameras/<cam>/frames.csv   index,stamp_ns,file,capture_ns  (one line per frame, flushed;
+                           stamp_ns is the synchronised set's time, capture_ns the camera's own)
       cameras/<cam>/<stamp_ns>.png
       commands.csv         stamp_ns,steer_rad,throttle,brake
+      outputs/<topic>.csv  the pipeline's own outputs (poses, lane observations, diagnostics):
+                           stamp_ns and one column per named value
+      can.csv              stamp_ns,direction,id,data  (CAN traffic, when there is a bus)
       groundtruth.tum      left camera poses in TUM format, when known
 
-The manifest is written first with ``"closed": false`` and rewritten on close,
-so a recording cut off by a crash still opens and says it was not closed.
-Frame and command lines are flushed as they are written.
+The manifest is written first with ``"closed": false``, refreshed every second (its counts)
+and rewritten on close, so a recording cut off by a crash still opens and says it was not closed.
+Every line is flushed as it is written. ``outputs/`` and ``can.csv`` are optional:
+a recording without them reads as one with none.
 """
 
 from __future__ import annotations
@@ -22,7 +27,10 @@ import csv
 import json
 import os
 import queue
+import re
 import threading
+import time
+from collections.abc import Mapping
 from dataclasses import asdict
 from pathlib import Path
 from typing import IO, Any
@@ -49,6 +57,9 @@ __all__ = [
 FORMAT_NAME = "kartpilot-recording"
 FORMAT_VERSION = 1
 COMMAND_COLUMNS = ("stamp_ns", "steer_rad", "throttle", "brake")
+CAN_COLUMNS = ("stamp_ns", "direction", "id", "data")
+_TOPIC = re.compile(r"[a-z][a-z0-9_]*")
+OutputValue = float | int | str
 _PNG_FAST = [cv2.IMWRITE_PNG_COMPRESSION, 1]  # lossless; level 1 writes about 3x faster than the default
 
 
@@ -74,10 +85,15 @@ class RecordingWriter:
     """Writes a recording folder. Use as a context manager; ``close`` marks it complete.
 
     With ``queue_frames > 0``, images are encoded and written by one background thread per camera
-    (PNG encoding releases the GIL) through a bounded queue, so recording does not hold up the
-    caller. When the queue is full the frame is dropped and counted (``drop_when_full``, for a live
-    loop that must not wait) or the caller waits (for the simulator, whose time does not run away).
+    (PNG encoding releases the GIL) through a bounded queue, and the text lines (commands, outputs,
+    CAN traffic) by one more thread, so recording does not hold up the caller. When a frame queue is
+    full the frame is dropped and counted per camera (``drop_when_full``, for a live loop that must
+    not wait) or the caller waits (for the simulator, whose time does not run away). Text lines are
+    small: their queue holds ``LINE_QUEUE`` lines, and a line that does not fit is counted too.
     """
+
+    LINE_QUEUE = 10_000
+    MANIFEST_REFRESH_S = 1.0
 
     def __init__(self, folder: str | Path, cameras: dict[str, PinholeCamera],
                  stereo_pair: tuple[str, str] | None = None, metadata: dict[str, Any] | None = None,
@@ -91,36 +107,54 @@ class RecordingWriter:
         self.stereo_pair = stereo_pair
         self.metadata = dict(metadata or {})
         self.frame_counts = dict.fromkeys(cameras, 0)
-        self.dropped_frames = 0
+        self.dropped = dict.fromkeys(cameras, 0)
+        self.dropped_lines = 0
         self.command_count = 0
-        self._frame_files: dict[str, IO[str]] = {}
+        self.output_counts: dict[str, int] = {}
+        self.can_count = 0
+        self._files: dict[str, IO[str]] = {}
+        self._output_columns: dict[str, tuple[str, ...]] = {}
         for name in cameras:
             camera_dir = self.folder / "cameras" / name
             camera_dir.mkdir(parents=True, exist_ok=True)
-            handle = (camera_dir / "frames.csv").open("w", newline="")
-            handle.write("index,stamp_ns,file\n")
-            self._frame_files[name] = handle
-        self._commands = (self.folder / "commands.csv").open("w", newline="")
-        self._commands.write(",".join(COMMAND_COLUMNS) + "\n")
+            self._open(f"camera:{name}", camera_dir / "frames.csv", ("index", "stamp_ns", "file", "capture_ns"))
+        self._open("commands", self.folder / "commands.csv", COMMAND_COLUMNS)
         self._closed = False
         self._drop_when_full = drop_when_full
-        self._queues: dict[str, queue.Queue[tuple[str, int, Image] | None]] = {}
+        self._queues: dict[str, queue.Queue[tuple[str, int, Image, int] | None]] = {}
+        self._lines: queue.Queue[tuple[str, str] | None] | None = None
         self._threads: list[threading.Thread] = []
         self._error: BaseException | None = None
         if queue_frames > 0:
             for name in cameras:
                 self._queues[name] = queue.Queue(maxsize=queue_frames)
-                thread = threading.Thread(target=self._drain, args=(self._queues[name],),
-                                          name=f"recording-{name}", daemon=True)
-                thread.start()
-                self._threads.append(thread)
+                self._start(self._drain, self._queues[name], f"recording-{name}")
+            self._lines = queue.Queue(maxsize=self.LINE_QUEUE)
+            self._start(self._drain_lines, self._lines, "recording-lines")
         self._write_manifest(closed=False)
+        self._manifest_written = time.monotonic()
+
+    def _open(self, key: str, path: Path, columns: tuple[str, ...]) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle = path.open("w", newline="")
+        handle.write(",".join(columns) + "\n")
+        handle.flush()
+        self._files[key] = handle
+
+    def _start(self, target: Any, jobs: queue.Queue[Any], name: str) -> None:
+        thread = threading.Thread(target=target, args=(jobs,), name=name, daemon=True)
+        thread.start()
+        self._threads.append(thread)
 
     def __enter__(self) -> RecordingWriter:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    @property
+    def dropped_frames(self) -> int:
+        return sum(self.dropped.values())
 
     def _write_manifest(self, closed: bool) -> None:
         manifest = {
@@ -130,8 +164,11 @@ class RecordingWriter:
             "cameras": {name: _camera_to_json(cam) for name, cam in self.cameras.items()},
             "stereo_pair": list(self.stereo_pair) if self.stereo_pair else None,
             "frame_counts": self.frame_counts,
-            "dropped_frames": self.dropped_frames,
+            "dropped_frames": self.dropped,
+            "dropped_lines": self.dropped_lines,
             "command_count": self.command_count,
+            "output_counts": self.output_counts,
+            "can_count": self.can_count,
             "has_groundtruth": (self.folder / "groundtruth.tum").is_file(),
             "metadata": self.metadata,
         }
@@ -139,70 +176,157 @@ class RecordingWriter:
         temporary.write_text(json.dumps(manifest, indent=2))
         os.replace(temporary, self.folder / "manifest.json")  # atomic: never a half-written manifest
 
-    def write_frame(self, camera: str, stamp_ns: int, image: Image) -> None:
+    def _check_open(self) -> None:
         if self._closed:
             raise RecordingError("the recording is closed")
-        if camera not in self._frame_files:
-            raise RecordingError(f"unknown camera {camera!r}")
         if self._error is not None:
             raise RecordingError(f"the recording's writer failed: {self._error}") from self._error
+
+    def write_frame(self, camera: str, stamp_ns: int, image: Image, capture_ns: int | None = None) -> None:
+        """One camera's image of the set at ``stamp_ns`` (``capture_ns``: the camera's own time, if other)."""
+        self._check_open()
+        if camera not in self.cameras:
+            raise RecordingError(f"unknown camera {camera!r}")
+        capture = stamp_ns if capture_ns is None else capture_ns
         if not self._queues:
-            self._write_image(camera, stamp_ns, image)
+            self._write_image(camera, stamp_ns, image, capture)
             return
         try:
-            self._queues[camera].put((camera, stamp_ns, image), block=not self._drop_when_full)
+            self._queues[camera].put((camera, stamp_ns, image, capture), block=not self._drop_when_full)
         except queue.Full:
-            self.dropped_frames += 1
+            self.dropped[camera] += 1
 
-    def _drain(self, jobs: queue.Queue[tuple[str, int, Image] | None]) -> None:
+    def _drain(self, jobs: queue.Queue[tuple[str, int, Image, int] | None]) -> None:
         while (item := jobs.get()) is not None:
             try:
                 self._write_image(*item)
             except BaseException as exc:
                 self._error = exc
 
-    def _write_image(self, camera: str, stamp_ns: int, image: Image) -> None:
+    def _drain_lines(self, jobs: queue.Queue[tuple[str, str] | None]) -> None:
+        while (item := jobs.get()) is not None:
+            try:
+                self._write_line(*item)
+            except BaseException as exc:
+                self._error = exc
+
+    def _write_line(self, key: str, line: str) -> None:
+        handle = self._files[key]
+        handle.write(line)
+        handle.flush()
+
+    def _line(self, key: str, line: str) -> None:
+        if self._lines is None:
+            self._write_line(key, line)
+            return
+        try:
+            self._lines.put_nowait((key, line))
+        except queue.Full:
+            self.dropped_lines += 1
+
+    def _write_image(self, camera: str, stamp_ns: int, image: Image, capture_ns: int) -> None:
         name = f"{stamp_ns}.png"
         path = self.folder / "cameras" / camera / name
         if not cv2.imwrite(str(path), image, _PNG_FAST):
             raise RecordingError(f"cannot write {path}")
-        handle = self._frame_files[camera]
-        handle.write(f"{self.frame_counts[camera]},{stamp_ns},{name}\n")
-        handle.flush()
+        self._write_line(f"camera:{camera}", f"{self.frame_counts[camera]},{stamp_ns},{name},{capture_ns}\n")
         self.frame_counts[camera] += 1
 
     def write_frames(self, frames: FrameSet) -> None:
-        """Frame sink: write every image of a synchronised set under its camera's name."""
-        for camera, image in frames.images.items():
-            self.write_frame(camera, frames.stamp_ns, image)
+        """Frame sink: write every image of a synchronised set under its camera's name; a camera of the
+        rig missing from the set is counted as dropped."""
+        if time.monotonic() - self._manifest_written > self.MANIFEST_REFRESH_S:
+            self._write_manifest(closed=False)  # the counts, in case the run is cut off
+            self._manifest_written = time.monotonic()
+        for camera in self.cameras:
+            image = frames.images.get(camera)
+            if image is None:
+                self.dropped[camera] += 1
+            else:
+                self.write_frame(camera, frames.stamp_ns, image, frames.capture_ns.get(camera))
 
     def send(self, command: ActuatorCommand) -> None:
         """Command sink: the recorder takes commands like any actuator would."""
         self.write_command(command)
 
     def write_command(self, command: ActuatorCommand) -> None:
-        self._commands.write(f"{command.stamp_ns},{command.steer_rad:.6f},{command.throttle:.6f},{command.brake:.6f}\n")
-        self._commands.flush()
+        self._check_open()
+        self._line("commands", f"{command.stamp_ns},{command.steer_rad:.6f},{command.throttle:.6f},"
+                               f"{command.brake:.6f}\n")
         self.command_count += 1
+
+    def write_output(self, topic: str, stamp_ns: int, values: Mapping[str, OutputValue]) -> None:
+        """One of the pipeline's outputs (``pose``, ``lanes``, ...) at ``stamp_ns``. A topic's columns are
+        fixed by its first row."""
+        self._check_open()
+        columns = self._output_columns.get(topic)
+        if columns is None:
+            if not _TOPIC.fullmatch(topic):
+                raise RecordingError(f"output topic {topic!r}: use lower-case letters, digits and _")
+            columns = tuple(values)
+            self._output_columns[topic] = columns
+            self.output_counts[topic] = 0
+            self._open(f"output:{topic}", self.folder / "outputs" / f"{topic}.csv", ("stamp_ns", *columns))
+        elif tuple(values) != columns:
+            raise RecordingError(f"output topic {topic!r} has columns {', '.join(columns)}, not "
+                                 f"{', '.join(values)}")
+        self._line(f"output:{topic}", ",".join([str(stamp_ns), *(_format(v) for v in values.values())]) + "\n")
+        self.output_counts[topic] += 1
+
+    def write_outputs(self, stamp_ns: int, outputs: Mapping[str, Mapping[str, OutputValue]]) -> None:
+        """Output sink: every topic of one step."""
+        for topic, values in outputs.items():
+            self.write_output(topic, stamp_ns, values)
+
+    def write_can(self, stamp_ns: int, arbitration_id: int, data: bytes, direction: str = "tx") -> None:
+        """One CAN frame sent (``tx``) or received (``rx``)."""
+        self._check_open()
+        if direction not in ("tx", "rx"):
+            raise RecordingError(f"CAN direction {direction!r}: tx or rx")
+        if "can" not in self._files:
+            self._open("can", self.folder / "can.csv", CAN_COLUMNS)
+        self._line("can", f"{stamp_ns},{direction},{arbitration_id:#x},{bytes(data).hex()}\n")
+        self.can_count += 1
 
     def write_groundtruth(self, trajectory: Trajectory) -> None:
         write_tum(self.folder / "groundtruth.tum", trajectory)
 
-    def count_dropped(self, frames: int = 1) -> None:
-        self.dropped_frames += frames
+    def count_dropped(self, camera: str, frames: int = 1) -> None:
+        self.dropped[camera] += frames
 
     def close(self) -> None:
         if self._closed:
             return
         for jobs in self._queues.values():
             jobs.put(None)  # after every queued frame: nothing queued is lost
+        if self._lines is not None:
+            self._lines.put(None)
         for thread in self._threads:
             thread.join()
-        for handle in self._frame_files.values():
+        for handle in self._files.values():
             handle.close()
-        self._commands.close()
         self._closed = True
         self._write_manifest(closed=True)
+
+
+def _format(value: OutputValue) -> str:
+    if isinstance(value, bool):
+        return str(int(value))
+    if isinstance(value, float):
+        return f"{value:.9g}"
+    text = str(value)
+    if any(c in text for c in ',"\n'):
+        raise RecordingError(f"output value {text!r} holds a comma, quote or newline")
+    return text
+
+
+def _parse(text: str) -> OutputValue:
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
 
 
 class RecordingReader:
@@ -229,8 +353,7 @@ class RecordingReader:
         pair = manifest.get("stereo_pair")
         self.stereo_pair: tuple[str, str] | None = (pair[0], pair[1]) if pair else None
 
-    def frames(self, camera: str) -> list[tuple[int, Path]]:
-        """(stamp_ns, image path) of every complete frame of a camera, in order."""
+    def _frame_rows(self, camera: str) -> list[tuple[int, Path, int]]:
         if camera not in self.cameras:
             raise RecordingError(f"recording has no camera {camera!r} (has {', '.join(self.cameras)})")
         csv_path = self.folder / "cameras" / camera / "frames.csv"
@@ -242,11 +365,20 @@ class RecordingReader:
                 try:
                     path = csv_path.parent / row["file"]
                     stamp = int(row["stamp_ns"])
+                    capture = int(row["capture_ns"]) if row.get("capture_ns") else stamp
                 except (KeyError, TypeError, ValueError):
                     continue  # a line cut off by a crash
                 if path.is_file():
-                    rows.append((stamp, path))
+                    rows.append((stamp, path, capture))
         return rows
+
+    def frames(self, camera: str) -> list[tuple[int, Path]]:
+        """(stamp_ns, image path) of every complete frame of a camera, in order."""
+        return [(stamp, path) for stamp, path, _ in self._frame_rows(camera)]
+
+    def capture_stamps(self, camera: str) -> list[int]:
+        """Each complete frame's capture time by the camera's own clock (its set's time if not recorded)."""
+        return [capture for _, _, capture in self._frame_rows(camera)]
 
     def commands(self) -> list[ActuatorCommand]:
         path = self.folder / "commands.csv"
@@ -261,6 +393,39 @@ class RecordingReader:
                 except (KeyError, TypeError, ValueError):
                     continue
         return result
+
+    def output_topics(self) -> list[str]:
+        folder = self.folder / "outputs"
+        return sorted(p.stem for p in folder.glob("*.csv")) if folder.is_dir() else []
+
+    def outputs(self, topic: str) -> list[dict[str, OutputValue]]:
+        """A topic's rows (numbers parsed); a line cut off by a crash is left out."""
+        path = self.folder / "outputs" / f"{topic}.csv"
+        if not path.is_file():
+            raise RecordingError(f"recording has no output {topic!r} (has {', '.join(self.output_topics()) or 'none'})")
+        rows = []
+        with path.open(newline="") as handle:
+            reader = csv.DictReader(handle)
+            for row in reader:
+                if None in row or any(v is None for v in row.values()):
+                    continue
+                rows.append({k: _parse(v) for k, v in row.items()})
+        return rows
+
+    def can_frames(self) -> list[tuple[int, str, int, bytes]]:
+        """(stamp_ns, direction, id, data) of the recorded CAN traffic."""
+        path = self.folder / "can.csv"
+        if not path.is_file():
+            return []
+        frames = []
+        with path.open(newline="") as handle:
+            for row in csv.DictReader(handle):
+                try:
+                    frames.append((int(row["stamp_ns"]), row["direction"], int(row["id"], 16),
+                                   bytes.fromhex(row["data"])))
+                except (KeyError, TypeError, ValueError):
+                    continue
+        return frames
 
     def groundtruth(self) -> Trajectory | None:
         path = self.folder / "groundtruth.tum"

@@ -109,6 +109,26 @@ class LanePolicy:
         self.last_observation, self.last_decision = observation, decision
         return ActuatorCommand(frames.stamp_ns, decision.steer_rad, decision.throttle, decision.brake)
 
+    def outputs(self) -> dict[str, dict[str, float | int | str]]:
+        """The last step as the recording's ``lanes`` topic (pixels of the centre image; NaN where a
+        boundary was not detected)."""
+        observation, decision = self.last_observation, self.last_decision
+        if decision is None:
+            return {}
+        values: dict[str, float | int | str] = {}
+        for side in ("left", "right"):
+            source = getattr(observation, f"{side}_source") if observation is not None else "none"
+            ends = getattr(observation, side).as_tuple() if source == "detected" else (math.nan,) * 4
+            for key, value in zip(("x_bottom", "y_bottom", "x_top", "y_top"), ends, strict=True):
+                values[f"{side}_{key}_px"] = float(value)
+            values[f"{side}_source"] = source
+        meet = observation.intersection_px if observation is not None else None
+        values["intersection_x_px"], values["intersection_y_px"] = meet if meet is not None else (math.nan, math.nan)
+        values["confidence"] = observation.confidence if observation is not None else 0.0
+        values.update(steer_rad=decision.steer_rad, throttle=decision.throttle, brake=decision.brake,
+                      rule=decision.reason)
+        return {"lanes": values}
+
     def overlay(self, frames: FrameSet) -> Image | None:
         """The pipeline's view: the centre image with the boundaries it found and where they meet (the
         video's caption gives the steer)."""

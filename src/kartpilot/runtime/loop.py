@@ -5,7 +5,9 @@ per-stage time measured. With a ``period_s`` the loop has a deadline per step:
 a step whose policy and sinks take longer is counted and logged, and with ``pace`` the loop
 sleeps out the rest of each period (live driving; a simulator or a replay runs
 as fast as it can). Sources and sinks are interchangeable: the simulator
-is both, a recorder is one more sink. If anything raises, the actuators get
+is both, a recorder is one more sink; a policy with an ``outputs()`` method (what it
+saw and decided in its last step, by topic) has them recorded next to the frames and
+commands. If anything raises, the actuators get
 the stop command before the error propagates, so a crash never leaves the
 last command standing.
 """
@@ -14,21 +16,26 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
 from kartpilot.core.types import ActuatorCommand, CommandSink, FrameSet, FrameSink, FrameSource
 
-__all__ = ["LoopStats", "Policy", "Recorder", "run_loop"]
+__all__ = ["LoopStats", "Outputs", "Policy", "Recorder", "run_loop"]
 
 log = logging.getLogger(__name__)
 
 Policy = Callable[[FrameSet], ActuatorCommand]
 
 
+Outputs = Mapping[str, Mapping[str, float | int | str]]
+
+
 class Recorder(FrameSink, CommandSink, Protocol):
-    """A sink for both frames and commands (the recording writer is one)."""
+    """A sink for frames, commands and the pipeline's outputs (the recording writer is one)."""
+
+    def write_outputs(self, stamp_ns: int, outputs: Outputs) -> None: ...
 
 
 @dataclass
@@ -48,6 +55,7 @@ def run_loop(source: FrameSource, policy: Policy, actuators: CommandSink, record
              max_steps: int | None = None, period_s: float | None = None, pace: bool = False) -> LoopStats:
     """Run until the source ends (or ``max_steps``); return the step count and per-stage times."""
     stats = LoopStats()
+    outputs_of: Callable[[], Outputs] | None = getattr(policy, "outputs", None)
     start = time.perf_counter()
     next_tick = start
     last_stamp = 0
@@ -63,9 +71,12 @@ def run_loop(source: FrameSource, policy: Policy, actuators: CommandSink, record
             last_stamp = frames.stamp_ns
             command = policy(frames)
             t2 = time.perf_counter()
+            outputs = outputs_of() if outputs_of is not None and recorders else {}
             for recorder in recorders:
                 recorder.write_frames(frames)
                 recorder.send(command)
+                if outputs:
+                    recorder.write_outputs(frames.stamp_ns, outputs)
             actuators.send(command)
             if on_step is not None:
                 on_step(frames, command)

@@ -124,6 +124,19 @@ class PathFollowPolicy:
     def close(self) -> None:
         self.localizer.close()
 
+    def outputs(self) -> dict[str, dict[str, float | int | str]]:
+        """The last step as the recording's ``pose`` and ``follow`` topics."""
+        if not self.samples:
+            return {}
+        last = self.samples[-1]
+        return {
+            "pose": {"x_m": last.x_m, "y_m": last.y_m, "yaw_rad": last.yaw_rad, "speed_mps": last.speed_mps,
+                     "status": last.pose_status, "relocalisations": self.localizer.relocalisations},
+            "follow": {"path_index": last.path_index, "cross_track_m": last.cross_track_m,
+                       "heading_error_rad": last.heading_error_rad, "target_speed_mps": last.target_speed_mps,
+                       "stopped": int(self.stopped)},
+        }
+
     def overlay(self, frames: FrameSet) -> Image | None:
         """The pipeline's view: the left image with the reference path ahead drawn where the pipeline
         believes it lies on the road, and its state."""

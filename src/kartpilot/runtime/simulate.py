@@ -119,8 +119,6 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
         start = time.perf_counter()
 
         def on_step(frames: FrameSet, command: ActuatorCommand) -> None:
-            if writer is not None and len(frames.images) < len(sim.cameras):
-                writer.count_dropped(len(sim.cameras) - len(frames.images))
             if video is not None:
                 video.write(frames)
             bar.update(round(min(max(sim.referee.progress_m, 0.0), bar.total), 1) - bar.n)
