@@ -79,4 +79,4 @@ def test_a_policy_s_outputs_are_recorded_beside_its_commands(tmp_path):
     reader = RecordingReader(tmp_path / "run")
     assert [row["steps"] for row in reader.outputs("diagnostics")] == [1, 2, 3, 4]
     assert len(reader.commands()) == 4
-    assert reader.manifest["dropped_frames"] == {"center": 4}  # the source delivered no images
+    assert reader.manifest["missing_frames"] == {"center": 4}  # the source delivered no images

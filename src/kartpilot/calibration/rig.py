@@ -13,41 +13,48 @@ takes its cameras from here. Example::
         cy_px: 269.5
         distortion: [-0.1, 0.02, 0.0, 0.0, 0.0]
         mount: {x_m: 0.40, y_m: 0.07, z_m: 0.19, yaw_deg: 0.0, pitch_down_deg: 0.0}
+        capture: {device: /dev/video0, fps: 30, exposure: 150, fourcc: MJPG}
       right: {...}
     stereo_pair: [left, right]
 
 A camera's pose on the body (x forward, y left, z up, at the rear axle) is either a
 ``mount`` (position and yaw left / pitch down, as a person measures it) or the full
 4x4 ``pose_body_cam``. Calibrated stereo extrinsics are written as ``pose_body_cam``
-so that the measured relative pose is kept exactly.
+so that the measured relative pose is kept exactly. ``capture`` (optional) says how
+to open the live camera (:class:`~kartpilot.core.camera.CaptureSettings`); its
+resolution is the calibration's.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
-from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.camera import CaptureSettings, PinholeCamera
 from kartpilot.core.errors import CalibrationError
 from kartpilot.core.geometry import Array
 
 __all__ = ["Rig", "load_rig", "mount_pose", "save_rig"]
 
-CAMERA_KEYS = {"width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px", "distortion", "mount", "pose_body_cam"}
+CAMERA_KEYS = {"width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px", "distortion", "mount", "pose_body_cam",
+               "capture"}
+CAPTURE_KEYS = {"device", "fps", "exposure", "fourcc"}
 MOUNT_KEYS = {"x_m", "y_m", "z_m", "yaw_deg", "pitch_down_deg", "roll_deg"}
 
 
 @dataclass(frozen=True)
 class Rig:
-    """The cameras by name, and which two (if any) form the stereo pair (left first)."""
+    """The cameras by name, which two (if any) form the stereo pair (left first), and how to open
+    each live camera (for the cameras whose rig file says)."""
 
     cameras: dict[str, PinholeCamera]
     stereo_pair: tuple[str, str] | None = None
+    capture: dict[str, CaptureSettings] = field(default_factory=dict)
 
     def camera(self, name: str) -> PinholeCamera:
         if name not in self.cameras:
@@ -103,6 +110,23 @@ def _camera_from_yaml(name: str, data: Any, source: Path) -> PinholeCamera:
         raise CalibrationError(f"{where}: {exc}") from exc
 
 
+def _capture_from_yaml(name: str, data: Any, source: Path) -> CaptureSettings:
+    where = f"{source}: cameras.{name}.capture"
+    if not isinstance(data, dict):
+        raise CalibrationError(f"{where} must be a mapping")
+    unknown = set(data) - CAPTURE_KEYS
+    if unknown:
+        raise CalibrationError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+    if "device" not in data:
+        raise CalibrationError(f"{where}: missing device")
+    try:
+        exposure = data.get("exposure")
+        return CaptureSettings(str(data["device"]), float(data.get("fps", 30.0)),
+                               None if exposure is None else float(exposure), str(data.get("fourcc", "MJPG")))
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"{where}: {exc}") from exc
+
+
 def load_rig(path: str | Path) -> Rig:
     """Read and check a rig file."""
     path = Path(path)
@@ -125,7 +149,9 @@ def load_rig(path: str | Path) -> Rig:
         left, right = cameras[pair[0]], cameras[pair[1]]
         if left.size_wh != right.size_wh:
             raise CalibrationError(f"{path}: the stereo pair's cameras differ in size")
-    return Rig(cameras, (str(pair[0]), str(pair[1])) if pair else None)
+    capture = {str(name): _capture_from_yaml(str(name), cam["capture"], path)
+               for name, cam in data["cameras"].items() if isinstance(cam, dict) and "capture" in cam}
+    return Rig(cameras, (str(pair[0]), str(pair[1])) if pair else None, capture)
 
 
 def save_rig(rig: Rig, path: str | Path) -> Path:
@@ -136,11 +162,13 @@ def save_rig(rig: Rig, path: str | Path) -> Path:
     for name, cam in rig.cameras.items():
         cameras[name] = {
             "width_px": cam.width_px, "height_px": cam.height_px,
-            "fx_px": round(cam.fx_px, 4), "fy_px": round(cam.fy_px, 4),
-            "cx_px": round(cam.cx_px, 4), "cy_px": round(cam.cy_px, 4),
-            "distortion": [round(d, 8) for d in cam.distortion],
-            "pose_body_cam": [[round(v, 8) for v in row] for row in cam.pose_body_cam],
+            "fx_px": round(float(cam.fx_px), 4), "fy_px": round(float(cam.fy_px), 4),
+            "cx_px": round(float(cam.cx_px), 4), "cy_px": round(float(cam.cy_px), 4),
+            "distortion": [round(float(d), 8) for d in cam.distortion],  # plain floats, also from NumPy
+            "pose_body_cam": [[round(float(v), 8) for v in row] for row in cam.pose_body_cam],
         }
+        if name in rig.capture:
+            cameras[name]["capture"] = asdict(rig.capture[name])
     data: dict[str, Any] = {"cameras": cameras}
     if rig.stereo_pair:
         data["stereo_pair"] = list(rig.stereo_pair)

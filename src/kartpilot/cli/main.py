@@ -110,6 +110,14 @@ def build_parser() -> argparse.ArgumentParser:
         cal.add_argument("--json", action="store_true", help="print a machine-readable summary")
         cal.set_defaults(handler=calibrate_commands.calibrate)
 
+    rec = sub.add_parser("record", help="record the live cameras of a rig file")
+    rec.add_argument("--rig", required=True, help="rig file: each camera's calibration and capture settings")
+    rec.add_argument("--out", required=True, help="the recording folder to create")
+    rec.add_argument("--duration", type=float, help="seconds to record (default: until Ctrl-C)")
+    rec.add_argument("--cameras", help="comma-separated cameras (default: every camera with capture settings)")
+    rec.add_argument("--config", help="YAML file merged over the defaults (section live)")
+    rec.set_defaults(handler=record_commands.record)
+
     recordings = sub.add_parser("recordings", help="inspect recordings")
     rec_sub = recordings.add_subparsers(dest="action", required=True, metavar="ACTION")
     info = rec_sub.add_parser("info", help="duration, frames per camera, drops, sync skew, command statistics")

@@ -1,14 +1,53 @@
-"""``kartpilot recordings``: what a recording holds."""
+"""``kartpilot record`` (the live cameras to a recording) and ``kartpilot recordings`` (what a recording holds)."""
 
 from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import asdict
 
+from kartpilot.calibration.rig import load_rig
 from kartpilot.record.info import recording_info
-from kartpilot.record.recording import RecordingReader
+from kartpilot.record.live import record_live
+from kartpilot.record.recording import RecordingReader, RecordingWriter
+from kartpilot.runtime.config import load_stack_config
+from kartpilot.sensors.capture import LiveFrameSource
 
-__all__ = ["recordings_info"]
+__all__ = ["record", "recordings_info"]
+
+RECORD_QUEUE_FRAMES = 16  # per camera: half a second at 30 fps before frames are dropped (and counted)
+
+
+def record(args: argparse.Namespace) -> int:
+    """Record the rig's live cameras until the duration is up or Ctrl-C."""
+    stack = load_stack_config(args.config)
+    rig = load_rig(args.rig)
+    cameras = args.cameras.split(",") if args.cameras else None
+    source = LiveFrameSource(rig, stack.live, cameras).start()
+    names = list(source.threads)
+    try:
+        writer = RecordingWriter(args.out, {n: rig.cameras[n] for n in names},
+                                 stereo_pair=rig.stereo_pair if rig.stereo_pair and set(rig.stereo_pair) <= set(names)
+                                 else None,
+                                 metadata={"source": "kartpilot record", "rig_file": str(args.rig),
+                                           "capture": {n: asdict(rig.capture[n]) for n in names}},
+                                 queue_frames=RECORD_QUEUE_FRAMES, drop_when_full=True)
+    except BaseException:
+        source.close()
+        raise
+    print(f"recording {', '.join(names)} to {args.out}" + (f" for {args.duration:g} s" if args.duration else
+                                                            " (Ctrl-C to stop)"))
+    stats = record_live(source, writer, args.duration)
+    skew = stats["skew_ms"]
+    print(f"{stats['stopped']} after {stats['seconds']:.1f} s: {stats['sets']} sets, {stats['incomplete_sets']} "
+          "incomplete" + (f", skew {skew['median']:.1f} ms median / {skew['max']:.1f} ms max" if skew else ""))
+    for name in names:
+        camera = stats["cameras"][name]
+        print(f"  {name}: {stats['written'][name]} frames written, {stats['dropped'][name]} dropped by the recorder, "
+              f"{stats['missing'][name]} sets without it, "
+              f"{camera['failures']} read failures, {camera['reopens']} reopened"
+              + (f"; {stats['problems'][name]}" if name in stats["problems"] else ""))
+    return 0
 
 
 def recordings_info(args: argparse.Namespace) -> int:
@@ -22,7 +61,7 @@ def recordings_info(args: argparse.Namespace) -> int:
         skew = next((f", skew to {k[8:-3]} {v['median']:.2f} ms median / {v['max']:.2f} ms max"
                      for k, v in camera.items() if k.startswith("skew_to_")), "")
         print(f"  camera {name}: {camera['frames']} frames at {camera['rate_hz']} Hz, "
-              f"{camera['dropped']} dropped{skew}")
+              f"{camera['dropped']} dropped by the recorder, {camera['missing']} sets without it{skew}")
     commands = info["commands"]
     if commands["count"]:
         steer = commands["steer_rad"]

@@ -12,7 +12,34 @@ import numpy as np
 from kartpilot.core.errors import CalibrationError
 from kartpilot.core.geometry import Array
 
-__all__ = ["PinholeCamera", "StereoRig"]
+__all__ = ["CaptureSettings", "PinholeCamera", "StereoRig"]
+
+
+@dataclass(frozen=True)
+class CaptureSettings:
+    """How to open a live camera (the size comes from its calibration).
+
+    Attributes:
+        device: a V4L2 index (``"0"``), a device path (``/dev/video2``, or a stable
+            ``/dev/v4l/by-id/...`` link) or a video file (a bench test without cameras).
+        fps: the frame rate to ask for.
+        exposure: the driver's manual exposure value (V4L2: units of 100 us); None leaves
+            auto exposure on. Outdoors a fixed exposure keeps the image from pumping.
+        fourcc: the pixel format to ask for; MJPG fits 960x540 at 30 fps through USB 2.
+    """
+
+    device: str
+    fps: float = 30.0
+    exposure: float | None = None
+    fourcc: str = "MJPG"
+
+    def __post_init__(self) -> None:
+        if not self.device:
+            raise CalibrationError("a camera's capture device must not be empty")
+        if not self.fps > 0:
+            raise CalibrationError(f"capture fps must be positive, got {self.fps}")
+        if len(self.fourcc) != 4:
+            raise CalibrationError(f"fourcc must have 4 characters, got {self.fourcc!r}")
 
 
 @dataclass(frozen=True)

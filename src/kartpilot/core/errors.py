@@ -14,6 +14,7 @@ __all__ = [
     "PerceptionError",
     "PlanningError",
     "RecordingError",
+    "SensorError",
 ]
 
 
@@ -31,6 +32,10 @@ class DataError(KartpilotError):
 
 class CalibrationError(KartpilotError):
     """A calibration is missing, malformed or physically implausible."""
+
+
+class SensorError(KartpilotError):
+    """A camera cannot be opened, or does not deliver what the rig says it should."""
 
 
 class PerceptionError(KartpilotError):

@@ -33,12 +33,14 @@ def recording_info(reader: RecordingReader) -> dict[str, Any]:
     start = min(int(a.min()) for a in ends) if ends else 0
     end = max(int(a.max()) for a in ends) if ends else 0
     dropped = reader.manifest.get("dropped_frames", {}) or {}
+    missing = reader.manifest.get("missing_frames", {}) or {}
     cameras: dict[str, Any] = {}
     first = next(iter(stamps))
     for name, s in stamps.items():
         rate = (len(s) - 1) / ((s[-1] - s[0]) * 1e-9) if len(s) > 1 and s[-1] > s[0] else float("nan")
         entry: dict[str, Any] = {"frames": len(s), "rate_hz": round(rate, 2),
-                                 "dropped": int(dropped.get(name, 0)) if isinstance(dropped, dict) else 0}
+                                 "dropped": int(dropped.get(name, 0)) if isinstance(dropped, dict) else 0,
+                                 "missing": int(missing.get(name, 0)) if isinstance(missing, dict) else 0}
         if name != first:
             median, worst = _skew_ms(stamps[first], s)
             entry["skew_to_" + first + "_ms"] = {"median": round(median, 3), "max": round(worst, 3)}

@@ -107,7 +107,8 @@ class RecordingWriter:
         self.stereo_pair = stereo_pair
         self.metadata = dict(metadata or {})
         self.frame_counts = dict.fromkeys(cameras, 0)
-        self.dropped = dict.fromkeys(cameras, 0)
+        self.dropped = dict.fromkeys(cameras, 0)  # frames the recording could not keep up with
+        self.missing = dict.fromkeys(cameras, 0)  # sets a camera delivered no frame to
         self.dropped_lines = 0
         self.command_count = 0
         self.output_counts: dict[str, int] = {}
@@ -165,6 +166,7 @@ class RecordingWriter:
             "stereo_pair": list(self.stereo_pair) if self.stereo_pair else None,
             "frame_counts": self.frame_counts,
             "dropped_frames": self.dropped,
+            "missing_frames": self.missing,
             "dropped_lines": self.dropped_lines,
             "command_count": self.command_count,
             "output_counts": self.output_counts,
@@ -234,14 +236,14 @@ class RecordingWriter:
 
     def write_frames(self, frames: FrameSet) -> None:
         """Frame sink: write every image of a synchronised set under its camera's name; a camera of the
-        rig missing from the set is counted as dropped."""
+        rig missing from the set is counted (``missing``: the camera's doing, not the recording's)."""
         if time.monotonic() - self._manifest_written > self.MANIFEST_REFRESH_S:
             self._write_manifest(closed=False)  # the counts, in case the run is cut off
             self._manifest_written = time.monotonic()
         for camera in self.cameras:
             image = frames.images.get(camera)
             if image is None:
-                self.dropped[camera] += 1
+                self.missing[camera] += 1
             else:
                 self.write_frame(camera, frames.stamp_ns, image, frames.capture_ns.get(camera))
 
@@ -290,9 +292,6 @@ class RecordingWriter:
 
     def write_groundtruth(self, trajectory: Trajectory) -> None:
         write_tum(self.folder / "groundtruth.tum", trajectory)
-
-    def count_dropped(self, camera: str, frames: int = 1) -> None:
-        self.dropped[camera] += frames
 
     def close(self) -> None:
         if self._closed:

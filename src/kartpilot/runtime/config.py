@@ -12,6 +12,7 @@ Example ``stack.yaml``::
     drive:
       follow: {controller: pure_pursuit, bias: {gain_rad_per_m_s: 0.0}}
       localizer: {reloc: {gain: 0.5}}
+    live: {sync_tolerance_ms: 10, health: {timeout_s: 0.5}}
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.perception.lanes import LaneConfig
 from kartpilot.runtime.lane_policy import LanePolicyConfig
 from kartpilot.runtime.path_policy import DriveConfig
+from kartpilot.sensors.capture import LiveConfig
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import SimConfig
 
@@ -38,6 +40,7 @@ class StackConfig:
     lane_detection: LaneConfig = field(default_factory=LaneConfig)
     lane_policy: LanePolicyConfig = field(default_factory=LanePolicyConfig)
     drive: DriveConfig = field(default_factory=DriveConfig)
+    live: LiveConfig = field(default_factory=LiveConfig)
 
 
 def load_stack_config(path: str | Path | None) -> StackConfig:

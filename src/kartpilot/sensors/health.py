@@ -67,12 +67,13 @@ class CameraWatchdog:
         self._previous: dict[str, Image | None] = dict.fromkeys(cameras)
         self._start_ns: int | None = None
         self.problems: dict[str, str] = {}
+        self.frame_problems: dict[str, str] = {}
 
     def check(self, frames: FrameSet) -> dict[str, str]:
         """The cameras in trouble at ``frames.stamp_ns``, with the reason; updates the state.
 
         A camera is reported once it has had no good frame for ``timeout_s`` (since the start, if it
-        never had one)."""
+        never had one). ``frame_problems`` keeps what was wrong with each camera's frame in this set."""
         if self._start_ns is None:
             self._start_ns = frames.stamp_ns
         start = self._start_ns
@@ -80,6 +81,7 @@ class CameraWatchdog:
         for name in self._last_good_ns:
             image = frames.images.get(name)
             problem = frame_problem(image, self._previous[name], self.config)
+            self.frame_problems[name] = problem
             if image is not None and image.size:
                 self._previous[name] = image
             if not problem:
