@@ -114,6 +114,16 @@ def test_teach_reference_and_drive_it_in_the_simulator_and_on_the_replay(tmp_pat
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["steps"] == 40 and summary["relocalised_frames"] > 30
     assert len(log.read_text().splitlines()) == 41
+    # the same pipeline through 'replay', twice: a new recording each time, and identical outputs
+    for name in ("r1", "r2"):
+        assert main(["replay", str(record), "--pipeline", "stereo-vo", "--reference", str(reference),
+                     "--out", str(tmp_path / name)]) == 0
+    assert "stereo-vo: 40 sets at 10.0 Hz" in capsys.readouterr().out
+    for part in ("commands.csv", "outputs/pose.csv", "outputs/follow.csv"):
+        assert (tmp_path / "r1" / part).read_bytes() == (tmp_path / "r2" / part).read_bytes(), part
+    assert len((tmp_path / "r1" / "outputs" / "pose.csv").read_text().splitlines()) == 41
+    assert main(["replay", str(record), "--pipeline", "stereo-vo"]) == 1
+    assert "give --reference" in capsys.readouterr().err
     result = tmp_path / "drive.json"
     assert main(["drive", "--reference", str(reference), "--sim", "straight20", "--rate", "10", "--result",
                  str(result), "--no-progress"]) == 0

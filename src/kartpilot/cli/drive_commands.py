@@ -11,22 +11,19 @@ import numpy as np
 
 from kartpilot.control.path_follow import steer_bias_of_drive
 from kartpilot.core.errors import ConfigError, RecordingError
-from kartpilot.core.types import ActuatorCommand
 from kartpilot.odometry.localizer import ground_poses
 from kartpilot.odometry.run import run_teach
 from kartpilot.odometry.visual_map import VisualMap, load_visual_map, map_path_for
 from kartpilot.planning.reference_path import build_reference_path, load_reference_path, save_reference_path
 from kartpilot.record.recording import RecordingStereoSource
-from kartpilot.record.replay import StereoReplaySource
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.experiment import ThesisVOConfig, run_thesis_vo, summary_line
-from kartpilot.runtime.loop import run_loop
-from kartpilot.runtime.path_policy import stereo_vo_policy, write_drive_log
+from kartpilot.runtime.replay import replay_recording
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.simulator import SimConfig
 from kartpilot.sim.vehicle import VehicleParams, get_vehicle
 
-__all__ = ["drive", "experiment", "reference"]
+__all__ = ["drive", "experiment", "reference", "replay"]
 
 
 def _stereo_vehicle(name: str) -> tuple[VehicleParams, tuple[str, str]]:
@@ -85,16 +82,6 @@ def _visual_map(args: argparse.Namespace) -> VisualMap | None:
     return None
 
 
-class _CommandLog:
-    """The command sink of a replay: nothing moves, the commands are kept."""
-
-    def __init__(self) -> None:
-        self.commands: list[ActuatorCommand] = []
-
-    def send(self, command: ActuatorCommand) -> None:
-        self.commands.append(command)
-
-
 def drive(args: argparse.Namespace) -> int:
     """Follow a reference with the stereo-VO pipeline: in the simulator, on a replayed recording."""
     stack = load_stack_config(args.config)
@@ -118,21 +105,9 @@ def drive(args: argparse.Namespace) -> int:
         print("per step (ms): " + ", ".join(f"{k} {v:.1f}" for k, v in run.stage_ms.items()))
         return 0
     if args.replay:
-        source = StereoReplaySource(args.replay)
-        rate = args.rate or stack.sim.camera_rate_hz
-        policy = stereo_vo_policy(source.stereo.rig, source.stereo.pose_body_left,
-                                  (source.left_name, source.right_name), path, drive_config, stack.stereo_vo,
-                                  visual_map, vehicle.wheelbase_m, vehicle.max_steer_rad, rate)
-        sink = _CommandLog()
-        try:
-            stats = run_loop(source, policy, sink, period_s=1.0 / rate)
-        finally:
-            policy.close()
-            if args.log:
-                write_drive_log(policy.samples, args.log)
-        summary = {"steps": stats.steps, "unreadable_frames": source.unreadable, "stop_reason": policy.stop_reason,
-                   "relocalised_frames": policy.localizer.relocalisations, "missed_deadlines": stats.missed_deadlines,
-                   "stage_ms": {k: round(1e3 * v / max(stats.steps, 1), 3) for k, v in policy.stage_s.items()}}
+        replayed = replay_recording(args.replay, "stereo-vo", replace(stack, drive=drive_config), reference=path,
+                                  visual_map=visual_map, vehicle=vehicle.name, drive_log=args.log)
+        summary = replayed.to_json()
         print(json.dumps(summary))
         if args.result:
             Path(args.result).parent.mkdir(parents=True, exist_ok=True)
@@ -140,6 +115,28 @@ def drive(args: argparse.Namespace) -> int:
         return 0
     raise ConfigError("drive needs --sim TRACK or --replay RECORDING: this build has no live camera and CAN "
                       "interface for the kart yet")
+
+
+def replay(args: argparse.Namespace) -> int:
+    """A recording through a pipeline; its commands and outputs written as a new recording."""
+    stack = load_stack_config(args.config)
+    path = load_reference_path(args.reference) if args.reference else None
+    visual_map = _visual_map(args) if path is not None else None
+    if args.pipeline == "stereo-vo":
+        _stereo_vehicle(args.vehicle)
+    result = replay_recording(args.recording, args.pipeline, stack, out=args.out, realtime=args.realtime,
+                              reference=path, visual_map=visual_map, vehicle=args.vehicle,
+                              with_frames=args.with_frames)
+    steer = np.array([c.steer_rad for c in result.commands])
+    braking = np.mean([c.brake > 0 for c in result.commands]) if result.commands else 0.0
+    stop = f", stopped: {result.extra['stop_reason']}" if result.extra.get("stop_reason") else ""
+    print(f"{args.pipeline}: {result.steps} sets at {result.extra['rate_hz']:.1f} Hz, {result.unreadable_frames} "
+          f"unreadable frames, steer {steer.min(initial=0.0):+.3f} to {steer.max(initial=0.0):+.3f} rad, braking "
+          f"{100 * braking:.0f} % of the time{stop}")
+    print("per set (ms): " + ", ".join(f"{k} {v:.1f}" for k, v in result.stage_ms.items()))
+    if result.out is not None:
+        print(f"wrote {result.out} (commands, outputs/, replay.json)")
+    return 0
 
 
 def experiment(args: argparse.Namespace) -> int:

@@ -158,6 +158,19 @@ def build_parser() -> argparse.ArgumentParser:
     drive.add_argument("--no-progress", action="store_true")
     drive.set_defaults(handler=drive_commands.drive)
 
+    rep = sub.add_parser("replay", help="push a recording through a pipeline; write its outputs as a recording")
+    rep.add_argument("recording")
+    rep.add_argument("--pipeline", choices=("lanes", "stereo-vo"), required=True)
+    rep.add_argument("--out", help="the new recording: commands, the pipeline's outputs, replay.json")
+    rep.add_argument("--realtime", action="store_true", help="at the recorded pace (default: as fast as possible)")
+    rep.add_argument("--with-frames", action="store_true", help="copy the frames into the new recording too")
+    rep.add_argument("--reference", help="stereo-vo: the path to follow (written by 'kartpilot reference')")
+    rep.add_argument("--map", help="stereo-vo: the visual map (default: the reference's .map.npz, if there)")
+    rep.add_argument("--no-map", action="store_true", help="stereo-vo: localise with VO alone")
+    rep.add_argument("--vehicle", default="rc-kart", help="stereo-vo: the kart (wheelbase, steering range)")
+    rep.add_argument("--config", help="YAML file merged over the defaults")
+    rep.set_defaults(handler=drive_commands.replay)
+
     experiment = sub.add_parser("experiment", help="reproduce an experiment of the thesis in the simulator")
     experiment.add_argument("name", choices=("thesis-vo",),
                             help="thesis-vo: teach, build the reference with stereo VO, repeat, score")

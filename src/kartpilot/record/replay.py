@@ -1,21 +1,23 @@
 """Replay from files: one image, a folder of images, a video, a kartpilot recording or a Donkey Car tub,
-all as frame sets with one camera (``center``), so a pipeline cannot tell them apart; and a recording's
-stereo pair as a frame source (:class:`StereoReplaySource`)."""
+all as frame sets with one camera (``center``), so a pipeline cannot tell them apart; a recording's
+cameras as a frame source (:class:`RecordingFrameSource`), and its stereo pair rectified
+(:class:`StereoReplaySource`). A frame that cannot be read is left out of its set and counted, as a
+live camera that skipped a frame would be."""
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import cv2
 
-from kartpilot.core.errors import DataError, KartpilotError
+from kartpilot.core.errors import DataError, KartpilotError, RecordingError
 from kartpilot.core.types import FrameSet
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
 from kartpilot.sensors.donkeycar import DonkeyTub, is_donkey_tub
 
-__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "StereoReplaySource", "open_frames"]
+__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "RecordingFrameSource", "StereoReplaySource", "open_frames"]
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +81,43 @@ def _recording(reader: RecordingReader, camera: str) -> Iterator[FrameSet]:
         if image is None:
             raise DataError(f"cannot read the recording's frame {path}")
         yield FrameSet(k, stamp, {"center": image})
+
+
+class RecordingFrameSource:
+    """A recording's cameras as a frame source: one set per recorded set time, images as stored."""
+
+    def __init__(self, folder: str | Path, cameras: Sequence[str] | None = None) -> None:
+        self.reader = RecordingReader(folder)
+        names = list(cameras) if cameras else list(self.reader.cameras)
+        sets: dict[int, dict[str, tuple[Path, int]]] = {}
+        for name in names:
+            stamps, captures = self.reader.frames(name), self.reader.capture_stamps(name)
+            for (stamp, path), capture in zip(stamps, captures, strict=True):
+                sets.setdefault(stamp, {})[name] = (path, capture)
+        if not sets:
+            raise RecordingError(f"recording {self.reader.folder} has no frames of {', '.join(names)}")
+        self._sets = sorted(sets.items())
+        self.cameras = names
+        self.unreadable = 0
+        self._next = 0
+
+    def __len__(self) -> int:
+        return len(self._sets)
+
+    def read(self) -> FrameSet | None:
+        if self._next >= len(self._sets):
+            return None
+        index, self._next = self._next, self._next + 1
+        stamp, members = self._sets[index]
+        images, capture = {}, {}
+        for name, (path, capture_ns) in members.items():
+            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if image is None or image.size == 0:
+                self.unreadable += 1
+                log.warning("frame %s of %s unreadable", path.name, name)
+                continue
+            images[name], capture[name] = image, capture_ns
+        return FrameSet(index, stamp, images, capture)
 
 
 class StereoReplaySource:

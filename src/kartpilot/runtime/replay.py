@@ -1,0 +1,172 @@
+"""A recording through the same pipeline code as live driving, its outputs written as a new recording.
+
+``lanes`` replays the recording's cameras into :class:`~kartpilot.runtime.lane_policy.LanePolicy`;
+``stereo-vo`` replays its rectified stereo pair into the waypoint follower
+(:func:`~kartpilot.runtime.path_policy.stereo_vo_policy`), which needs a reference path. Nothing
+moves: the commands go to a log and to the new recording, with the pipeline's outputs
+(``outputs/<topic>.csv``) and, on request, the frames. The replay runs as fast as it can or, with
+``realtime``, at the recorded pace. OpenCV's random generator (RANSAC) is seeded first, so two
+replays of one recording give identical outputs.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from kartpilot.core.config import config_to_dict
+from kartpilot.core.errors import ConfigError
+from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource
+from kartpilot.odometry.visual_map import VisualMap
+from kartpilot.planning.reference_path import ReferencePath
+from kartpilot.record.recording import RecordingReader, RecordingWriter
+from kartpilot.record.replay import RecordingFrameSource, StereoReplaySource
+from kartpilot.runtime.config import StackConfig
+from kartpilot.runtime.lane_policy import LanePolicy
+from kartpilot.runtime.loop import Outputs, Policy, Recorder, run_loop
+from kartpilot.runtime.path_policy import PathFollowPolicy, stereo_vo_policy, write_drive_log
+from kartpilot.sim.vehicle import get_vehicle
+
+__all__ = ["PIPELINES", "ReplayResult", "recorded_rate_hz", "replay_recording"]
+
+PIPELINES = ("lanes", "stereo-vo")
+RNG_SEED = 0
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    """What a replay did. ``commands`` are the pipeline's, one per set."""
+
+    pipeline: str
+    steps: int
+    unreadable_frames: int
+    missed_deadlines: int
+    stage_ms: dict[str, float]
+    commands: tuple[ActuatorCommand, ...]
+    out: Path | None
+    extra: dict[str, Any]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"pipeline": self.pipeline, "steps": self.steps, "unreadable_frames": self.unreadable_frames,
+                "missed_deadlines": self.missed_deadlines, "out": str(self.out) if self.out else None, **self.extra,
+                "stage_ms": {k: round(v, 3) for k, v in self.stage_ms.items()}}
+
+
+class _CommandLog:
+    """The command sink of a replay: nothing moves, the commands are kept."""
+
+    def __init__(self) -> None:
+        self.commands: list[ActuatorCommand] = []
+
+    def send(self, command: ActuatorCommand) -> None:
+        self.commands.append(command)
+
+
+class _WithoutFrames:
+    """A recorder that keeps the commands and outputs and leaves the frames (already recorded) out."""
+
+    def __init__(self, writer: RecordingWriter) -> None:
+        self.writer = writer
+
+    def write_frames(self, frames: FrameSet) -> None:
+        pass
+
+    def send(self, command: ActuatorCommand) -> None:
+        self.writer.send(command)
+
+    def write_outputs(self, stamp_ns: int, outputs: Outputs) -> None:
+        self.writer.write_outputs(stamp_ns, outputs)
+
+
+class _Paced:
+    """A source delivered at the pace it was recorded."""
+
+    def __init__(self, source: FrameSource) -> None:
+        self.source = source
+        self._first: tuple[int, float] | None = None
+
+    def read(self) -> FrameSet | None:
+        frames = self.source.read()
+        if frames is None:
+            return None
+        if self._first is None:
+            self._first = (frames.stamp_ns, time.perf_counter())
+        due = self._first[1] + (frames.stamp_ns - self._first[0]) * 1e-9
+        delay = due - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
+        return frames
+
+
+def recorded_rate_hz(reader: RecordingReader, camera: str) -> float:
+    """The camera's median frame rate in the recording."""
+    stamps = np.array([s for s, _ in reader.frames(camera)], np.int64)
+    if len(stamps) < 2:
+        raise ConfigError(f"the recording has {len(stamps)} frame(s) of {camera}: too few to replay")
+    return float(1e9 / np.median(np.diff(stamps)))
+
+
+def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, out: str | Path | None = None,
+                     realtime: bool = False, reference: ReferencePath | None = None,
+                     visual_map: VisualMap | None = None, vehicle: str = "rc-kart", with_frames: bool = False,
+                     drive_log: str | Path | None = None) -> ReplayResult:
+    """Push the recording at ``folder`` through ``pipeline``; write a new recording at ``out`` if given."""
+    if pipeline not in PIPELINES:
+        raise ConfigError(f"unknown pipeline {pipeline!r} ({', '.join(PIPELINES)})")
+    cv2.setRNGSeed(RNG_SEED)
+    source: StereoReplaySource | RecordingFrameSource
+    policy: Policy
+    path_policy: PathFollowPolicy | None = None
+    if pipeline == "stereo-vo":
+        if reference is None:
+            raise ConfigError("the stereo-vo pipeline follows a reference: give --reference (kartpilot reference "
+                              "writes one from a recorded drive)")
+        source = StereoReplaySource(folder)
+        reader = source.stereo.reader
+        params = get_vehicle(vehicle)
+        rate = recorded_rate_hz(reader, source.left_name)
+        path_policy = stereo_vo_policy(source.stereo.rig, source.stereo.pose_body_left,
+                                       (source.left_name, source.right_name), reference, stack.drive, stack.stereo_vo,
+                                       visual_map, params.wheelbase_m, params.max_steer_rad, rate)
+        policy = path_policy
+    else:
+        reader = RecordingReader(folder)
+        rate = recorded_rate_hz(reader, "center" if "center" in reader.cameras else next(iter(reader.cameras)))
+        policy = LanePolicy(reader.cameras, stack.lane_policy, rate)
+        source = RecordingFrameSource(folder, list(reader.cameras))
+    writer: RecordingWriter | None = None
+    recorders: list[Recorder] = []
+    if out is not None:
+        stack_config = config_to_dict(stack)
+        settings = {"lanes": {"lane_policy": stack_config["lane_policy"]},
+                    "stereo-vo": {"stereo_vo": stack_config["stereo_vo"], "drive": stack_config["drive"]}}[pipeline]
+        writer = RecordingWriter(out, reader.cameras, reader.stereo_pair, metadata={
+            "source": "kartpilot replay", "replay_of": str(reader.folder), "pipeline": pipeline, "config": settings})
+        recorders.append(writer if with_frames else _WithoutFrames(writer))
+    sink = _CommandLog()
+    try:
+        stats = run_loop(_Paced(source) if realtime else source, policy, sink, recorders, period_s=1.0 / rate)
+    finally:
+        if path_policy is not None:
+            path_policy.close()
+            if drive_log is not None:
+                write_drive_log(path_policy.samples, drive_log)
+        if writer is not None:
+            writer.close()
+    stage_ms = stats.stage_ms()
+    extra: dict[str, Any] = {"rate_hz": round(rate, 3)}
+    if path_policy is not None:
+        steps = max(stats.steps, 1)
+        stage_ms.update({k: 1e3 * v / steps for k, v in path_policy.stage_s.items()})
+        extra.update(stop_reason=path_policy.stop_reason, relocalised_frames=path_policy.localizer.relocalisations)
+    result = ReplayResult(pipeline, stats.steps, source.unreadable, stats.missed_deadlines, stage_ms,
+                          tuple(sink.commands), Path(out) if out is not None else None, extra)
+    if out is not None:
+        (Path(out) / "replay.json").write_text(json.dumps(result.to_json(), indent=2))
+    return result
