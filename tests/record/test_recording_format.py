@@ -156,3 +156,40 @@ def test_a_live_recorder_drops_frames_it_cannot_keep_up_with_and_counts_them(tmp
     reader = RecordingReader(tmp_path / "run")
     written = len(reader.frames("a"))
     assert written + reader.manifest["dropped_frames"]["a"] == 10 and 2 <= written <= 3
+
+
+def test_a_donkey_tub_imports_as_a_recording_and_exports_to_images_and_csv(tmp_path, capsys):
+    import csv
+
+    import cv2
+    from tests.sensors.test_donkeycar import write_tub
+
+    from kartpilot.cli.main import main
+
+    tub = tmp_path / "tub"
+    lines = [json.dumps({"_index": i, "_timestamp_ms": 1000 + 50 * i, "cam/image_array": f"{i}_cam.jpg",
+                         "user/angle": [-0.5, 0.0, 1.0, 0.2][i], "user/throttle": [0.4, 0.4, -0.3, 0.0][i]})
+             for i in range(4)]
+    write_tub(tub, lines, deleted=[3])
+    rng = np.random.default_rng(0)
+    for i in range(4):
+        cv2.imwrite(str(tub / "images" / f"{i}_cam.jpg"), rng.integers(0, 255, (120, 160, 3), np.uint8))
+    assert main(["recordings", "import-tub", str(tub), "--out", str(tmp_path / "rec"), "--max-steer-deg", "20"]) == 0
+    reader = RecordingReader(tmp_path / "rec")
+    assert reader.closed and reader.cameras["center"].size_wh == (160, 120)
+    assert reader.cameras["center"].fx_px == pytest.approx(80 / math.tan(math.radians(60)))
+    commands = reader.commands()
+    assert [c.stamp_ns for c in commands] == [1_000_000_000, 1_050_000_000, 1_100_000_000]
+    assert commands[0].steer_rad == pytest.approx(0.5 * math.radians(20), abs=1e-6)  # Donkey's left is negative
+    assert (commands[2].throttle, commands[2].brake) == (0.0, 0.3)
+    assert [row["user_angle"] for row in reader.outputs("donkey")] == [-0.5, 0.0, 1.0]
+    assert "guessed" in reader.manifest["metadata"]["intrinsics"]
+
+    assert main(["recordings", "export", str(tmp_path / "rec"), "--out", str(tmp_path / "export")]) == 0
+    with (tmp_path / "export" / "frames.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == 3 and float(rows[2]["brake"]) == 0.3
+    image = cv2.imread(str(tmp_path / "export" / rows[1]["center_image"]))
+    np.testing.assert_array_equal(image, cv2.imread(str(reader.frames("center")[1][1])))
+    assert main(["recordings", "export", str(tmp_path / "rec"), "--out", str(tmp_path / "export")]) == 1
+    assert "not empty" in capsys.readouterr().err

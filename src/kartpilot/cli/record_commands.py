@@ -4,16 +4,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from dataclasses import asdict
 
 from kartpilot.calibration.rig import load_rig
+from kartpilot.record.convert import export_recording, import_donkey_tub
 from kartpilot.record.info import recording_info
 from kartpilot.record.live import record_live
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.sensors.capture import LiveFrameSource
 
-__all__ = ["record", "recordings_info"]
+__all__ = ["record", "recordings_export", "recordings_import_tub", "recordings_info"]
 
 RECORD_QUEUE_FRAMES = 16  # per camera: half a second at 30 fps before frames are dropped (and counted)
 
@@ -77,4 +79,23 @@ def recordings_info(args: argparse.Namespace) -> int:
     if info["dropped_lines"]:
         print(f"  lines dropped from the recording (queue full): {info['dropped_lines']}")
     print(f"  ground truth: {'yes' if info['has_groundtruth'] else 'no'}; stereo pair: {info['stereo_pair']}")
+    return 0
+
+
+def recordings_import_tub(args: argparse.Namespace) -> int:
+    """A Donkey Car tub as a kartpilot recording."""
+    camera = None
+    if args.rig:
+        rig = load_rig(args.rig)
+        camera = rig.camera(args.camera) if args.camera else next(iter(rig.cameras.values()))
+    frames = import_donkey_tub(args.tub, args.out, camera, args.fov_deg, math.radians(args.max_steer_deg))
+    how = f"camera from {args.rig}" if args.rig else f"intrinsics guessed from a {args.fov_deg:g} deg field of view"
+    print(f"imported {frames} frames and commands from {args.tub} into {args.out} ({how})")
+    return 0
+
+
+def recordings_export(args: argparse.Namespace) -> int:
+    """A recording as a folder of images plus one CSV."""
+    rows = export_recording(args.recording, args.out, args.cameras.split(",") if args.cameras else None)
+    print(f"exported {rows} sets to {args.out} (frames.csv, images/)")
     return 0
