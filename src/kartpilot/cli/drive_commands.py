@@ -106,7 +106,7 @@ def drive(args: argparse.Namespace) -> int:
         return 0
     if args.replay:
         replayed = replay_recording(args.replay, "stereo-vo", replace(stack, drive=drive_config), reference=path,
-                                  visual_map=visual_map, vehicle=vehicle.name, drive_log=args.log)
+                                    visual_map=visual_map, vehicle=vehicle.name, drive_log=args.log)
         summary = replayed.to_json()
         print(json.dumps(summary))
         if args.result:

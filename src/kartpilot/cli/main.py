@@ -161,7 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
     drive.add_argument("--no-map", action="store_true", help="localise with VO alone")
     drive.add_argument("--speed", type=float, help="cap the path's speed profile, m/s")
     drive.add_argument("--seed", type=int)
-    drive.add_argument("--rate", type=float, help="camera and control rate, Hz")
+    drive.add_argument("--rate", type=float, help="camera and control rate, Hz (--sim; a replay keeps its own)")
     drive.add_argument("--steer-bias", type=float, help="the simulated kart's drag to one side, rad (+ left)")
     drive.add_argument("--record", help="record the simulated drive here")
     drive.add_argument("--video", help="write the camera view with the referee's state here (MP4)")

@@ -153,10 +153,6 @@ class RecordingWriter:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    @property
-    def dropped_frames(self) -> int:
-        return sum(self.dropped.values())
-
     def _write_manifest(self, closed: bool) -> None:
         manifest = {
             "format": FORMAT_NAME,
