@@ -27,6 +27,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/sim_render.py --out benchmarks/results/sim_render.json
 	$(BIN)/python benchmarks/lanes.py --data $(DATA) --out benchmarks/results/lanes.json
 	$(BIN)/python benchmarks/drive.py --out benchmarks/results/drive.json
+	$(BIN)/python benchmarks/record.py --out benchmarks/results/record.json
 
 demo: $(STAMP)
 	$(BIN)/kartpilot demo --out demo_out

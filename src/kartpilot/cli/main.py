@@ -115,6 +115,9 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--out", required=True, help="the recording folder to create")
     rec.add_argument("--duration", type=float, help="seconds to record (default: until Ctrl-C)")
     rec.add_argument("--cameras", help="comma-separated cameras (default: every camera with capture settings)")
+    rec.add_argument("--image-format", choices=("jpg", "png"), default="jpg",
+                     help="jpg (quality 95) keeps up with three 960x540 cameras at 30 fps on two cores; png is "
+                          "lossless and about 25x slower to encode")
     rec.add_argument("--config", help="YAML file merged over the defaults (section live)")
     rec.set_defaults(handler=record_commands.record)
 

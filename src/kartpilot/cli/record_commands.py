@@ -33,7 +33,8 @@ def record(args: argparse.Namespace) -> int:
                                  else None,
                                  metadata={"source": "kartpilot record", "rig_file": str(args.rig),
                                            "capture": {n: asdict(rig.capture[n]) for n in names}},
-                                 queue_frames=RECORD_QUEUE_FRAMES, drop_when_full=True)
+                                 queue_frames=RECORD_QUEUE_FRAMES, drop_when_full=True,
+                                 image_format=args.image_format)
     except BaseException:
         source.close()
         raise
