@@ -66,8 +66,9 @@ def main() -> None:
         "written": written, "dropped": dropped, "close_s": round(close_s, 2),
         "machine": platform.processor() or platform.machine(),
     }
+    caller = result["caller_ms"]
     print(f"{k} sets of {len(names)} cameras at {args.rate:g} Hz ({args.image_format}): the caller spent "
-          f"{result['caller_ms']['median']:.2f} ms per set (p99 {result['caller_ms']['p99']:.2f}, max {result['caller_ms']['max']:.2f})")
+          f"{caller['median']:.2f} ms per set (p99 {caller['p99']:.2f}, max {caller['max']:.2f})")
     for n in names:
         print(f"  {n}: {written[n]} written, {dropped[n]} dropped")
     print(f"closing (the queues drained) took {close_s:.2f} s")
