@@ -5,6 +5,7 @@ exit; anything else is a bug and keeps its traceback.
 """
 
 __all__ = [
+    "ActuationError",
     "CalibrationError",
     "ConfigError",
     "DataError",
@@ -52,6 +53,10 @@ class PlanningError(KartpilotError):
 
 class RecordingError(KartpilotError):
     """A recording cannot be written or read."""
+
+
+class ActuationError(KartpilotError):
+    """The CAN interface cannot be opened, or a frame is malformed (wrong checksum, unknown message)."""
 
 
 class EvaluationError(KartpilotError):
