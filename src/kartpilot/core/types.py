@@ -15,6 +15,7 @@ __all__ = [
     "FrameSink",
     "FrameSource",
     "Image",
+    "OperatorInput",
     "StereoFrame",
     "VehiclePose",
 ]
@@ -105,6 +106,27 @@ class VehiclePose:
     yaw_rate_radps: float
     status: Literal["ok", "bridged", "lost"]
     reason: str = ""
+
+
+@dataclass(frozen=True)
+class OperatorInput:
+    """What the person in charge asks for now: from a gamepad, the web page, or a script in the simulator.
+
+    Attributes:
+        connected: the input device (or page) is connected and alive.
+        estop: the emergency stop is pressed.
+        hold: the dead-man button for autonomy is held.
+        request: ``manual``, ``autonomous``, ``disarm`` or ``rearm`` (after a fault), or empty.
+        manual: the person's own steer, throttle and brake, when driving by hand.
+        source: where this came from (``gamepad``, ``web``, ``script``).
+    """
+
+    connected: bool = True
+    estop: bool = False
+    hold: bool = False
+    request: str = ""
+    manual: ActuatorCommand | None = None
+    source: str = ""
 
 
 class FrameSource(Protocol):
