@@ -129,6 +129,8 @@ def test_teach_reference_and_drive_it_in_the_simulator_and_on_the_replay(tmp_pat
                  str(result), "--no-progress"]) == 0
     data = json.loads(result.read_text())
     assert data["stop_reason"] == "reached the end of the reference" and not data["disqualified"]
-    assert "localize.detect" in data["stage_ms"] and "missed_deadlines" in data
+    assert "localize.detect" in data["pipeline_stage_ms"] and "missed_deadlines" in data
+    assert set(data["stage_ms"]["policy"]) == {"p50", "p90", "p99", "max"}
+    assert [t["state"] for t in data["transitions"]] == ["autonomous"] and data["bus"] == "virtual"
     assert main(["drive", "--reference", str(reference)]) == 1
     assert "needs --sim TRACK or --replay RECORDING" in capsys.readouterr().err

@@ -52,7 +52,7 @@ COMMAND_MESSAGES = ("SteerCommand", "ThrottleCommand", "BrakeCommand")
 STATUS_MESSAGES = {"steer": "SteerStatus", "drive": "DriveStatus", "brake": "BrakeStatus"}
 STATE_CODES = {"disarmed": 0, "manual": 1, "autonomous": 2, "paused": 3, "fault": 4}
 
-FrameLog = Callable[[int, str, int, bytes], None]  # stamp_ns, "tx"/"rx", id, data
+FrameLog = Callable[[int, int, bytes, str], None]  # stamp_ns, id, data, "tx"/"rx" (RecordingWriter.write_can)
 
 
 @dataclass(frozen=True)
@@ -269,7 +269,7 @@ class CanActuator:
                 break
             self.frames_sent += 1
             if self.log_frame is not None:
-                self.log_frame(now, "tx", frame.arbitration_id, bytes(frame.data))
+                self.log_frame(now, frame.arbitration_id, bytes(frame.data), "tx")
         if ok:
             self._tx_fault = ""
         self._last_tx_ns = now
@@ -326,7 +326,7 @@ class CanActuator:
                 return
             now = self.clock()
             if self.log_frame is not None:
-                self.log_frame(now, "rx", frame.arbitration_id, bytes(frame.data))
+                self.log_frame(now, frame.arbitration_id, bytes(frame.data), "rx")
             ecu = names.get(frame.arbitration_id)
             if ecu is None:
                 continue

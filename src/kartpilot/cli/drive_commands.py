@@ -6,20 +6,27 @@ import argparse
 import json
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from kartpilot.control.path_follow import steer_bias_of_drive
-from kartpilot.core.errors import ConfigError, RecordingError
+from kartpilot.core.errors import ConfigError, KartpilotError, RecordingError
 from kartpilot.odometry.localizer import ground_poses
 from kartpilot.odometry.run import run_teach
 from kartpilot.odometry.visual_map import VisualMap, load_visual_map, map_path_for
-from kartpilot.planning.reference_path import build_reference_path, load_reference_path, save_reference_path
+from kartpilot.planning.reference_path import (
+    ReferencePath,
+    build_reference_path,
+    load_reference_path,
+    save_reference_path,
+)
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.experiment import ThesisVOConfig, run_thesis_vo, summary_line
+from kartpilot.runtime.faults import parse_injection
 from kartpilot.runtime.replay import replay_recording
-from kartpilot.runtime.simulate import run_simulation
+from kartpilot.runtime.simulate import run_supervised_drive
 from kartpilot.sim.simulator import SimConfig
 from kartpilot.sim.vehicle import VehicleParams, get_vehicle
 
@@ -82,29 +89,50 @@ def _visual_map(args: argparse.Namespace) -> VisualMap | None:
     return None
 
 
+def _drive_vehicle(args: argparse.Namespace) -> VehicleParams:
+    if args.pipeline == "stereo-vo":
+        return _stereo_vehicle(args.vehicle or "rc-kart")[0]
+    return get_vehicle(args.vehicle or "sdc-kart")
+
+
 def drive(args: argparse.Namespace) -> int:
-    """Follow a reference with the stereo-VO pipeline: in the simulator, on a replayed recording."""
+    """A supervised drive with the lanes or stereo-VO pipeline: in the simulator (through the CAN layer) or on
+    a replayed recording (open loop)."""
     stack = load_stack_config(args.config)
-    vehicle, pair = _stereo_vehicle(args.vehicle)
-    path = load_reference_path(args.reference)
-    visual_map = _visual_map(args)
+    vehicle = _drive_vehicle(args)
+    path: ReferencePath | None = None
+    visual_map = None
+    if args.pipeline == "stereo-vo":
+        if not args.reference:
+            raise ConfigError("the stereo-vo pipeline follows a reference: give --reference (kartpilot reference "
+                              "writes one from a recorded drive)")
+        path = load_reference_path(args.reference)
+        visual_map = _visual_map(args)
     follow = stack.drive.follow if args.speed is None else replace(stack.drive.follow, max_speed_mps=args.speed)
     drive_config = replace(stack.drive, follow=follow)
     if args.sim:
-        overrides = {"track": args.sim, "vehicle": vehicle.name, "seed": args.seed, "camera_rate_hz": args.rate}
-        sim: SimConfig = replace(stack.sim, cameras=pair, **{k: v for k, v in overrides.items() if v is not None})
+        cameras = (vehicle.stereo_pair or ()) if args.pipeline == "stereo-vo" else stack.sim.cameras
+        overrides = {"track": args.sim, "vehicle": vehicle.name, "seed": args.seed, "camera_rate_hz": args.rate,
+                     "speed_mode_mps": args.speed_mode / 3.6 if args.speed_mode else None}
+        sim: SimConfig = replace(stack.sim, cameras=cameras,
+                                 **{k: v for k, v in overrides.items() if v is not None})
         if args.steer_bias is not None:
             sim = replace(sim, disturbances=replace(sim.disturbances, steer_bias_rad=args.steer_bias))
-        run = run_simulation(sim, "path", record_dir=args.record, video_path=args.video, result_path=args.result,
-                             progress=not args.no_progress, reference=path, drive_config=drive_config,
-                             drive_log=args.log, visual_map=visual_map, vo_config=stack.stereo_vo)
-        result = run.result
-        verdict = f"DISQUALIFIED: {result.reason}" if result.disqualified else result.reason
-        print(f"{verdict} | {result.distance_m:.1f} m driven, centre offset max {result.max_center_offset_m:.3f} m, "
-              f"stopped: {run.stop_reason or 'no'} | {run.steps} steps, {run.missed_deadlines} over the deadline")
-        print("per step (ms): " + ", ".join(f"{k} {v:.1f}" for k, v in run.stage_ms.items()))
+        run = run_supervised_drive(
+            sim, args.pipeline, bus=args.bus, duration_s=args.duration,
+            injections=[parse_injection(text) for text in args.inject or []], lane_config=stack.lane_policy,
+            drive_config=drive_config, vo_config=stack.stereo_vo, reference=path, visual_map=visual_map,
+            can_config=stack.can, watchdog_config=stack.watchdogs, supervisor_config=stack.supervisor,
+            record_dir=args.record, result_path=args.result, video_path=args.video, drive_log=args.log,
+            progress=not args.no_progress)
+        print(drive_summary(run.payload))
+        if run.error is not None:
+            where = f"; its traceback is in {Path(args.record) / 'error.txt'}" if args.record else ""
+            raise KartpilotError(f"the pipeline failed ({run.payload['error']}); the kart was stopped{where}")
         return 0
     if args.replay:
+        if path is None:
+            raise ConfigError("drive --replay runs the stereo-vo pipeline; for lanes use kartpilot replay")
         replayed = replay_recording(args.replay, "stereo-vo", replace(stack, drive=drive_config), reference=path,
                                     visual_map=visual_map, vehicle=vehicle.name, drive_log=args.log)
         summary = replayed.to_json()
@@ -115,6 +143,24 @@ def drive(args: argparse.Namespace) -> int:
         return 0
     raise ConfigError("drive needs --sim TRACK or --replay RECORDING: this build has no live camera and CAN "
                       "interface for the kart yet")
+
+
+def drive_summary(payload: dict[str, Any]) -> str:
+    """What a supervised drive did, in a few lines: verdict, supervisor, the fault's stop, timing."""
+    verdict = f"DISQUALIFIED: {payload['reason']}" if payload["disqualified"] else payload["reason"]
+    lines = [f"{verdict} | {payload['distance_m']:.1f} m driven, centre offset max "
+             f"{payload['max_center_offset_m']:.3f} m | {payload['steps']} steps, ended: {payload['ended']}"]
+    if payload.get("stop_reason"):
+        lines.append(f"pipeline stopped: {payload['stop_reason']}")
+    for transition in payload["transitions"]:
+        lines.append(f"  {transition['t_s']:7.2f} s  {transition['state']:<10} {transition['reason']}")
+    if payload["injections"]:
+        stop = payload["fault_to_stop_s"]
+        lines.append(f"fault to stop: {stop:.3f} s (by {payload['stop_by']})" if stop is not None
+                     else "fault to stop: no stop after the fault")
+    lines.append("per step (ms, p50 / p90 / p99): " + ", ".join(
+        f"{stage} {v['p50']:.1f} / {v['p90']:.1f} / {v['p99']:.1f}" for stage, v in payload["stage_ms"].items()))
+    return "\n".join(lines)
 
 
 def replay(args: argparse.Namespace) -> int:

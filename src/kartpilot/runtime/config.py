@@ -13,6 +13,9 @@ Example ``stack.yaml``::
       follow: {controller: pure_pursuit, bias: {gain_rad_per_m_s: 0.0}}
       localizer: {reloc: {gain: 0.5}}
     live: {sync_tolerance_ms: 10, health: {timeout_s: 0.5}}
+    can: {interface: socketcan, channel: can0, send_rate_hz: 50, status_timeout_s: 0.1}
+    watchdogs: {overrun_factor: 2.0, overrun_steps: 3}
+    supervisor: {require_hold: true}
 """
 
 from __future__ import annotations
@@ -20,11 +23,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from kartpilot.actuation.can_bus import CanConfig
 from kartpilot.core.config import load_yaml_mapping, merge_config
 from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.perception.lanes import LaneConfig
+from kartpilot.runtime.drive import WatchdogConfig
 from kartpilot.runtime.lane_policy import LanePolicyConfig
 from kartpilot.runtime.path_policy import DriveConfig
+from kartpilot.runtime.supervisor import SupervisorConfig
 from kartpilot.sensors.capture import LiveConfig
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import SimConfig
@@ -41,6 +47,9 @@ class StackConfig:
     lane_policy: LanePolicyConfig = field(default_factory=LanePolicyConfig)
     drive: DriveConfig = field(default_factory=DriveConfig)
     live: LiveConfig = field(default_factory=LiveConfig)
+    can: CanConfig = field(default_factory=CanConfig)
+    watchdogs: WatchdogConfig = field(default_factory=WatchdogConfig)
+    supervisor: SupervisorConfig = field(default_factory=SupervisorConfig)
 
 
 def load_stack_config(path: str | Path | None) -> StackConfig:

@@ -109,6 +109,12 @@ class LanePolicy:
         self.last_observation, self.last_decision = observation, decision
         return ActuatorCommand(frames.stamp_ns, decision.steer_rad, decision.throttle, decision.brake)
 
+    def fault(self) -> str:
+        """What is wrong with the pipeline, for the supervisor: no boundary seen for longer than it may hold."""
+        if self.last_decision is not None and self.last_decision.reason == "halt":
+            return f"no lane boundary seen for more than {self.config.follow.hold_frames} frames"
+        return ""
+
     def outputs(self) -> dict[str, dict[str, float | int | str]]:
         """The last step as the recording's ``lanes`` topic (pixels of the centre image; NaN where a
         boundary was not detected)."""

@@ -20,6 +20,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
+import numpy as np
+
 from kartpilot.core.types import ActuatorCommand, CommandSink, FrameSet, FrameSink, FrameSource
 
 __all__ = ["LoopStats", "Outputs", "Policy", "Recorder", "run_loop"]
@@ -45,9 +47,22 @@ class LoopStats:
     missed_deadlines: int = 0
     worst_step_ms: float = 0.0
     stage_s: dict[str, float] = field(default_factory=lambda: {"source": 0.0, "policy": 0.0, "sinks": 0.0})
+    samples_s: dict[str, list[float]] = field(default_factory=lambda: {"source": [], "policy": [], "sinks": []})
 
     def stage_ms(self) -> dict[str, float]:
+        """Mean milliseconds per step of each stage."""
         return {k: 1000.0 * v / max(self.steps, 1) for k, v in self.stage_s.items()}
+
+    def stage_percentiles_ms(self) -> dict[str, dict[str, float]]:
+        """Median, 90th and 99th percentile (and the worst) milliseconds of each stage."""
+        result = {}
+        for stage, samples in self.samples_s.items():
+            if samples:
+                ms = np.asarray(samples) * 1e3
+                result[stage] = {"p50": round(float(np.percentile(ms, 50)), 3),
+                                 "p90": round(float(np.percentile(ms, 90)), 3),
+                                 "p99": round(float(np.percentile(ms, 99)), 3), "max": round(float(ms.max()), 3)}
+        return result
 
 
 def run_loop(source: FrameSource, policy: Policy, actuators: CommandSink, recorders: Sequence[Recorder] = (),
@@ -81,9 +96,9 @@ def run_loop(source: FrameSource, policy: Policy, actuators: CommandSink, record
             if on_step is not None:
                 on_step(frames, command)
             t3 = time.perf_counter()
-            stats.stage_s["source"] += t1 - t0
-            stats.stage_s["policy"] += t2 - t1
-            stats.stage_s["sinks"] += t3 - t2
+            for stage, seconds in (("source", t1 - t0), ("policy", t2 - t1), ("sinks", t3 - t2)):
+                stats.stage_s[stage] += seconds
+                stats.samples_s[stage].append(seconds)
             stats.steps += 1
             step_ms = (t3 - t1) * 1e3  # the pipeline's own work, not the wait for (or rendering of) frames
             stats.worst_step_ms = max(stats.worst_step_ms, step_ms)

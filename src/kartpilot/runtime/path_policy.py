@@ -124,6 +124,13 @@ class PathFollowPolicy:
     def close(self) -> None:
         self.localizer.close()
 
+    def fault(self) -> str:
+        """What is wrong with the pipeline, for the supervisor: localisation lost, or an overrun. The end of
+        the reference is not a fault: the pipeline stops the kart there itself."""
+        if self.stopped and self.stop_reason != "reached the end of the reference":
+            return self.stop_reason
+        return ""
+
     def outputs(self) -> dict[str, dict[str, float | int | str]]:
         """The last step as the recording's ``pose`` and ``follow`` topics."""
         if not self.samples:

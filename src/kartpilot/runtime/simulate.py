@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -13,14 +13,17 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from kartpilot.actuation.can_bus import ActuatorLimits, CanActuator, CanConfig, open_bus
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError, RecordingError
 from kartpilot.core.trajectory import Trajectory
-from kartpilot.core.types import ActuatorCommand, FrameSet, Image
+from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource, Image
 from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.odometry.visual_map import VisualMap
 from kartpilot.planning.reference_path import ReferencePath
 from kartpilot.record.recording import RecordingReader, RecordingWriter
+from kartpilot.runtime.drive import ScriptedOperator, SupervisedDrive, WatchdogConfig, Watchdogs
+from kartpilot.runtime.faults import FaultyBus, InjectedSource, Injection, failing_vo
 from kartpilot.runtime.lane_policy import LanePolicy, LanePolicyConfig
 from kartpilot.runtime.loop import Policy, Recorder, run_loop
 from kartpilot.runtime.path_policy import (
@@ -30,11 +33,13 @@ from kartpilot.runtime.path_policy import (
     stereo_vo_policy,
     write_drive_log,
 )
+from kartpilot.runtime.supervisor import Supervisor, SupervisorConfig
+from kartpilot.sim.can_ecu import AppliedCommand, SimEcus
 from kartpilot.sim.drivers import CenterlineDriver, CenterlineDriverConfig, CommandsDriver
 from kartpilot.sim.referee import RunResult
 from kartpilot.sim.simulator import SimConfig, Simulator
 
-__all__ = ["DRIVERS", "SimRun", "load_commands", "run_simulation"]
+__all__ = ["DRIVERS", "SimRun", "SupervisedRun", "load_commands", "run_simulation", "run_supervised_drive"]
 
 DRIVERS = ("centerline", "commands", "lanes", "path")
 STOPPED_BEFORE_END_S = 1.5  # a path drive ends this long after the pipeline decided to stop
@@ -108,9 +113,7 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
         recorders: list[Recorder] = []
         writer: RecordingWriter | None = None
         if record_dir is not None:
-            pair = sim.vehicle.stereo_pair if sim.vehicle.stereo_pair and set(sim.vehicle.stereo_pair) <= set(
-                sim.cameras) else None
-            writer = RecordingWriter(record_dir, sim.cameras, stereo_pair=pair, metadata={
+            writer = RecordingWriter(record_dir, sim.cameras, stereo_pair=_recorded_pair(sim), metadata={
                 "source": "kartpilot sim", "driver": driver, "sim": config_to_dict(config),
                 "groundtruth_camera": _gt_camera(sim)}, queue_frames=8, drop_when_full=False)
             recorders.append(writer)
@@ -192,6 +195,12 @@ class _UntilStopped:
         return self.sim.read()
 
 
+def _recorded_pair(sim: Simulator) -> tuple[str, str] | None:
+    """The vehicle's stereo pair, when both of its cameras are rendered."""
+    pair = sim.vehicle.stereo_pair
+    return pair if pair and set(pair) <= set(sim.cameras) else None
+
+
 def _gt_camera(sim: Simulator) -> str:
     pair = sim.vehicle.stereo_pair
     if pair and pair[0] in sim.cameras:
@@ -248,3 +257,218 @@ class _VideoSink:
 
     def close(self) -> None:
         self._writer.release()
+
+
+SUPERVISED_PIPELINES = ("lanes", "stereo-vo")
+FAULT_HELD_S = 1.0  # a supervised run ends once the kart has been held in a fault this long
+
+
+@dataclass(frozen=True)
+class SupervisedRun:
+    """A supervised simulated drive: the referee's result and what the supervisor did. ``payload`` is what
+    the result JSON holds."""
+
+    result: RunResult
+    payload: dict[str, object]
+    error: BaseException | None = None
+
+
+class _Raising:
+    """A pipeline that raises from ``at_s`` (the ``stage-exception`` injection); otherwise the pipeline."""
+
+    def __init__(self, pipeline: Policy, at_s: float) -> None:
+        self.pipeline, self.at_s = pipeline, at_s
+
+    def __call__(self, frames: FrameSet) -> ActuatorCommand:
+        if frames.stamp_ns * 1e-9 >= self.at_s:
+            raise RuntimeError("a stage raised (injected)")
+        return self.pipeline(frames)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.pipeline, name)
+
+
+class _DirectSink:
+    """The simulator as the actuators, without a bus; the commands it applied are kept."""
+
+    def __init__(self, sim: Simulator) -> None:
+        self.sim = sim
+        self.applied: list[AppliedCommand] = []
+
+    def send(self, command: ActuatorCommand) -> None:
+        self.applied.append(AppliedCommand(self.sim.time_ns, command, "command"))
+        self.sim.send(command)
+
+
+class _CanSink:
+    """Commands go onto the CAN bus; the simulated ECUs read them and drive the simulator."""
+
+    def __init__(self, actuator: CanActuator, ecus: SimEcus, silence_at_s: float | None) -> None:
+        self.actuator, self.ecus, self.silence_at_s = actuator, ecus, silence_at_s
+
+    @property
+    def applied(self) -> list[AppliedCommand]:
+        return self.ecus.applied
+
+    def send(self, command: ActuatorCommand) -> None:
+        self.actuator.send(command)
+        if self.silence_at_s is not None and self.actuator.clock() * 1e-9 >= self.silence_at_s:
+            self.ecus.silent = True
+        self.ecus.step()
+
+
+class _UntilSettled:
+    """The simulator as a source that ends once the drive has settled: a pipeline error or a fault held
+    for a while, or the path policy's stop held."""
+
+    def __init__(self, source: FrameSource, sim: Simulator, drive: SupervisedDrive,
+                 path_policy: PathFollowPolicy | None) -> None:
+        self.source, self.sim, self.drive, self.path_policy = source, sim, drive, path_policy
+        self.ended = ""
+
+    def read(self) -> FrameSet | None:
+        now = self.sim.time_ns
+        transitions = self.drive.supervisor.transitions
+        if self.drive.supervisor.state == "fault" and transitions and (now - transitions[-1].stamp_ns) * 1e-9 >= \
+                FAULT_HELD_S:
+            self.ended = "held in a fault"
+            return None
+        if self.path_policy is not None and self.path_policy.stopped_for_s(now) >= STOPPED_BEFORE_END_S:
+            self.ended = "the pipeline stopped the kart"
+            return None
+        frames = self.source.read()
+        if frames is None:
+            self.ended = "the simulation ended"
+        return frames
+
+
+def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", duration_s: float | None = None,
+                         injections: Sequence[Injection] = (), lane_config: LanePolicyConfig | None = None,
+                         drive_config: DriveConfig | None = None, vo_config: StereoVOConfig | None = None,
+                         reference: ReferencePath | None = None, visual_map: VisualMap | None = None,
+                         can_config: CanConfig | None = None, watchdog_config: WatchdogConfig | None = None,
+                         supervisor_config: SupervisorConfig | None = None, record_dir: str | Path | None = None,
+                         result_path: str | Path | None = None, video_path: str | Path | None = None,
+                         drive_log: str | Path | None = None, progress: bool = False) -> SupervisedRun:
+    """Drive ``pipeline`` in the simulator through the supervisor, on the CAN bus (``bus="virtual"``) or
+    straight to the simulator (``"none"``), with faults injected; write the result (and recording)."""
+    if pipeline not in SUPERVISED_PIPELINES:
+        raise ConfigError(f"unknown pipeline {pipeline!r} ({', '.join(SUPERVISED_PIPELINES)})")
+    if bus not in ("virtual", "none"):
+        raise ConfigError(f"the simulator sits behind the virtual bus or none, not {bus!r}")
+    at = {i.kind: i.at_s for i in injections}
+    if "vo-failure" in at and pipeline != "stereo-vo":
+        raise ConfigError("vo-failure needs the stereo-vo pipeline")
+    if bus == "none" and {"can-bus-off", "heartbeat-loss"} & set(at):
+        raise ConfigError("can-bus-off and heartbeat-loss need --bus virtual")
+    if duration_s is not None:
+        config = replace(config, max_time_s=duration_s)
+    if pipeline == "stereo-vo":
+        config = replace(config, referee=replace(config.referee, run_on_m=math.inf))
+    with Simulator(config) as sim:
+        path_policy: PathFollowPolicy | None = None
+        policy: Policy
+        if pipeline == "lanes":
+            policy = LanePolicy(sim.cameras, lane_config, config.camera_rate_hz)
+        else:
+            path_policy = _path_policy(sim, reference, drive_config or DriveConfig(), visual_map,
+                                       vo_config or StereoVOConfig())
+            if "vo-failure" in at:
+                vo = path_policy.localizer.vo
+                vo.process = failing_vo(vo.process, Injection("vo-failure", at["vo-failure"]))  # type: ignore[method-assign, assignment]
+            policy = path_policy
+        if "stage-exception" in at:
+            policy = _Raising(policy, at["stage-exception"])
+        writer: RecordingWriter | None = None
+        if record_dir is not None:
+            writer = RecordingWriter(record_dir, sim.cameras, stereo_pair=_recorded_pair(sim),
+                                     metadata={"source": "kartpilot drive --sim", "pipeline": pipeline, "bus": bus,
+                                               "sim": config_to_dict(config),
+                                               "injections": [f"{i.kind}@{i.at_s:g}" for i in injections]},
+                                     queue_frames=8, drop_when_full=False)
+
+        def clock() -> int:
+            return sim.time_ns
+
+        actuator: CanActuator | None = None
+        sink: _CanSink | _DirectSink
+        if bus == "virtual":
+            can_config = replace(can_config or CanConfig(), interface="virtual", channel=f"kartpilot-sim-{id(sim)}")
+            can_config = replace(can_config, status_timeout_s=max(can_config.status_timeout_s, 2.5 * sim.dt_s))
+            vehicle = sim.vehicle
+            limits = ActuatorLimits(vehicle.max_steer_rad, vehicle.steer_rate_radps)
+            actuator = CanActuator(FaultyBus(open_bus(can_config), clock, at.get("can-bus-off")), can_config, limits,
+                                   clock, writer.write_can if writer is not None else None)
+            ecus = SimEcus(open_bus(can_config), sim, clock, can_config.dbc, max(0.1, 2.5 * sim.dt_s),
+                           can_config.ecus, measured=lambda: (sim.state.steer_rad, sim.state.vx_mps))
+            sink = _CanSink(actuator, ecus, at.get("heartbeat-loss"))
+        else:
+            sink = _DirectSink(sim)
+        supervisor = Supervisor(supervisor_config)
+        watchdogs = Watchdogs(list(sim.cameras) if config.render_images else [], sim.dt_s, watchdog_config, actuator)
+        drive = SupervisedDrive(policy, supervisor, watchdogs, ScriptedOperator(at.get("gamepad-unplug")), actuator)
+        source = _UntilSettled(InjectedSource(sim, list(injections)), sim, drive, path_policy)
+        recorders: list[Recorder] = [writer] if writer is not None else []
+        video = _VideoSink(video_path, sim, getattr(policy, "overlay", None)) if video_path is not None else None
+        bar = tqdm(total=round(_goal_m(sim), 1), unit="m", disable=(not progress) or None, leave=False)
+
+        def on_step(frames: FrameSet, command: ActuatorCommand) -> None:
+            if video is not None:
+                video.write(frames)
+            bar.update(round(min(max(sim.referee.progress_m, 0.0), bar.total), 1) - bar.n)
+
+        start = time.perf_counter()
+        try:
+            stats = run_loop(source, drive, sink, recorders, on_step, period_s=sim.dt_s)
+        finally:
+            bar.close()
+            if video is not None:
+                video.close()
+            if path_policy is not None:
+                path_policy.close()
+                if drive_log is not None:
+                    write_drive_log(path_policy.samples, drive_log)
+            if actuator is not None:
+                actuator.close()
+                ecus.bus.shutdown()
+            if writer is not None:
+                if drive.error_text:
+                    (Path(record_dir) / "error.txt").write_text(drive.error_text)  # type: ignore[arg-type]
+                if sim.stamps_ns:
+                    writer.write_groundtruth(sim.ground_truth(_gt_camera(sim)))
+                writer.close()
+        result = sim.result(time.perf_counter() - start)
+        first_fault = min(at.values()) if at else None
+        stop = next((a for a in sink.applied if first_fault is not None and a.stamp_ns * 1e-9 >= first_fault
+                     and a.command.brake >= 1.0 and a.command.throttle == 0.0), None)
+        payload: dict[str, object] = {
+            **result.to_json(), "track": sim.track.name, "vehicle": sim.vehicle.name, "seed": config.seed,
+            "pipeline": pipeline, "bus": bus, "steps": stats.steps, "ended": source.ended,
+            "injections": [{"kind": i.kind, "at_s": i.at_s} for i in injections],
+            "transitions": [t.to_json() for t in supervisor.transitions],
+            "final_state": supervisor.state,
+            "fault_to_stop_s": round(stop.stamp_ns * 1e-9 - first_fault, 4) if stop and first_fault is not None
+            else None,
+            "stop_by": stop.source if stop else None,
+            "error": f"{type(drive.error).__name__}: {drive.error}" if drive.error else None,
+            "missed_deadlines": stats.missed_deadlines,
+            "stage_ms": stats.stage_percentiles_ms(),
+        }
+        if actuator is not None:
+            payload["can"] = {"frames_sent": actuator.frames_sent, "tx_errors": actuator.tx_errors,
+                              "rx_errors": actuator.rx_errors, "frames_rejected_by_ecus": ecus.rejected_frames}
+        if path_policy is not None:
+            statuses = [s.pose_status for s in path_policy.samples]
+            steps = max(stats.steps, 1)
+            stages = {k: 1e3 * v / steps for k, v in path_policy.stage_s.items()}
+            stages.update({f"localize.{k}": v / steps for k, v in path_policy.localizer.timing_ms.items()})
+            payload.update(stop_reason=path_policy.stop_reason, bridged_frames=statuses.count("bridged"),
+                           relocalised_frames=path_policy.localizer.relocalisations,
+                           pipeline_stage_ms={k: round(v, 3) for k, v in stages.items()})
+        targets = [Path(result_path)] if result_path else []
+        if record_dir is not None:
+            targets.append(Path(record_dir) / "result.json")
+        for target in targets:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_text(json.dumps(payload, indent=2))
+        return SupervisedRun(result, payload, drive.error)

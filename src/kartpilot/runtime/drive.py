@@ -1,0 +1,133 @@
+"""A supervised drive: the pipeline's command goes through the safety supervisor to the actuators.
+
+:class:`Watchdogs` gathers, every step, what the supervisor listens to: the cameras (a black, blank
+or frozen frame at once; no frame for ``camera_timeout_s``), the pipeline's own health (localisation
+lost, no lane boundary), a pipeline that keeps overrunning its period, and the CAN bus and ECUs.
+:class:`SupervisedDrive` is the policy the loop runs: pipeline, watchdogs, operator, supervisor. An
+exception inside the pipeline is caught there: it is a fault like any other, the stop goes out in
+the same step, and the error is kept so the run can end non-zero once the stop has been held.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import traceback
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from kartpilot.actuation.can_bus import CanActuator
+from kartpilot.core.types import ActuatorCommand, FrameSet, OperatorInput
+from kartpilot.runtime.loop import Policy
+from kartpilot.runtime.supervisor import Supervisor
+from kartpilot.sensors.health import CameraWatchdog, HealthConfig
+
+__all__ = ["ScriptedOperator", "SupervisedDrive", "WatchdogConfig", "Watchdogs"]
+
+log = logging.getLogger(__name__)
+
+BAD_FRAMES = ("empty", "black", "blank", "frozen")
+
+
+@dataclass(frozen=True)
+class WatchdogConfig:
+    """Attributes:
+        health: what counts as a bad frame; ``health.timeout_s``: how long a camera may deliver nothing.
+        overrun_factor, overrun_steps: the pipeline taking longer than this many periods, this many steps
+            in a row, is a fault (one slow step is not).
+    """
+
+    health: HealthConfig = field(default_factory=HealthConfig)
+    overrun_factor: float = 2.0
+    overrun_steps: int = 3
+
+
+class Watchdogs:
+    def __init__(self, cameras: Sequence[str], period_s: float, config: WatchdogConfig | None = None,
+                 actuator: CanActuator | None = None) -> None:
+        self.config = config or WatchdogConfig()
+        self.cameras = CameraWatchdog(list(cameras), self.config.health)
+        self.period_s = period_s
+        self.actuator = actuator
+        self._overruns = 0
+
+    def check(self, frames: FrameSet, pipeline_fault: str, pipeline_s: float) -> list[str]:
+        faults = [f"camera {name}: {reason}" for name, reason in self.cameras.check(frames).items()]
+        faults += [f"camera {name}: {problem} frame" for name, problem in self.cameras.frame_problems.items()
+                   if problem in BAD_FRAMES and not any(f.startswith(f"camera {name}:") for f in faults)]
+        if pipeline_fault:
+            faults.append(pipeline_fault)
+        self._overruns = self._overruns + 1 if pipeline_s > self.config.overrun_factor * self.period_s else 0
+        if self._overruns >= self.config.overrun_steps:
+            faults.append(f"the pipeline overran its {self.period_s * 1e3:.0f} ms period {self._overruns} times in a "
+                          f"row (last {pipeline_s * 1e3:.0f} ms)")
+        if self.actuator is not None:
+            self.actuator.poll()
+            faults += self.actuator.faults()
+        return faults
+
+
+class ScriptedOperator:
+    """The person in the simulator: asks for autonomy at the start and holds the dead-man button.
+    ``unplug_at_s`` unplugs the gamepad (fault injection)."""
+
+    def __init__(self, unplug_at_s: float | None = None) -> None:
+        self.unplug_at_s = unplug_at_s
+        self._asked = False
+
+    def __call__(self, stamp_ns: int) -> OperatorInput:
+        connected = self.unplug_at_s is None or stamp_ns * 1e-9 < self.unplug_at_s
+        request = "" if self._asked else "autonomous"
+        self._asked = True
+        return OperatorInput(connected=connected, hold=connected, request=request, source="gamepad (scripted)")
+
+
+class SupervisedDrive:
+    """The policy the loop runs: ``pipeline`` -> watchdogs -> supervisor -> command."""
+
+    def __init__(self, pipeline: Policy, supervisor: Supervisor, watchdogs: Watchdogs,
+                 operator: Callable[[int], OperatorInput], actuator: CanActuator | None = None) -> None:
+        self.pipeline = pipeline
+        self.supervisor = supervisor
+        self.watchdogs = watchdogs
+        self.operator = operator
+        self.actuator = actuator
+        self.error: BaseException | None = None
+        self.error_text = ""
+        self.error_at_ns: int | None = None
+        self.faults: list[str] = []
+        self.step_s: list[float] = []
+
+    def __call__(self, frames: FrameSet) -> ActuatorCommand:
+        t0 = time.perf_counter()
+        pipeline_fault = ""
+        autonomous = ActuatorCommand.stop(frames.stamp_ns)
+        if self.error is None:
+            try:
+                autonomous = self.pipeline(frames)
+                fault_of = getattr(self.pipeline, "fault", None)
+                pipeline_fault = fault_of() if fault_of is not None else ""
+            except Exception as exc:  # anything: a stage that raises must not leave the last command standing
+                self.error, self.error_at_ns = exc, frames.stamp_ns
+                self.error_text = "".join(traceback.format_exception(exc))
+                log.error("the pipeline raised at %.2f s: %s", frames.stamp_ns * 1e-9, exc)
+        if self.error is not None:
+            pipeline_fault = f"the pipeline raised {type(self.error).__name__}: {self.error}"
+        pipeline_s = time.perf_counter() - t0
+        self.step_s.append(pipeline_s)
+        self.faults = self.watchdogs.check(frames, pipeline_fault, pipeline_s)
+        operator = self.operator(frames.stamp_ns)
+        if self.actuator is not None and self.actuator.estop:
+            operator = replace(operator, estop=True, source="emergency-stop circuit")
+        command = self.supervisor.step(frames.stamp_ns, self.faults, operator, autonomous)
+        if self.actuator is not None:
+            self.actuator.state = self.supervisor.state
+        return command
+
+    def outputs(self) -> dict[str, dict[str, Any]]:
+        pipeline_outputs = getattr(self.pipeline, "outputs", None)
+        result: dict[str, dict[str, Any]] = dict(pipeline_outputs()) if pipeline_outputs is not None else {}
+        result["supervisor"] = {"state": self.supervisor.state, "faults": len(self.faults),
+                                "reason": self.supervisor.reason.replace(",", ";")}
+        return result

@@ -1,0 +1,118 @@
+"""Fault injection for simulated drives: ``--inject KIND@SECONDS``.
+
+Each kind breaks one thing the way it breaks on a kart, from its time on:
+
+* ``camera-freeze``: every camera repeats its last image, byte for byte (a hung driver);
+* ``black-frame``: one set of black images (a covered lens, a sensor glitch);
+* ``vo-failure``: visual odometry fails on every frame (the localizer bridges, then reports lost);
+* ``can-bus-off``: the CAN controller goes bus-off: every send fails for ``BUS_OFF_S``, then it recovers;
+* ``heartbeat-loss``: the ECUs stop reporting their status;
+* ``gamepad-unplug``: the operator's gamepad is unplugged;
+* ``stage-exception``: a pipeline stage raises.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import can
+import numpy as np
+
+from kartpilot.core.errors import ConfigError, OdometryError
+from kartpilot.core.types import FrameSet, FrameSource
+
+__all__ = ["BUS_OFF_S", "KINDS", "FaultyBus", "InjectedSource", "Injection", "failing_vo", "parse_injection"]
+
+KINDS = ("camera-freeze", "black-frame", "vo-failure", "can-bus-off", "heartbeat-loss", "gamepad-unplug",
+         "stage-exception")
+BUS_OFF_S = 0.5
+
+
+@dataclass(frozen=True)
+class Injection:
+    kind: str
+    at_s: float
+
+    def active(self, stamp_ns: int) -> bool:
+        return stamp_ns * 1e-9 >= self.at_s
+
+
+def parse_injection(text: str) -> Injection:
+    """``KIND@SECONDS`` -> Injection."""
+    kind, _, at = text.partition("@")
+    if kind not in KINDS:
+        raise ConfigError(f"--inject {text!r}: the kind is one of {', '.join(KINDS)}")
+    try:
+        at_s = float(at)
+    except ValueError as exc:
+        raise ConfigError(f"--inject {text!r}: write KIND@SECONDS, e.g. camera-freeze@3.5") from exc
+    if at_s < 0:
+        raise ConfigError(f"--inject {text!r}: the time must not be negative")
+    return Injection(kind, at_s)
+
+
+class InjectedSource:
+    """A frame source whose cameras freeze, or deliver one black set, from the injection's time."""
+
+    def __init__(self, source: FrameSource, injections: list[Injection]) -> None:
+        self.source = source
+        self.freeze = next((i for i in injections if i.kind == "camera-freeze"), None)
+        self.black = next((i for i in injections if i.kind == "black-frame"), None)
+        self._frozen: FrameSet | None = None
+        self._last: FrameSet | None = None
+        self._black_done = False
+
+    def read(self) -> FrameSet | None:
+        frames = self.source.read()
+        if frames is None:
+            return None
+        if self.freeze is not None and self.freeze.active(frames.stamp_ns):
+            if self._frozen is None:
+                self._frozen = self._last if self._last is not None else frames
+            return FrameSet(frames.index, frames.stamp_ns, {k: v.copy() for k, v in self._frozen.images.items()})
+        if self.black is not None and not self._black_done and self.black.active(frames.stamp_ns):
+            self._black_done = True
+            return FrameSet(frames.index, frames.stamp_ns, {k: np.zeros_like(v) for k, v in frames.images.items()})
+        self._last = frames
+        return frames
+
+
+class FaultyBus(can.BusABC):
+    """A bus whose sends fail (bus-off) from ``off_from_ns`` for ``BUS_OFF_S``; reads pass through."""
+
+    def __init__(self, bus: can.BusABC, clock: Callable[[], int], off_from_s: float | None) -> None:
+        super().__init__(channel=getattr(bus, "channel_info", "faulty"))
+        self.bus = bus
+        self.clock = clock
+        self.off_from_s = off_from_s
+
+    def _off(self) -> bool:
+        if self.off_from_s is None:
+            return False
+        now_s = self.clock() * 1e-9
+        return self.off_from_s <= now_s < self.off_from_s + BUS_OFF_S
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self._off():
+            raise can.CanOperationError("bus-off (injected)")
+        self.bus.send(msg, timeout)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        return self.bus.recv(timeout), False
+
+    def shutdown(self) -> None:
+        self.bus.shutdown()
+        super().shutdown()
+
+
+def failing_vo(process: Callable[[Any], Any], injection: Injection) -> Callable[[Any], Any]:
+    """Wrap a StereoVO's ``process`` so it fails on every frame from the injection's time."""
+
+    def wrapped(frame: Any) -> Any:
+        if injection.active(frame.stamp_ns):
+            raise OdometryError("visual odometry failed (injected)")
+        return process(frame)
+
+    return wrapped
