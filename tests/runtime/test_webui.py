@@ -71,7 +71,7 @@ def served():
 
 
 def test_the_page_serves_state_and_camera_over_http(served):
-    web, server, supervisor, _ = served
+    web, server, _, _ = served
     assert _wait(lambda: web.jpeg() is not None)
     with urllib.request.urlopen(server.url + "camera.jpg") as reply:
         assert reply.headers["Content-Type"] == "image/jpeg" and reply.read(2) == b"\xff\xd8"

@@ -15,10 +15,10 @@ import numpy as np
 
 from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.errors import CalibrationError
-from kartpilot.core.geometry import Array
+from kartpilot.core.geometry import Array, invert_pose
 from kartpilot.core.types import Image
 
-__all__ = ["StereoRectification", "rectify_stereo"]
+__all__ = ["StereoRectification", "StereoSetup", "rectify_stereo", "stereo_setup"]
 
 
 @dataclass(frozen=True)
@@ -76,3 +76,29 @@ def rectify_stereo(left: PinholeCamera, right: PinholeCamera, pose_right_left: A
     rig = StereoRig.from_projections(P1, P2, left.size_wh)
     return StereoRectification(rig, np.asarray(R1, dtype=np.float64), left_maps, right_maps,
                                np.asarray(R2, dtype=np.float64))
+
+
+@dataclass(frozen=True)
+class StereoSetup:
+    """A calibrated pair ready for the stereo pipeline: the rectified rig, the remapping (None when the
+    cameras are already rectified) and the rectified left camera's pose on the kart."""
+
+    rig: StereoRig
+    rectification: StereoRectification | None
+    pose_body_left: Array
+
+    def rectify(self, left: Image, right: Image) -> tuple[Image, Image]:
+        return (left, right) if self.rectification is None else self.rectification.rectify(left, right)
+
+
+def stereo_setup(left: PinholeCamera, right: PinholeCamera) -> StereoSetup:
+    """The stereo pipeline's view of two cameras calibrated on the kart (their poses give the extrinsics)."""
+    pose_right_left = invert_pose(right.pose_body_cam_array) @ left.pose_body_cam_array
+    if not left.distortion and not right.distortion and np.allclose(pose_right_left[:3, :3], np.eye(3)):
+        if left.size_wh != right.size_wh or not np.allclose(left.matrix, right.matrix, atol=1e-6):
+            raise CalibrationError("unrectified stereo cameras with different intrinsics need a rectification")
+        return StereoSetup(StereoRig(left, float(-pose_right_left[0, 3])), None, left.pose_body_cam_array)
+    rectification = rectify_stereo(left, right, pose_right_left)
+    rect_raw = np.eye(4)
+    rect_raw[:3, :3] = rectification.rotation_rect_left.T  # rectified axes in the raw camera frame
+    return StereoSetup(rectification.rig, rectification, left.pose_body_cam_array @ rect_raw)

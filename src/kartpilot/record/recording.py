@@ -38,10 +38,10 @@ from typing import IO, Any
 import cv2
 import numpy as np
 
-from kartpilot.calibration.rectify import StereoRectification, rectify_stereo
+from kartpilot.calibration.rectify import stereo_setup
 from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.errors import CalibrationError, RecordingError
-from kartpilot.core.geometry import Array, invert_pose
+from kartpilot.core.geometry import Array
 from kartpilot.core.trajectory import Trajectory, read_tum, write_tum
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image, StereoFrame
 from kartpilot.sensors.base import StereoSource, read_gray
@@ -443,16 +443,7 @@ class RecordingStereoSource(StereoSource):
             raise RecordingError(f"recording {self.reader.folder} names no stereo pair")
         left_name, right_name = self.reader.stereo_pair
         self.name = f"recording-{self.reader.folder.name}"
-        left_cam, right_cam = self.reader.cameras[left_name], self.reader.cameras[right_name]
-        pose_right_left = invert_pose(right_cam.pose_body_cam_array) @ left_cam.pose_body_cam_array
-        self._rectification: StereoRectification | None = None
-        if left_cam.distortion or right_cam.distortion or not np.allclose(pose_right_left[:3, :3], np.eye(3)):
-            self._rectification = rectify_stereo(left_cam, right_cam, pose_right_left)
-            self._rig = self._rectification.rig
-        else:
-            if left_cam.size_wh != right_cam.size_wh or not np.allclose(left_cam.matrix, right_cam.matrix, atol=1e-6):
-                raise CalibrationError("unrectified stereo cameras with different intrinsics need a rectification")
-            self._rig = StereoRig(left_cam, float(-pose_right_left[0, 3]))
+        self.setup = stereo_setup(self.reader.cameras[left_name], self.reader.cameras[right_name])
         right_frames = dict(self.reader.frames(right_name))
         self._pairs = [(stamp, path, right_frames[stamp]) for stamp, path in self.reader.frames(left_name)
                        if stamp in right_frames]
@@ -461,18 +452,12 @@ class RecordingStereoSource(StereoSource):
 
     @property
     def rig(self) -> StereoRig:
-        return self._rig
+        return self.setup.rig
 
     @property
     def pose_body_left(self) -> Array:
         """The (rectified) left camera's pose on the kart, from the recording's rig."""
-        assert self.reader.stereo_pair is not None
-        pose = self.reader.cameras[self.reader.stereo_pair[0]].pose_body_cam_array
-        if self._rectification is None:
-            return pose
-        rect_raw = np.eye(4)
-        rect_raw[:3, :3] = self._rectification.rotation_rect_left.T  # rectified axes in the raw camera frame
-        return pose @ rect_raw
+        return self.setup.pose_body_left
 
     def __len__(self) -> int:
         return len(self._pairs)
@@ -482,9 +467,7 @@ class RecordingStereoSource(StereoSource):
 
     def frame(self, index: int) -> StereoFrame:
         stamp, left_path, right_path = self._pairs[index]
-        left, right = read_gray(left_path), read_gray(right_path)
-        if self._rectification is not None:
-            left, right = self._rectification.rectify(left, right)
+        left, right = self.setup.rectify(read_gray(left_path), read_gray(right_path))
         return StereoFrame(index, stamp, left, right)
 
     def ground_truth(self) -> Trajectory | None:
