@@ -133,4 +133,4 @@ def test_teach_reference_and_drive_it_in_the_simulator_and_on_the_replay(tmp_pat
     assert set(data["stage_ms"]["policy"]) == {"p50", "p90", "p99", "max"}
     assert [t["state"] for t in data["transitions"]] == ["autonomous"] and data["bus"] == "virtual"
     assert main(["drive", "--reference", str(reference)]) == 1
-    assert "needs --sim TRACK or --replay RECORDING" in capsys.readouterr().err
+    assert "needs --sim TRACK, --replay RECORDING or --live RIG" in capsys.readouterr().err

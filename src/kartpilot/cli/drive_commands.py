@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from kartpilot.calibration.rig import load_rig
 from kartpilot.control.path_follow import steer_bias_of_drive
 from kartpilot.core.errors import ConfigError, KartpilotError, RecordingError
 from kartpilot.odometry.localizer import ground_poses
@@ -25,6 +26,7 @@ from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.experiment import ThesisVOConfig, run_thesis_vo, summary_line
 from kartpilot.runtime.faults import parse_injection
+from kartpilot.runtime.live_drive import LiveDriveSetup, run_live_drive
 from kartpilot.runtime.replay import replay_recording
 from kartpilot.runtime.simulate import run_supervised_drive
 from kartpilot.sim.simulator import SimConfig
@@ -118,8 +120,10 @@ def drive(args: argparse.Namespace) -> int:
                                  **{k: v for k, v in overrides.items() if v is not None})
         if args.steer_bias is not None:
             sim = replace(sim, disturbances=replace(sim.disturbances, steer_bias_rad=args.steer_bias))
+        if args.bus == "socketcan":
+            raise ConfigError("the simulator sits behind the virtual bus (or none), not socketcan")
         run = run_supervised_drive(
-            sim, args.pipeline, bus=args.bus, duration_s=args.duration,
+            sim, args.pipeline, bus=args.bus or "virtual", duration_s=args.duration,
             injections=[parse_injection(text) for text in args.inject or []], lane_config=stack.lane_policy,
             drive_config=drive_config, vo_config=stack.stereo_vo, reference=path, visual_map=visual_map,
             can_config=stack.can, watchdog_config=stack.watchdogs, supervisor_config=stack.supervisor,
@@ -141,8 +145,25 @@ def drive(args: argparse.Namespace) -> int:
             Path(args.result).parent.mkdir(parents=True, exist_ok=True)
             Path(args.result).write_text(json.dumps(summary, indent=2))
         return 0
-    raise ConfigError("drive needs --sim TRACK or --replay RECORDING: this build has no live camera and CAN "
-                      "interface for the kart yet")
+    if args.live:
+        can = stack.can
+        if args.bus in ("virtual", "socketcan"):
+            can = replace(can, interface=args.bus)
+        if args.channel:
+            can = replace(can, channel=args.channel)
+        setup = LiveDriveSetup(load_rig(args.live), args.pipeline, vehicle.wheelbase_m, path, visual_map,
+                               args.gamepad, args.web, args.record, args.duration)
+        summary = run_live_drive(setup, replace(stack, can=can))
+        print(json.dumps({k: summary[k] for k in ("ended", "seconds", "final_state", "error")}))
+        for transition in summary["transitions"]:
+            print(f"  {transition['t_s']:7.2f} s  {transition['state']:<10} {transition['reason']}")
+        if args.result:
+            Path(args.result).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.result).write_text(json.dumps(summary, indent=2))
+        if summary["error"]:
+            raise KartpilotError(f"the pipeline failed ({summary['error']}); the kart was stopped")
+        return 0
+    raise ConfigError("drive needs --sim TRACK, --replay RECORDING or --live RIG")
 
 
 def drive_summary(payload: dict[str, Any]) -> str:

@@ -160,9 +160,15 @@ def build_parser() -> argparse.ArgumentParser:
     where = drive.add_mutually_exclusive_group()
     where.add_argument("--sim", metavar="TRACK", help="drive in the simulator on this track")
     where.add_argument("--replay", metavar="RECORDING", help="run the stereo-vo pipeline on a recording (open loop)")
-    drive.add_argument("--bus", choices=("virtual", "none"), default="virtual",
-                       help="--sim: the simulated ECUs behind python-can's virtual bus (default), or none")
-    drive.add_argument("--duration", type=float, help="--sim: seconds to drive at most")
+    where.add_argument("--live", metavar="RIG", help="drive the real kart: the rig file's cameras, the CAN bus of "
+                                                     "the config's can section (or --bus, --channel)")
+    drive.add_argument("--bus", choices=("virtual", "socketcan", "none"),
+                       help="--sim: virtual (default: the simulated ECUs behind python-can's virtual bus) or none; "
+                            "--live: socketcan or virtual (default: the config's can.interface)")
+    drive.add_argument("--channel", help="--live: the CAN channel (can0; vcan0 for a bench test)")
+    drive.add_argument("--gamepad", metavar="DEVICE", help="--live: the gamepad's joystick device (/dev/input/js0)")
+    drive.add_argument("--web", metavar="PORT", type=int, help="--live: serve the kart's web page on this port")
+    drive.add_argument("--duration", type=float, help="--sim, --live: seconds to drive at most")
     drive.add_argument("--inject", action="append", metavar="KIND@SECONDS",
                        help="--sim: inject a fault (camera-freeze, black-frame, vo-failure, can-bus-off, "
                             "heartbeat-loss, gamepad-unplug, stage-exception); repeatable")
@@ -173,7 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
     drive.add_argument("--seed", type=int)
     drive.add_argument("--rate", type=float, help="camera and control rate, Hz (--sim; a replay keeps its own)")
     drive.add_argument("--steer-bias", type=float, help="the simulated kart's drag to one side, rad (+ left)")
-    drive.add_argument("--record", help="record the simulated drive here (frames, commands, outputs, CAN)")
+    drive.add_argument("--record", help="record the drive here (frames, commands, outputs, CAN)")
     drive.add_argument("--video", help="write the camera view with the referee's state here (MP4)")
     drive.add_argument("--result", help="write the result JSON here (transitions, fault_to_stop_s, timing)")
     drive.add_argument("--log", help="stereo-vo: write the pipeline's per-step log here (CSV)")

@@ -14,6 +14,7 @@ Example ``stack.yaml``::
       localizer: {reloc: {gain: 0.5}}
     live: {sync_tolerance_ms: 10, health: {timeout_s: 0.5}}
     can: {interface: socketcan, channel: can0, send_rate_hz: 50, status_timeout_s: 0.1}
+    limits: {max_steer_rad: 0.4, max_steer_rate_radps: 3.0, max_throttle: 0.6}   # the real kart
     watchdogs: {overrun_factor: 2.0, overrun_steps: 3}
     supervisor: {require_hold: true}
 """
@@ -23,7 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from kartpilot.actuation.can_bus import CanConfig
+from kartpilot.actuation.can_bus import ActuatorLimits, CanConfig
 from kartpilot.core.config import load_yaml_mapping, merge_config
 from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.perception.lanes import LaneConfig
@@ -48,6 +49,7 @@ class StackConfig:
     drive: DriveConfig = field(default_factory=DriveConfig)
     live: LiveConfig = field(default_factory=LiveConfig)
     can: CanConfig = field(default_factory=CanConfig)
+    limits: ActuatorLimits = field(default_factory=ActuatorLimits)
     watchdogs: WatchdogConfig = field(default_factory=WatchdogConfig)
     supervisor: SupervisorConfig = field(default_factory=SupervisorConfig)
 

@@ -1,0 +1,194 @@
+"""A drive on the real kart: live cameras, the pipeline, the supervisor, the CAN bus, a person.
+
+The same pieces as a simulated drive, with the live backends: :class:`LiveFrameSource` paces the
+loop (each step waits for the next camera set), :class:`CanActuator` sends on the kart's bus with
+its own sender thread (which stops the kart by itself if the loop hangs), and the person is a
+gamepad, the web page, or both (:class:`CombinedOperator`). Everything is recorded: frames
+(JPEG), commands, the pipeline's outputs, the supervisor's state and the CAN traffic. However the
+drive ends (duration, Ctrl-C, an error), the stop command goes out and the recording is closed.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from kartpilot.actuation.can_bus import CanActuator, open_bus
+from kartpilot.calibration.rectify import StereoSetup, stereo_setup
+from kartpilot.calibration.rig import Rig
+from kartpilot.core.config import config_to_dict
+from kartpilot.core.errors import ConfigError
+from kartpilot.core.types import ActuatorCommand, FrameSet, OperatorInput
+from kartpilot.odometry.visual_map import VisualMap
+from kartpilot.planning.reference_path import ReferencePath
+from kartpilot.record.recording import RecordingWriter
+from kartpilot.runtime.config import StackConfig
+from kartpilot.runtime.drive import SupervisedDrive, Watchdogs
+from kartpilot.runtime.lane_policy import LanePolicy
+from kartpilot.runtime.loop import Policy, Recorder, run_loop
+from kartpilot.runtime.path_policy import PathFollowPolicy, stereo_vo_policy
+from kartpilot.runtime.supervisor import Supervisor
+from kartpilot.runtime.webui import WebConfig, WebOperator, WebServer
+from kartpilot.sensors.capture import LiveFrameSource
+from kartpilot.sensors.gamepad import Gamepad
+
+__all__ = ["CombinedOperator", "LiveDriveSetup", "run_live_drive"]
+
+log = logging.getLogger(__name__)
+
+RECORD_QUEUE_FRAMES = 16
+
+
+class CombinedOperator:
+    """Several inputs as one person: any emergency stop or hold counts, every input must stay connected,
+    the first request wins, and the manual command comes from the input that is driving."""
+
+    def __init__(self, operators: Sequence[Callable[[int], OperatorInput]]) -> None:
+        if not operators:
+            raise ConfigError("a live drive needs a person in charge: give --gamepad DEVICE and/or --web PORT")
+        self.operators = list(operators)
+
+    def __call__(self, stamp_ns: int) -> OperatorInput:
+        inputs = [operator(stamp_ns) for operator in self.operators]
+        lost = [i.source for i in inputs if not i.connected]
+        driving = [i for i in inputs if i.connected and i.manual is not None and
+                   (i.manual.throttle > 0 or i.manual.brake > 0 or i.manual.steer_rad != 0)]
+        manual = (driving or [i for i in inputs if i.connected] or [inputs[0]])[0].manual
+        estops = [i.source for i in inputs if i.estop]
+        return OperatorInput(connected=not lost, estop=bool(estops), hold=any(i.hold and i.connected for i in inputs),
+                             request=next((i.request for i in inputs if i.request), ""),
+                             manual=manual if manual is not None else ActuatorCommand.stop(stamp_ns),
+                             source=", ".join(lost or estops or [i.source for i in inputs]))
+
+
+class _RectifiedPipeline:
+    """The stereo pipeline on the live pair, rectified first (the raw frames are what gets recorded)."""
+
+    def __init__(self, policy: PathFollowPolicy, setup: StereoSetup, pair: tuple[str, str]) -> None:
+        self.policy, self.setup, self.pair = policy, setup, pair
+
+    def __call__(self, frames: FrameSet) -> ActuatorCommand:
+        left, right = (frames.images.get(n) for n in self.pair)
+        if left is not None and right is not None:
+            left, right = self.setup.rectify(left, right)
+            frames = FrameSet(frames.index, frames.stamp_ns, {**frames.images, self.pair[0]: left,
+                                                              self.pair[1]: right}, frames.capture_ns)
+        return self.policy(frames)
+
+    def fault(self) -> str:
+        return self.policy.fault()
+
+    def outputs(self) -> dict[str, dict[str, float | int | str]]:
+        return self.policy.outputs()
+
+
+@dataclass(frozen=True)
+class LiveDriveSetup:
+    """What a live drive runs with, besides the stack's configuration."""
+
+    rig: Rig
+    pipeline: str
+    wheelbase_m: float
+    reference: ReferencePath | None = None
+    visual_map: VisualMap | None = None
+    gamepad: str | None = None
+    web_port: int | None = None
+    record_dir: str | Path | None = None
+    duration_s: float | None = None
+
+
+def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
+    """Drive until the duration, the cameras' end, or Ctrl-C; return the summary (also in the recording)."""
+    rig = setup.rig
+    limits = stack.limits
+    source = LiveFrameSource(rig, stack.live)
+    period_s = 1.0 / rig.capture[source.reference].fps
+    pipeline: Policy
+    if setup.pipeline == "lanes":
+        pipeline = LanePolicy({n: rig.cameras[n] for n in source.threads}, stack.lane_policy, 1.0 / period_s)
+    elif setup.pipeline == "stereo-vo":
+        if rig.stereo_pair is None or setup.reference is None:
+            raise ConfigError("the stereo-vo pipeline needs a rig file with a stereo_pair and a --reference")
+        pair = rig.stereo_pair
+        stereo = stereo_setup(rig.cameras[pair[0]], rig.cameras[pair[1]])
+        path_policy: PathFollowPolicy = stereo_vo_policy(stereo.rig, stereo.pose_body_left, pair, setup.reference,
+                                                         stack.drive, stack.stereo_vo, setup.visual_map,
+                                                         setup.wheelbase_m, limits.max_steer_rad, 1.0 / period_s)
+        pipeline = _RectifiedPipeline(path_policy, stereo, pair)
+    else:
+        raise ConfigError(f"unknown pipeline {setup.pipeline!r} (lanes, stereo-vo)")
+    operators: list[Callable[[int], OperatorInput]] = []
+    gamepad = Gamepad(setup.gamepad).start() if setup.gamepad else None
+    if gamepad is not None:
+        operators.append(gamepad)
+    web = WebOperator(WebConfig(port=setup.web_port)) if setup.web_port is not None else None
+    server = WebServer(web).start() if web is not None else None
+    if web is not None:
+        operators.append(web)
+        print(f"web page: {server.url if server else ''}")
+    writer: RecordingWriter | None = None
+    actuator: CanActuator | None = None
+    started = time.monotonic()
+    try:
+        operator = CombinedOperator(operators)
+        if setup.record_dir is not None:
+            writer = RecordingWriter(setup.record_dir, {n: rig.cameras[n] for n in source.threads},
+                                     stereo_pair=rig.stereo_pair, queue_frames=RECORD_QUEUE_FRAMES,
+                                     drop_when_full=True, image_format="jpg",
+                                     metadata={"source": "kartpilot drive --live", "pipeline": setup.pipeline,
+                                               "can": config_to_dict(stack.can)})
+        actuator = CanActuator(open_bus(stack.can), stack.can, limits,
+                               log_frame=writer.write_can if writer is not None else None).start()
+        supervisor = Supervisor(stack.supervisor)
+        drive = SupervisedDrive(pipeline, supervisor, Watchdogs(list(source.threads), period_s, stack.watchdogs,
+                                                                actuator), operator, actuator)
+        source.start()
+
+        class _Timed:
+            def read(self) -> FrameSet | None:
+                if setup.duration_s is not None and time.monotonic() - started > setup.duration_s:
+                    return None
+                return source.read()
+
+        def on_step(frames: FrameSet, command: ActuatorCommand) -> None:
+            if web is not None:
+                web.publish(supervisor.state, supervisor.reason, frames.images.get(source.reference),
+                            steer_rad=round(command.steer_rad, 3), throttle=round(command.throttle, 3),
+                            brake=round(command.brake, 3), camera_problems=source.problems)
+
+        recorders: list[Recorder] = [writer] if writer is not None else []
+        how = "ended"
+        try:
+            stats = run_loop(_Timed(), drive, actuator, recorders, on_step, period_s=period_s)
+        except KeyboardInterrupt:
+            how = "stopped by the user (Ctrl-C)"
+            stats = None
+        summary: dict[str, Any] = {
+            "pipeline": setup.pipeline, "ended": how, "seconds": round(time.monotonic() - started, 2),
+            "transitions": [t.to_json(0) for t in supervisor.transitions], "final_state": supervisor.state,
+            "error": f"{type(drive.error).__name__}: {drive.error}" if drive.error else None,
+            "cameras": source.stats(), "can": {"frames_sent": actuator.frames_sent, "tx_errors": actuator.tx_errors,
+                                               "rx_errors": actuator.rx_errors},
+            "stage_ms": stats.stage_percentiles_ms() if stats is not None else {},
+            "missed_deadlines": stats.missed_deadlines if stats is not None else None,
+        }
+        if setup.record_dir is not None:
+            if drive.error_text:
+                (Path(setup.record_dir) / "error.txt").write_text(drive.error_text)
+            (Path(setup.record_dir) / "result.json").write_text(json.dumps(summary, indent=2))
+        return summary
+    finally:
+        source.close()
+        if actuator is not None:
+            actuator.close()  # the stop command, one last time
+        if gamepad is not None:
+            gamepad.close()
+        if server is not None:
+            server.close()
+        if writer is not None:
+            writer.close()
