@@ -160,7 +160,7 @@ def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, out:
         if writer is not None:
             writer.close()
     stage_ms = stats.stage_ms()
-    extra: dict[str, Any] = {"rate_hz": round(rate, 3)}
+    extra: dict[str, Any] = {"rate_hz": round(rate, 3), "stage_ms_percentiles": stats.stage_percentiles_ms()}
     if path_policy is not None:
         steps = max(stats.steps, 1)
         stage_ms.update({k: 1e3 * v / steps for k, v in path_policy.stage_s.items()})
