@@ -21,9 +21,10 @@ import can
 import numpy as np
 
 from kartpilot.core.errors import ConfigError, OdometryError
-from kartpilot.core.types import FrameSet, FrameSource
+from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource
 
-__all__ = ["BUS_OFF_S", "KINDS", "FaultyBus", "InjectedSource", "Injection", "failing_vo", "parse_injection"]
+__all__ = ["BUS_OFF_S", "KINDS", "FaultyBus", "InjectedSource", "Injection", "RaisingPipeline", "failing_vo",
+           "parse_injection"]
 
 KINDS = ("camera-freeze", "black-frame", "vo-failure", "can-bus-off", "heartbeat-loss", "gamepad-unplug",
          "stage-exception")
@@ -116,3 +117,18 @@ def failing_vo(process: Callable[[Any], Any], injection: Injection) -> Callable[
         return process(frame)
 
     return wrapped
+
+
+class RaisingPipeline:
+    """A pipeline that raises from ``at_s`` (the ``stage-exception`` injection); otherwise the pipeline."""
+
+    def __init__(self, pipeline: Callable[[FrameSet], ActuatorCommand], at_s: float) -> None:
+        self.pipeline, self.at_s = pipeline, at_s
+
+    def __call__(self, frames: FrameSet) -> ActuatorCommand:
+        if frames.stamp_ns * 1e-9 >= self.at_s:
+            raise RuntimeError("a stage raised (injected)")
+        return self.pipeline(frames)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.pipeline, name)

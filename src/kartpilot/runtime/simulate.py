@@ -23,7 +23,7 @@ from kartpilot.odometry.visual_map import VisualMap
 from kartpilot.planning.reference_path import ReferencePath
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 from kartpilot.runtime.drive import ScriptedOperator, SupervisedDrive, WatchdogConfig, Watchdogs
-from kartpilot.runtime.faults import FaultyBus, InjectedSource, Injection, failing_vo
+from kartpilot.runtime.faults import FaultyBus, InjectedSource, Injection, RaisingPipeline, failing_vo
 from kartpilot.runtime.lane_policy import LanePolicy, LanePolicyConfig
 from kartpilot.runtime.loop import Policy, Recorder, run_loop
 from kartpilot.runtime.path_policy import (
@@ -273,21 +273,6 @@ class SupervisedRun:
     error: BaseException | None = None
 
 
-class _Raising:
-    """A pipeline that raises from ``at_s`` (the ``stage-exception`` injection); otherwise the pipeline."""
-
-    def __init__(self, pipeline: Policy, at_s: float) -> None:
-        self.pipeline, self.at_s = pipeline, at_s
-
-    def __call__(self, frames: FrameSet) -> ActuatorCommand:
-        if frames.stamp_ns * 1e-9 >= self.at_s:
-            raise RuntimeError("a stage raised (injected)")
-        return self.pipeline(frames)
-
-    def __getattr__(self, name: str) -> object:
-        return getattr(self.pipeline, name)
-
-
 class _DirectSink:
     """The simulator as the actuators, without a bus; the commands it applied are kept."""
 
@@ -378,7 +363,7 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
                 vo.process = failing_vo(vo.process, Injection("vo-failure", at["vo-failure"]))  # type: ignore[method-assign, assignment]
             policy = path_policy
         if "stage-exception" in at:
-            policy = _Raising(policy, at["stage-exception"])
+            policy = RaisingPipeline(policy, at["stage-exception"])
         writer: RecordingWriter | None = None
         if record_dir is not None:
             writer = RecordingWriter(record_dir, sim.cameras, stereo_pair=_recorded_pair(sim),
