@@ -17,6 +17,7 @@ Example ``stack.yaml``::
     limits: {max_steer_rad: 0.4, max_steer_rate_radps: 3.0, max_throttle: 0.6}   # the real kart
     watchdogs: {overrun_factor: 2.0, overrun_steps: 3}
     supervisor: {require_hold: true}
+    gamepad: {hold_button: 5, estop_button: 1, max_steer_rad: 0.3}   # another pad: its axis and button numbers
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from kartpilot.runtime.lane_policy import LanePolicyConfig
 from kartpilot.runtime.path_policy import DriveConfig
 from kartpilot.runtime.supervisor import SupervisorConfig
 from kartpilot.sensors.capture import LiveConfig
+from kartpilot.sensors.gamepad import GamepadMapping
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import SimConfig
 
@@ -52,6 +54,7 @@ class StackConfig:
     limits: ActuatorLimits = field(default_factory=ActuatorLimits)
     watchdogs: WatchdogConfig = field(default_factory=WatchdogConfig)
     supervisor: SupervisorConfig = field(default_factory=SupervisorConfig)
+    gamepad: GamepadMapping = field(default_factory=GamepadMapping)
 
 
 def load_stack_config(path: str | Path | None) -> StackConfig:

@@ -123,7 +123,7 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
     else:
         raise ConfigError(f"unknown pipeline {setup.pipeline!r} (lanes, stereo-vo)")
     operators: list[Callable[[int], OperatorInput]] = []
-    gamepad = Gamepad(setup.gamepad).start() if setup.gamepad else None
+    gamepad = Gamepad(setup.gamepad, stack.gamepad).start() if setup.gamepad else None
     if gamepad is not None:
         operators.append(gamepad)
     web = WebOperator(WebConfig(port=setup.web_port)) if setup.web_port is not None else None
