@@ -27,3 +27,19 @@ def test_euroc_static_platform_stays_within_5_cm() -> None:
     excursion = float(np.linalg.norm(run.trajectory.positions, axis=1).max())
     print(f"\nEuRoC V1_01 static: largest distance from the start {excursion * 100:.2f} cm over {len(source)} frames")
     assert excursion < 0.05
+
+
+def test_kitti_06_monocular_vo_with_ground_plane_scale_drifts_at_most_5_percent() -> None:
+    from kartpilot.odometry.mono_vo import GroundConfig, MonoVOConfig
+    from kartpilot.odometry.run import run_mono_vo
+
+    source = KittiOdometrySource(data_path("kitti-odometry"), "06")
+    run = run_mono_vo(source, MonoVOConfig(ground=GroundConfig(camera_height_m=1.65)))
+    truth = source.ground_truth()
+    assert truth is not None
+    metrics = evaluate_trajectory(truth, run.trajectory)
+    print("\nKITTI 06 monocular VO, scale from the ground plane (camera 1.65 m)\n" + metrics.table() + "\n"
+          + run.summary())
+    assert run.scale_source.startswith("ground plane")
+    assert run.bridged_frames == 0
+    assert metrics.end_drift_percent <= 5.0

@@ -134,3 +134,18 @@ def test_teach_reference_and_drive_it_in_the_simulator_and_on_the_replay(tmp_pat
     assert [t["state"] for t in data["transitions"]] == ["autonomous"] and data["bus"] == "virtual"
     assert main(["drive", "--reference", str(reference)]) == 1
     assert "needs --sim TRACK, --replay RECORDING or --live RIG" in capsys.readouterr().err
+
+
+def test_monocular_odometry_on_kitti_says_where_its_scale_comes_from(tmp_path, capsys) -> None:
+    from tests.conftest import data_path
+
+    root = data_path("kitti-odometry")
+    assert main(["odometry", "kitti", str(root), "--sequence", "06", "--mono", "--out", str(tmp_path / "t.txt")]) == 1
+    assert "--mono needs --camera-height" in capsys.readouterr().err
+    summary = tmp_path / "s.json"
+    assert main(["odometry", "kitti", str(root), "--sequence", "06", "--mono", "--camera-height", "1.65", "--out",
+                 str(tmp_path / "t.txt"), "--json", str(summary), "--no-progress"]) == 0
+    assert "metric scale from the ground plane (camera 1.65 m above the road)" in capsys.readouterr().out
+    data = json.loads(summary.read_text())
+    assert data["mode"] == "mono" and data["scale_source"].startswith("ground plane")
+    assert len((tmp_path / "t.txt").read_text().splitlines()) == 51

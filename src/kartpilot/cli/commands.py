@@ -20,7 +20,7 @@ from kartpilot.core.trajectory import Trajectory, read_trajectory, write_traject
 from kartpilot.eval.disparity import bad_pixel_rate, disparity_search_range_px, load_middlebury_pair
 from kartpilot.eval.plots import plot_trajectories
 from kartpilot.eval.trajectory_metrics import TrajectoryMetrics, evaluate_trajectory
-from kartpilot.odometry.run import OdometryRun, run_stereo_vo
+from kartpilot.odometry.run import OdometryRun, run_mono_vo, run_stereo_vo
 from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.perception.lanes import LaneStages, detect_lanes, draw_lanes
 from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
@@ -87,6 +87,8 @@ def run_and_report(source: StereoSource, config: StereoVOConfig, out: str | Path
 
 
 def odometry(args: argparse.Namespace) -> int:
+    if getattr(args, "mono", False):
+        return _mono_odometry(args)
     config = load_stack_config(args.config).stereo_vo
     source = _open_source(args)
     run, metrics = run_and_report(source, config, args.out, args.format, args.plot, not args.no_progress)
@@ -96,6 +98,37 @@ def odometry(args: argparse.Namespace) -> int:
             "source": source.name, "frames": len(run.estimates), "bridged_frames": run.bridged_frames,
             "unreadable_frames": list(run.unreadable_frames), "frames_per_second": run.frames_per_second,
             "stage_ms": run.stage_ms(), "metrics": metrics.as_dict() if metrics else None})
+    return 0
+
+
+def _mono_odometry(args: argparse.Namespace) -> int:
+    """Monocular VO on the left camera, scaled by the ground plane under the given camera height."""
+    if args.camera_height is None:
+        raise ConfigError("--mono needs --camera-height METRES (the camera's height above the road; 1.65 on KITTI): "
+                          "the metric scale comes from the ground plane, never from the ground truth")
+    config = load_stack_config(args.config).mono_vo
+    config = replace(config, ground=replace(config.ground, camera_height_m=args.camera_height))
+    source = _open_source(args)
+    with tqdm(total=len(source), desc=f"mono VO {source.name}", unit="frame", disable=args.no_progress or None,
+              leave=False) as bar:
+        run = run_mono_vo(source, config, on_frame=lambda _: bar.update(1))
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    write_trajectory(args.out, run.trajectory, args.format)
+    print(run.summary())
+    print("stage ms: " + ", ".join(f"{k} {v:.1f}" for k, v in run.timing_ms.items()))
+    ground_truth = source.ground_truth()
+    metrics = None
+    if ground_truth is not None and len(ground_truth) >= 2:
+        metrics = evaluate_trajectory(ground_truth, run.trajectory)
+        print(metrics.table())
+    if args.plot:
+        plot_trajectories(ground_truth, run.trajectory, args.plot, title=f"{source.name} (mono)")
+    print(f"trajectory written to {args.out} (metric scale from the {run.scale_source})")
+    if args.json:
+        _write_json(args.json, {
+            "source": source.name, "mode": "mono", "scale_source": run.scale_source, "frames": len(run.estimates),
+            "bridged_frames": run.bridged_frames, "unreadable_frames": list(run.unreadable_frames),
+            "stage_ms": run.timing_ms, "metrics": metrics.as_dict() if metrics else None})
     return 0
 
 

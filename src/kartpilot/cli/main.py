@@ -36,6 +36,12 @@ def build_parser() -> argparse.ArgumentParser:
     synthetic = odo_sub.add_parser("synthetic", help="the built-in synthetic stereo sequence")
     synthetic.add_argument("--frames", type=int, default=40)
     synthetic.add_argument("--seed", type=int, default=0)
+    for sub_parser in (kitti, euroc, recording):
+        sub_parser.add_argument("--mono", action="store_true",
+                                help="monocular VO on the left camera, metric scale from the ground plane")
+        sub_parser.add_argument("--camera-height", type=float,
+                                help="--mono: the camera's height above the road, m (1.65 on KITTI, 0.6 on the "
+                                     "SDC kart)")
     for sub_parser in (kitti, euroc, recording, synthetic):
         sub_parser.add_argument("--out", required=True, help="trajectory file (.txt = KITTI, .tum = TUM)")
         sub_parser.add_argument("--format", choices=("kitti", "tum"), help="override the format guessed from --out")

@@ -12,11 +12,12 @@ from kartpilot.core.errors import DataError, KartpilotError
 from kartpilot.core.geometry import Array
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.odometry.localizer import vo_ground_pose
+from kartpilot.odometry.mono_vo import MonoEstimate, MonoVO, MonoVOConfig
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig, VOEstimate
 from kartpilot.odometry.visual_map import MapBuilder, MapConfig, VisualMap
 from kartpilot.sensors.base import StereoSource
 
-__all__ = ["OdometryRun", "run_stereo_vo", "run_teach"]
+__all__ = ["MonoRun", "OdometryRun", "run_mono_vo", "run_stereo_vo", "run_teach"]
 
 
 @dataclass(frozen=True)
@@ -97,3 +98,57 @@ def run_teach(source: StereoSource, pose_body_cam: Array, config: StereoVOConfig
 
     run = run_stereo_vo(source, on_frame=keep, vo=vo)
     return run, builder.build()
+
+
+@dataclass(frozen=True)
+class MonoRun:
+    """A monocular VO run: the trajectory (metres, from the ground plane) and each frame's estimate."""
+
+    trajectory: Trajectory
+    estimates: tuple[MonoEstimate, ...]
+    unreadable_frames: tuple[int, ...]
+    wall_time_s: float
+    timing_ms: dict[str, float]
+
+    @property
+    def bridged_frames(self) -> int:
+        return sum(1 for e in self.estimates if e.status == "bridged")
+
+    @property
+    def scale_source(self) -> str:
+        return self.estimates[-1].scale_source if self.estimates else ""
+
+    def summary(self) -> str:
+        road = [e.road_inliers for e in self.estimates if e.status == "ok"]
+        fps = len(self.estimates) / self.wall_time_s if self.wall_time_s > 0 else float("nan")
+        return (f"{len(self.estimates)} frames, {self.bridged_frames} bridged, {len(self.unreadable_frames)} "
+                f"unreadable, median road inliers {int(np.median(road)) if road else 0}, {fps:.1f} frames/s; "
+                f"scale from the {self.scale_source}")
+
+
+def run_mono_vo(source: StereoSource, config: MonoVOConfig | None = None,
+                on_frame: Callable[[MonoEstimate], None] | None = None) -> MonoRun:
+    """Monocular VO on the left camera of ``source`` (its right image is not used)."""
+    if len(source) == 0:
+        raise DataError(f"{source.name} has no frames")
+    vo = MonoVO(source.rig.camera, config)
+    estimates: list[MonoEstimate] = []
+    unreadable: list[int] = []
+    start = time.perf_counter()
+    for index in range(len(source)):
+        try:
+            frame = source.frame(index)
+        except KartpilotError:
+            unreadable.append(index)
+            continue
+        estimate = vo.process(frame.index, frame.stamp_ns, frame.left)
+        estimates.append(estimate)
+        if on_frame is not None:
+            on_frame(estimate)
+    wall = time.perf_counter() - start
+    if not estimates:
+        raise DataError(f"none of the {len(source)} frames of {source.name} could be read")
+    trajectory = Trajectory.from_poses([e.pose_world_cam for e in estimates], [e.stamp_ns * 1e-9 for e in estimates])
+    frames = max(len(estimates) - 1, 1)
+    return MonoRun(trajectory, tuple(estimates), tuple(unreadable), wall,
+                   {k: v / frames for k, v in vo.timing_ms.items()})

@@ -27,6 +27,7 @@ from pathlib import Path
 
 from kartpilot.actuation.can_bus import ActuatorLimits, CanConfig
 from kartpilot.core.config import load_yaml_mapping, merge_config
+from kartpilot.odometry.mono_vo import MonoVOConfig
 from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.perception.lanes import LaneConfig
 from kartpilot.runtime.drive import WatchdogConfig
@@ -44,6 +45,7 @@ __all__ = ["StackConfig", "load_stack_config"]
 @dataclass(frozen=True)
 class StackConfig:
     stereo_vo: StereoVOConfig = field(default_factory=StereoVOConfig)
+    mono_vo: MonoVOConfig = field(default_factory=MonoVOConfig)
     sim: SimConfig = field(default_factory=SimConfig)
     centerline_driver: CenterlineDriverConfig = field(default_factory=CenterlineDriverConfig)
     lane_detection: LaneConfig = field(default_factory=LaneConfig)

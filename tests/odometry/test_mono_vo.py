@@ -1,0 +1,117 @@
+"""Monocular VO with ground-plane scale: the pure pieces on synthetic geometry, the whole on a simulated
+drive with ground truth (a kart's camera, 0.6 m high and pitched down), and on KITTI 06 (real data)."""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from kartpilot.calibration.rig import mount_pose
+from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.geometry import transform_points
+from kartpilot.odometry.mono_vo import (
+    GroundConfig,
+    MonoVO,
+    MonoVOConfig,
+    fit_ground_homography,
+    ground_normal_prior,
+    ground_region,
+    relative_pose,
+)
+
+CAMERA = PinholeCamera(700.0, 700.0, 480.0, 270.0, 960, 540)
+
+
+def _motion(yaw_deg: float, forward_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """R, t taking points of camera 0 into camera 1 for a camera turning and moving forward (z)."""
+    yaw = math.radians(yaw_deg)
+    rotation = np.array([[math.cos(yaw), 0, math.sin(yaw)], [0, 1, 0], [-math.sin(yaw), 0, math.cos(yaw)]])
+    return rotation, -rotation @ np.array([0.0, 0.0, forward_m])
+
+
+def _project(points: np.ndarray) -> np.ndarray:
+    return CAMERA.project(points).astype(np.float32)
+
+
+def test_the_plane_s_homography_gives_the_metric_scale_despite_noise_and_points_off_the_road():
+    rng = np.random.default_rng(3)
+    height, tilt = 1.2, math.radians(3.0)
+    normal = np.array([0.0, math.cos(tilt), math.sin(tilt)])  # the camera pitched a little
+    # road points 4 to 25 m ahead, on the plane normal . X = height
+    ahead, lateral = rng.uniform(4, 25, 300), rng.uniform(-4, 4, 300)
+    road = np.stack([lateral, (height - normal[2] * ahead) / normal[1], ahead], axis=1)
+    clutter = np.stack([rng.uniform(-4, 4, 120), rng.uniform(-0.5, 0.8, 120), rng.uniform(5, 25, 120)], axis=1)
+    points = np.vstack([road, clutter])  # 29 % of the points are parked cars and kerbs, not road
+    rotation, t = _motion(1.5, 1.3)
+    p0 = _project(points) + rng.normal(0, 0.3, (len(points), 2)).astype(np.float32)
+    p1 = _project(points @ rotation.T + t) + rng.normal(0, 0.3, (len(points), 2)).astype(np.float32)
+    unit = t / np.linalg.norm(t)
+    fit = fit_ground_homography(p0, p1, rotation, unit, CAMERA.matrix, GroundConfig(camera_height_m=height),
+                                np.random.default_rng(0), np.array([0.0, 1.0, 0.0]))
+    assert fit is not None
+    m, inliers = fit
+    scale = height * np.linalg.norm(m)
+    print(f"scale {scale:.4f} m per unit (true {np.linalg.norm(t):.4f}), {inliers} road inliers")
+    assert scale == pytest.approx(np.linalg.norm(t), rel=0.01)
+    assert math.degrees(math.acos(abs(m @ normal) / np.linalg.norm(m))) < 1.0
+    assert inliers <= 300 + 5
+
+
+def test_relative_pose_recovers_the_rotation_and_the_direction_of_travel():
+    rng = np.random.default_rng(1)
+    points = np.stack([rng.uniform(-10, 10, 400), rng.uniform(-3, 2, 400), rng.uniform(5, 40, 400)], axis=1)
+    rotation, t = _motion(2.0, 1.0)
+    result = relative_pose(_project(points), _project(points @ rotation.T + t), CAMERA.matrix, 1.0, 0.999)
+    assert result is not None
+    r_est, t_est, inliers = result
+    assert np.degrees(np.linalg.norm(cv2.Rodrigues(r_est @ rotation.T)[0])) < 0.05
+    assert float(t_est @ (t / np.linalg.norm(t))) > 0.9999 and inliers.sum() > 380
+
+
+def test_the_road_region_follows_the_camera_s_height_and_mount():
+    config = GroundConfig(camera_height_m=0.6)
+    level = ground_region(CAMERA, ground_normal_prior(CAMERA), config)
+    rows = np.flatnonzero(level.any(axis=1))
+    # level camera: the ground 15 heights ahead is f / 15 below the principal point
+    assert rows[0] == pytest.approx(270 + 700 / 15, abs=1.5) and rows[-1] == 539
+    pitched = PinholeCamera(700.0, 700.0, 480.0, 270.0, 960, 540,
+                            pose_body_cam=tuple(map(tuple, mount_pose(0.5, 0, 0.6, pitch_down_deg=12.0))))
+    prior = ground_normal_prior(pitched)
+    assert prior == pytest.approx([0.0, math.cos(math.radians(12)), math.sin(math.radians(12))], abs=1e-9)
+    far_point = transform_points(np.linalg.inv(pitched.pose_body_cam_array), np.array([0.5 + 9.0, 0.0, 0.0]))
+    far_row = pitched.project(far_point)[0, 1]
+    assert np.flatnonzero(ground_region(pitched, prior, config).any(axis=1))[0] == pytest.approx(far_row, abs=1.5)
+
+
+@pytest.mark.slow
+def test_on_a_simulated_kart_drive_the_ground_plane_gives_metres(tmp_path):
+    """The SDC kart's centre camera: 0.6 m above the road, pitched down 12 degrees, 15 Hz, 5 m/s, 60 m.
+
+    A check that the method carries over to another camera, not an accuracy claim: on the simulator's weak
+    asphalt texture the end drift varies with the seed (2.9 % for seed 1, 16 % for seed 2, 3.2 % for seed 3;
+    see the issue's note), so the bound only catches a broken scale."""
+    from kartpilot.core.trajectory import Trajectory
+    from kartpilot.eval.trajectory_metrics import evaluate_trajectory
+    from kartpilot.record.recording import RecordingReader
+    from kartpilot.runtime.simulate import run_simulation
+    from kartpilot.sim.drivers import CenterlineDriverConfig
+    from kartpilot.sim.simulator import SimConfig
+
+    config = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=15.0,
+                       max_time_s=12.0, seed=1)
+    run_simulation(config, "centerline", driver_config=CenterlineDriverConfig(speed_mps=5.0),
+                   record_dir=tmp_path / "drive")
+    reader = RecordingReader(tmp_path / "drive")
+    camera = reader.cameras["center"]
+    vo = MonoVO(camera, MonoVOConfig(ground=GroundConfig(camera_height_m=float(camera.pose_body_cam_array[2, 3]))))
+    estimates = [vo.process(k, stamp, cv2.imread(str(path), cv2.IMREAD_GRAYSCALE))
+                 for k, (stamp, path) in enumerate(reader.frames("center"))]
+    estimate = Trajectory.from_poses([e.pose_world_cam for e in estimates], [e.stamp_ns * 1e-9 for e in estimates])
+    truth = reader.groundtruth()
+    assert truth is not None
+    metrics = evaluate_trajectory(truth, estimate)
+    print("\nsdc-kart centre camera, monocular VO, ground-plane scale\n" + metrics.table())
+    assert "ground plane" in estimates[-1].scale_source
+    assert metrics.end_drift_percent <= 20.0
+    assert vo.bridged <= 5
