@@ -65,7 +65,8 @@ class GroundConfig:
         near_heights, far_heights, half_width_heights: the road region, ahead of the camera and to each side, in
             camera heights (the region's place in the image depends on these ratios alone: 4 to 25 m ahead on
             KITTI's car, 1.5 to 9 m on the SDC kart).
-        corners: road corners detected per frame (weak texture: a low quality threshold).
+        corners, corner_quality, corner_spacing_px: road corners detected per frame (weak texture: a low
+            quality threshold).
         inlier_px: reprojection error of a road point under the plane's homography.
         iterations: RANSAC hypotheses.
         max_tilt_deg: the plane's normal within this of its prior (from the camera's mount).
@@ -78,6 +79,8 @@ class GroundConfig:
     far_heights: float = 15.0
     half_width_heights: float = 2.5
     corners: int = 800
+    corner_quality: float = 0.001
+    corner_spacing_px: int = 5
     inlier_px: float = 1.0
     iterations: int = 300
     max_tilt_deg: float = 10.0
@@ -297,7 +300,8 @@ class MonoVO:
     def _ground(self, previous: Image, gray: Image, rotation: Array, t: Array) -> int:
         """Track the road from its predicted position and update the scale; the road inliers."""
         g = self.config.ground
-        corners = cv2.goodFeaturesToTrack(previous, g.corners, 0.001, 5, mask=self._road_mask)
+        corners = cv2.goodFeaturesToTrack(previous, g.corners, g.corner_quality, g.corner_spacing_px,
+                                          mask=self._road_mask)
         if corners is None:
             return 0
         q0 = corners.reshape(-1, 2).astype(np.float32)
