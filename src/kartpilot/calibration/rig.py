@@ -77,16 +77,23 @@ def mount_pose(x_m: float = 0.0, y_m: float = 0.0, z_m: float = 0.0, yaw_deg: fl
     return pose
 
 
-def _camera_from_yaml(name: str, data: Any, source: Path) -> PinholeCamera:
-    where = f"{source}: cameras.{name}"
+def _check_mapping(data: Any, where: str, known: set[str], required: frozenset[str] | set[str] = frozenset()
+                   ) -> dict[str, Any]:
+    """``data`` as a mapping with only ``known`` keys and every ``required`` one; errors name the place."""
     if not isinstance(data, dict):
         raise CalibrationError(f"{where} must be a mapping")
-    unknown = set(data) - CAMERA_KEYS
+    unknown = set(data) - known
     if unknown:
         raise CalibrationError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
-    missing = {"width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px"} - set(data)
+    missing = required - set(data)
     if missing:
         raise CalibrationError(f"{where}: missing {', '.join(sorted(missing))}")
+    return data
+
+
+def _camera_from_yaml(name: str, data: Any, source: Path) -> PinholeCamera:
+    where = f"{source}: cameras.{name}"
+    data = _check_mapping(data, where, CAMERA_KEYS, {"width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px"})
     if "mount" in data and "pose_body_cam" in data:
         raise CalibrationError(f"{where}: give either mount or pose_body_cam, not both")
     try:
@@ -97,10 +104,7 @@ def _camera_from_yaml(name: str, data: Any, source: Path) -> PinholeCamera:
             if not np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-5):
                 raise CalibrationError(f"{where}.pose_body_cam: the rotation is not orthonormal")
         else:
-            mount = data.get("mount") or {}
-            unknown = set(mount) - MOUNT_KEYS
-            if unknown:
-                raise CalibrationError(f"{where}.mount: unknown key(s) {', '.join(sorted(unknown))}")
+            mount = _check_mapping(data.get("mount") or {}, f"{where}.mount", MOUNT_KEYS)
             pose = mount_pose(**{k: float(v) for k, v in mount.items()})
         return PinholeCamera(float(data["fx_px"]), float(data["fy_px"]), float(data["cx_px"]), float(data["cy_px"]),
                              int(data["width_px"]), int(data["height_px"]),
@@ -112,13 +116,7 @@ def _camera_from_yaml(name: str, data: Any, source: Path) -> PinholeCamera:
 
 def _capture_from_yaml(name: str, data: Any, source: Path) -> CaptureSettings:
     where = f"{source}: cameras.{name}.capture"
-    if not isinstance(data, dict):
-        raise CalibrationError(f"{where} must be a mapping")
-    unknown = set(data) - CAPTURE_KEYS
-    if unknown:
-        raise CalibrationError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
-    if "device" not in data:
-        raise CalibrationError(f"{where}: missing device")
+    data = _check_mapping(data, where, CAPTURE_KEYS, {"device"})
     try:
         exposure = data.get("exposure")
         return CaptureSettings(str(data["device"]), float(data.get("fps", 30.0)),

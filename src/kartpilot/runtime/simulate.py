@@ -146,24 +146,14 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
         stage_ms = stats.stage_ms()
         extra: dict[str, object] = {}
         if path_policy is not None:
-            steps = max(stats.steps, 1)
             del stage_ms["policy"]
-            stage_ms.update({k: 1e3 * v / steps for k, v in path_policy.stage_s.items()})
-            stage_ms.update({f"localize.{k}": v / steps for k, v in path_policy.localizer.timing_ms.items()})
-            statuses = [sample.pose_status for sample in path_policy.samples]
-            extra = {"stop_reason": path_policy.stop_reason, "bridged_frames": statuses.count("bridged"),
-                     "lost_frames": statuses.count("lost"),
-                     "relocalised_frames": path_policy.localizer.relocalisations}
+            pipeline_ms, extra = _path_policy_summary(path_policy, stats.steps)
+            stage_ms.update(pipeline_ms)
         payload = {**result.to_json(), "track": sim.track.name, "vehicle": sim.vehicle.name, "seed": config.seed,
                    "driver": driver, "steps": stats.steps, "dropped_frames": sim.dropped_frames,
                    "missed_deadlines": stats.missed_deadlines, **extra,
                    "stage_ms": {k: round(v, 3) for k, v in stage_ms.items()}}
-        targets = [Path(result_path)] if result_path else []
-        if record_dir is not None:
-            targets.append(Path(record_dir) / "result.json")
-        for target in targets:
-            target.parent.mkdir(parents=True, exist_ok=True)
-            target.write_text(json.dumps(payload, indent=2))
+        _write_result(payload, result_path, record_dir)
         return SimRun(result, stats.steps, sim.dropped_frames, stage_ms, Path(record_dir) if record_dir else None,
                       sim.ground_truth(_gt_camera(sim)) if sim.stamps_ns else None,
                       tuple(path_policy.samples) if path_policy else (), stats.missed_deadlines, extra)
@@ -193,6 +183,26 @@ class _UntilStopped:
         if self.policy.stopped_for_s(self.sim.time_ns) >= STOPPED_BEFORE_END_S:
             return None
         return self.sim.read()
+
+
+def _path_policy_summary(policy: PathFollowPolicy, steps: int) -> tuple[dict[str, float], dict[str, object]]:
+    """The path follower's mean milliseconds per step by stage, and how its drive went."""
+    per_step = 1.0 / max(steps, 1)
+    stages = {k: 1e3 * v * per_step for k, v in policy.stage_s.items()}
+    stages.update({f"localize.{k}": v * per_step for k, v in policy.localizer.timing_ms.items()})
+    statuses = [sample.pose_status for sample in policy.samples]
+    return stages, {"stop_reason": policy.stop_reason, "bridged_frames": statuses.count("bridged"),
+                    "lost_frames": statuses.count("lost"), "relocalised_frames": policy.localizer.relocalisations}
+
+
+def _write_result(payload: dict[str, object], result_path: str | Path | None, record_dir: str | Path | None) -> None:
+    """The result JSON where it was asked for, and always beside the recording."""
+    targets = [Path(result_path)] if result_path else []
+    if record_dir is not None:
+        targets.append(Path(record_dir) / "result.json")
+    for target in targets:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(json.dumps(payload, indent=2))
 
 
 def _recorded_pair(sim: Simulator) -> tuple[str, str] | None:
@@ -443,17 +453,7 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
             payload["can"] = {"frames_sent": actuator.frames_sent, "tx_errors": actuator.tx_errors,
                               "rx_errors": actuator.rx_errors, "frames_rejected_by_ecus": ecus.rejected_frames}
         if path_policy is not None:
-            statuses = [s.pose_status for s in path_policy.samples]
-            steps = max(stats.steps, 1)
-            stages = {k: 1e3 * v / steps for k, v in path_policy.stage_s.items()}
-            stages.update({f"localize.{k}": v / steps for k, v in path_policy.localizer.timing_ms.items()})
-            payload.update(stop_reason=path_policy.stop_reason, bridged_frames=statuses.count("bridged"),
-                           relocalised_frames=path_policy.localizer.relocalisations,
-                           pipeline_stage_ms={k: round(v, 3) for k, v in stages.items()})
-        targets = [Path(result_path)] if result_path else []
-        if record_dir is not None:
-            targets.append(Path(record_dir) / "result.json")
-        for target in targets:
-            target.parent.mkdir(parents=True, exist_ok=True)
-            target.write_text(json.dumps(payload, indent=2))
+            stages, summary = _path_policy_summary(path_policy, stats.steps)
+            payload.update(summary, pipeline_stage_ms={k: round(v, 3) for k, v in stages.items()})
+        _write_result(payload, result_path, record_dir)
         return SupervisedRun(result, payload, drive.error)
