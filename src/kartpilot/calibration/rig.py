@@ -136,9 +136,7 @@ def load_rig(path: str | Path) -> Rig:
         raise CalibrationError(f"{path}: not valid YAML ({exc})") from exc
     if not isinstance(data, dict) or not isinstance(data.get("cameras"), dict) or not data["cameras"]:
         raise CalibrationError(f"{path}: a rig file needs a 'cameras' mapping with at least one camera")
-    unknown = set(data) - {"cameras", "stereo_pair"}
-    if unknown:
-        raise CalibrationError(f"{path}: unknown key(s) {', '.join(sorted(unknown))}")
+    _check_mapping(data, str(path), {"cameras", "stereo_pair"})
     cameras = {str(name): _camera_from_yaml(str(name), cam, path) for name, cam in data["cameras"].items()}
     pair = data.get("stereo_pair")
     if pair is not None:
