@@ -13,6 +13,7 @@ from kartpilot.sim.track import (
     bundled_tracks,
     load_track,
     project_onto,
+    scenery_boxes,
 )
 
 
@@ -87,3 +88,18 @@ def test_track_file_from_a_path(tmp_path):
     track = load_track(path)
     assert track.route.length_m == pytest.approx(2 * math.pi * 10, abs=0.05)
     assert track.route.curvature_1pm.mean() == pytest.approx(0.1, abs=1e-3)
+
+
+def test_scenery_stands_beside_the_road_never_on_it():
+    track = load_track("sdc-assen")
+    boxes = scenery_boxes(track, 15.0, seed=3)
+    assert len(boxes) > 0.5 * track.route.length_m / 15.0
+    assert not len(scenery_boxes(track, 0.0, seed=3))
+    gaps = []
+    for x, y, yaw, width, depth, _ in boxes:
+        c, s = np.cos(yaw), np.sin(yaw)
+        corners = np.array([[x + dx * c - dy * s, y + dx * s + dy * c]
+                            for dx in (-width / 2, width / 2) for dy in (-depth / 2, depth / 2)])
+        centre_line_gap = np.min(np.linalg.norm(track.route.xy_m[None] - corners[:, None], axis=2))
+        gaps.append(centre_line_gap - track.route.half_width_m.max())
+    assert min(gaps) > track.spec.barrier_offset_m  # behind the tyre wall

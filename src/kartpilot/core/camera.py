@@ -5,14 +5,15 @@ Pixel convention is OpenCV's: the centre of the top-left pixel is (0, 0).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 
 from kartpilot.core.errors import CalibrationError
 from kartpilot.core.geometry import Array
 
-__all__ = ["CaptureSettings", "PinholeCamera", "StereoRig"]
+__all__ = ["CaptureSettings", "PinholeCamera", "StereoRig", "camera_from_dict", "camera_to_dict"]
 
 
 @dataclass(frozen=True)
@@ -170,3 +171,23 @@ class StereoRig:
         disparity = np.asarray(disparity_px, dtype=np.float64)
         with np.errstate(divide="ignore"):
             return np.where(disparity > 0, self.camera.fx_px * self.baseline_m / disparity, np.inf)
+
+
+def camera_to_dict(camera: PinholeCamera) -> dict[str, Any]:
+    """A plain, JSON-serialisable dict of a camera (recording manifests, place databases)."""
+    data = asdict(camera)
+    data["distortion"] = list(camera.distortion)
+    data["pose_body_cam"] = [list(row) for row in camera.pose_body_cam]
+    return data
+
+
+def camera_from_dict(name: str, data: dict[str, Any], where: str = "") -> PinholeCamera:
+    """The camera that :func:`camera_to_dict` wrote; a malformed one raises CalibrationError naming it."""
+    try:
+        return PinholeCamera(
+            float(data["fx_px"]), float(data["fy_px"]), float(data["cx_px"]), float(data["cy_px"]),
+            int(data["width_px"]), int(data["height_px"]), tuple(float(d) for d in data.get("distortion", ())),
+            tuple(tuple(float(v) for v in row) for row in data.get("pose_body_cam", np.eye(4).tolist())),
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CalibrationError(" ".join(filter(None, (f"camera {name!r}", where, f"is malformed ({exc})")))) from exc

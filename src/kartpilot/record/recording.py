@@ -31,16 +31,14 @@ import re
 import threading
 import time
 from collections.abc import Mapping
-from dataclasses import asdict
 from pathlib import Path
 from typing import IO, Any
 
 import cv2
-import numpy as np
 
 from kartpilot.calibration.rectify import stereo_setup
-from kartpilot.core.camera import PinholeCamera, StereoRig
-from kartpilot.core.errors import CalibrationError, RecordingError
+from kartpilot.core.camera import PinholeCamera, StereoRig, camera_from_dict, camera_to_dict
+from kartpilot.core.errors import RecordingError
 from kartpilot.core.geometry import Array
 from kartpilot.core.trajectory import Trajectory, read_tum, write_tum
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image, StereoFrame
@@ -64,24 +62,6 @@ OutputValue = float | int | str
 # jpg: quality 95 (1.4 ms), for live recording of several cameras on a small CPU: what an MJPG camera sends
 # is JPEG already
 IMAGE_FORMATS = {"png": (".png", [cv2.IMWRITE_PNG_COMPRESSION, 1]), "jpg": (".jpg", [cv2.IMWRITE_JPEG_QUALITY, 95])}
-
-
-def _camera_to_json(camera: PinholeCamera) -> dict[str, Any]:
-    data = asdict(camera)
-    data["distortion"] = list(camera.distortion)
-    data["pose_body_cam"] = [list(row) for row in camera.pose_body_cam]
-    return data
-
-
-def _camera_from_json(name: str, data: dict[str, Any]) -> PinholeCamera:
-    try:
-        return PinholeCamera(
-            float(data["fx_px"]), float(data["fy_px"]), float(data["cx_px"]), float(data["cy_px"]),
-            int(data["width_px"]), int(data["height_px"]), tuple(float(d) for d in data.get("distortion", ())),
-            tuple(tuple(float(v) for v in row) for row in data.get("pose_body_cam", np.eye(4).tolist())),
-        )
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CalibrationError(f"camera {name!r} in the manifest is malformed ({exc})") from exc
 
 
 class RecordingWriter:
@@ -165,7 +145,7 @@ class RecordingWriter:
             "format": FORMAT_NAME,
             "version": FORMAT_VERSION,
             "closed": closed,
-            "cameras": {name: _camera_to_json(cam) for name, cam in self.cameras.items()},
+            "cameras": {name: camera_to_dict(cam) for name, cam in self.cameras.items()},
             "stereo_pair": list(self.stereo_pair) if self.stereo_pair else None,
             "frame_counts": self.frame_counts,
             "dropped_frames": self.dropped,
@@ -351,7 +331,8 @@ class RecordingReader:
                 f"reads ({FORMAT_VERSION})")
         self.manifest: dict[str, Any] = manifest
         self.closed = bool(manifest.get("closed", False))
-        self.cameras = {name: _camera_from_json(name, data) for name, data in manifest["cameras"].items()}
+        self.cameras = {name: camera_from_dict(name, data, "in the manifest")
+                        for name, data in manifest["cameras"].items()}
         pair = manifest.get("stereo_pair")
         self.stereo_pair: tuple[str, str] | None = (pair[0], pair[1]) if pair else None
 

@@ -33,7 +33,7 @@ from kartpilot.core.errors import KartpilotError
 from kartpilot.core.geometry import Array
 from kartpilot.core.types import Image
 from kartpilot.sim import textures
-from kartpilot.sim.track import SAMPLE_SPACING_M, Track
+from kartpilot.sim.track import SAMPLE_SPACING_M, Track, scenery_boxes
 
 __all__ = ["RenderConfig", "Renderer", "lighting_for_time"]
 
@@ -65,6 +65,9 @@ class RenderConfig:
         apron_m: width of the textured ground beside the road surface; beyond it the ground is one
             flat colour (texturing all of it would halve the frame rate for pixels that are far away).
         texture_seed: seed of the procedural textures (the world's look, not the run's randomness).
+        scenery_spacing_m: roadside buildings and boards about this far apart along the track, each with its
+            own facade (0: none, the bare circuit). Place recognition needs them: without, nothing near the
+            track tells one place from another (:func:`kartpilot.sim.track.scenery_boxes`).
     """
 
     time_of_day_h: float = 13.0
@@ -74,6 +77,7 @@ class RenderConfig:
     background_radius_m: float = 1000.0
     apron_m: float = 15.0
     texture_seed: int = 0
+    scenery_spacing_m: float = 0.0
 
 
 def lighting_for_time(time_of_day_h: float) -> tuple[float, tuple[float, float, float], float]:
@@ -258,6 +262,13 @@ class Renderer:
                     node = solids.attach_new_node(_wall_mesh(core, part, spec.barrier_height_m))
                     node.set_texture(wall_tex)
                     node.set_two_sided(True)
+        boxes = scenery_boxes(track, self.config.scenery_spacing_m, seed + 5)
+        for k in range(_FACADES):
+            mine = boxes[k::_FACADES]
+            if len(mine):
+                node = solids.attach_new_node(_boxes_mesh(core, mine))
+                node.set_texture(_texture(core, textures.facade_texture(seed + 100 + k)))
+                node.set_two_sided(True)
         self._light(solids)
 
     def _add_background(self, seed: int) -> None:
@@ -579,3 +590,34 @@ def _cylinder_mesh(core: Any, radius_m: float, low_deg: float, high_deg: float,
     if colours is not None:
         colors = _interleave(np.tile(colours[0], (segments + 1, 1)), np.tile(colours[1], (segments + 1, 1)))
     return _mesh(core, vertices, _ribbon_triangles(segments + 1, facing_up=False), colors=colors, uvs=uvs)
+
+
+_FACADES = 12  # distinct facade textures, handed out to the scenery boxes in turn
+
+
+def _boxes_mesh(core: Any, boxes: Array) -> Any:
+    """Boxes (rows ``x, y, yaw, width, depth, height``) with four textured sides and a roof; each side's
+    texture spans the side once."""
+    vertices: list[list[float]] = []
+    normals: list[Array] = []
+    uvs: list[list[float]] = []
+    triangles: list[list[int]] = []
+    for x, y, yaw, width, depth, height in boxes:
+        c, s = math.cos(yaw), math.sin(yaw)
+        footprint = [(-width / 2, -depth / 2), (width / 2, -depth / 2), (width / 2, depth / 2), (-width / 2, depth / 2)]
+        corners = np.array([[x + dx * c - dy * s, y + dx * s + dy * c] for dx, dy in footprint])
+        for k in range(4):
+            a, b = corners[k], corners[(k + 1) % 4]
+            edge = b - a
+            normal = np.array([edge[1], -edge[0], 0.0]) / max(float(np.hypot(*edge)), 1e-9)
+            base = len(vertices)
+            vertices += [[*a, 0.0], [*b, 0.0], [*b, height], [*a, height]]
+            normals += [normal] * 4
+            uvs += [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]
+            triangles += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+        base = len(vertices)
+        vertices += [[*p, height] for p in corners]
+        normals += [np.array([0.0, 0.0, 1.0])] * 4
+        uvs += [[0.0, 0.0], [0.2, 0.0], [0.2, 0.2], [0.0, 0.2]]
+        triangles += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+    return _mesh(core, np.array(vertices), np.array(triangles), normals=np.array(normals), uvs=np.array(uvs))

@@ -16,8 +16,8 @@ import numpy as np
 
 from kartpilot.core.types import Image
 
-__all__ = ["HAZE_BGR", "HORIZON_BAND_DEG", "SURFACE_TILE_M", "horizon_band", "sky_bgr", "surface_texture",
-           "tyre_wall_texture"]
+__all__ = ["HAZE_BGR", "HORIZON_BAND_DEG", "SURFACE_TILE_M", "facade_texture", "horizon_band", "sky_bgr",
+           "surface_texture", "tyre_wall_texture"]
 
 SURFACE_TILE_M = 4.0
 """World size of one tile of a ground texture, in metres."""
@@ -119,3 +119,28 @@ def horizon_band(seed: int = 0, width_px: int = 2048, height_px: int = 64) -> Im
     mask = (elevation[:, None] <= top_deg[None, :]) & (elevation[:, None] >= -0.2)
     image[mask] = trees[mask]
     return np.clip(image, 0, 255).astype(np.uint8)
+
+
+@lru_cache(maxsize=16)
+def facade_texture(seed: int, size_px: int = 256) -> Image:
+    """The face of a roadside building or board: a coloured base with windows, panels and stripes in
+    random colours, so each differs from the others (BGR, square)."""
+    rng = np.random.default_rng(seed)
+    base = rng.uniform(60, 220, 3)
+    image = np.empty((size_px, size_px, 3), np.float32)
+    image[:] = base
+    for _ in range(int(rng.integers(4, 12))):
+        x0, y0 = (int(v) for v in rng.integers(0, size_px - 16, 2))
+        w, h = (int(v) for v in rng.integers(12, size_px // 2, 2))
+        cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), rng.uniform(20, 240, 3).tolist(), -1)
+    rows, cols = int(rng.integers(2, 5)), int(rng.integers(2, 7))
+    shade = rng.uniform(20, 90, 3).tolist()
+    for r in range(rows):
+        for c in range(cols):
+            if rng.random() < 0.8:
+                x0 = int((c + 0.2) * size_px / cols)
+                y0 = int((r + 0.25) * size_px / rows)
+                cv2.rectangle(image, (x0, y0), (x0 + int(0.55 * size_px / cols), y0 + int(0.45 * size_px / rows)),
+                              shade, -1)
+    noise = rng.normal(0, 5, image.shape)
+    return np.clip(image + noise, 0, 255).astype(np.uint8)

@@ -57,6 +57,7 @@ __all__ = [
     "bundled_tracks",
     "load_track",
     "project_onto",
+    "scenery_boxes",
 ]
 
 SAMPLE_SPACING_M = 0.05
@@ -476,3 +477,36 @@ def _runs(points: Array, keep: NDArray[np.bool_], closed: bool) -> list[Array]:
     if closed and keep[0] and keep[-1] and len(pieces) > 1:
         pieces[0] = np.vstack([pieces.pop(), pieces[0]])
     return [p for p in pieces if len(p) >= 2]
+
+
+def scenery_boxes(track: Track, spacing_m: float, seed: int, min_offset_m: float = 3.0,
+                  max_offset_m: float = 14.0) -> Array:
+    """Roadside buildings and boards as ``(N, 6)`` rows ``x, y, yaw, width, depth, height`` (metres, radians).
+
+    One every ``spacing_m`` along the route (jittered), on a random side, ``min_offset_m`` to
+    ``max_offset_m`` beyond the road's edge (beyond a barrier when there is one), facing the road;
+    a box whose footprint would come near any road piece is left out. Real circuits have
+    grandstands, pit buildings and signs; without them the scene has nothing that fixes a place.
+    """
+    if spacing_m <= 0:
+        return np.zeros((0, 6))
+    rng = np.random.default_rng(seed)
+    road = _RoadIndex((track.route, *track.branches))
+    route = track.route
+    near = max(min_offset_m, track.spec.barrier_offset_m + 1.0)
+    boxes: list[list[float]] = []
+    s = float(rng.uniform(0, spacing_m))
+    while s < route.length_m - 1.0:
+        i = route.index_at(s)
+        side = 1.0 if rng.random() < 0.5 else -1.0
+        width, depth, height = rng.uniform(2.0, 7.0), rng.uniform(0.6, 3.0), rng.uniform(1.5, 5.0)
+        offset = route.half_width_m[i] + rng.uniform(near, max(near, max_offset_m)) + depth / 2
+        centre = route.xy_m[i] + side * offset * route.normal()[i]
+        yaw = float(route.heading_rad[i] + rng.normal(0, 0.15))
+        c, si = np.cos(yaw), np.sin(yaw)
+        corners = centre + np.array([[dx * c - dy * si, dx * si + dy * c]
+                                     for dx in (-width / 2, width / 2) for dy in (-depth / 2, depth / 2)])
+        if not road.inside(np.vstack([corners, centre]), near - 0.5).any():
+            boxes.append([centre[0], centre[1], yaw, width, depth, height])
+        s += spacing_m * float(rng.uniform(0.6, 1.4))
+    return np.array(boxes).reshape(-1, 6)

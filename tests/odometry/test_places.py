@@ -1,0 +1,143 @@
+"""Place recognition: retrieval and the geometric check on synthetic places, the file format, bad input, and
+the simulator's laps (Recall@1 and Recall@5 against the truth)."""
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.errors import DataError, PerceptionError
+from kartpilot.odometry.places import PlacesConfig, build_places, load_places, place_mask
+from kartpilot.perception.vlad import VladConfig
+
+CAMERA = PinholeCamera(300.0, 300.0, 159.5, 119.5, 320, 240)  # level: the ground starts below row 120
+CONFIG = PlacesConfig(vlad=VladConfig(words=16))
+
+
+def _place_image(k: int) -> np.ndarray:
+    """A distinct scene per place: rectangles and blobs of random grey levels on noise."""
+    rng = np.random.default_rng(1000 + k)
+    image = rng.normal(128, 20, (240, 320)).astype(np.float32)
+    for _ in range(40):
+        x, y = int(rng.integers(0, 300)), int(rng.integers(0, 150))
+        w, h = (int(v) for v in rng.integers(8, 50, 2))
+        cv2.rectangle(image, (x, y), (x + w, y + h), float(rng.uniform(0, 255)), -1)
+    return np.clip(cv2.GaussianBlur(image, (3, 3), 0), 0, 255).astype(np.uint8)
+
+
+def _pose(x_m: float) -> np.ndarray:
+    pose = np.eye(4)
+    pose[0, 3] = x_m
+    return pose
+
+
+def _query(k: int, rng: np.random.Generator) -> np.ndarray:
+    """Place ``k`` seen again: shifted a few pixels, with new sensor noise."""
+    shift = np.float32([[1, 0, rng.uniform(-4, 4)], [0, 1, rng.uniform(-2, 2)]])
+    moved = cv2.warpAffine(_place_image(k), shift, (320, 240), borderMode=cv2.BORDER_REFLECT)
+    return np.clip(moved + rng.normal(0, 3, moved.shape), 0, 255).astype(np.uint8)
+
+
+def _assert_same_fix(a, b) -> None:
+    assert np.array_equal(a.pose_world_cam, b.pose_world_cam)
+    assert replace(a, pose_world_cam=None) == replace(b, pose_world_cam=None)
+
+
+@pytest.fixture(scope="module")
+def database():
+    return build_places(((k * 10**8, _place_image(k), _pose(k * 1.5)) for k in range(20)), CAMERA, "center",
+                        CONFIG, {"positions": "test"})
+
+
+def test_the_mask_leaves_out_the_near_ground_only():
+    mask = place_mask(CAMERA, 8.0)
+    # level camera, 8 heights: straight ahead, the ground nearer than that is below 300 / 8 = 37.5 px under
+    # the horizon; to the sides the same distance comes sooner
+    assert mask[:157].all() and not mask[158:, 159].any() and not mask[170:].any()
+    assert place_mask(CAMERA, 0.0).all()
+
+
+def test_each_place_is_found_again_and_its_position_given(database):
+    rng = np.random.default_rng(5)
+    for k in range(20):
+        fix = database.locate(_query(k, rng), stamp_ns=k)
+        assert fix.accepted, fix.reason
+        assert fix.place == k
+        assert fix.inliers >= CONFIG.min_inliers
+        assert abs(fix.position_m[0] - 1.5 * k) < 1.0
+        assert fix.sigma_m >= CONFIG.spacing_m / 2
+
+
+def test_the_geometric_check_rejects_a_place_that_was_never_seen(database):
+    stranger = _place_image(999)
+    assert not database.locate(stranger).accepted
+    unchecked = replace(database, config=replace(CONFIG, verify=False))
+    assert unchecked.locate(stranger).accepted  # retrieval alone always answers something
+
+
+def test_a_black_frame_gives_no_place_and_says_why(database):
+    fix = database.locate(np.zeros((240, 320), np.uint8))
+    assert not fix.accepted and "features" in fix.reason
+
+
+def test_an_image_of_another_size_is_an_error_naming_both(database):
+    with pytest.raises(PerceptionError, match=r"640x480.*320x240"):
+        database.locate(np.zeros((480, 640), np.uint8))
+
+
+def test_the_file_loads_back_identically(database, tmp_path):
+    path = database.save(tmp_path / "places.db")
+    loaded = load_places(path)
+    assert loaded.config == database.config and loaded.camera == database.camera and loaded.info == database.info
+    for name in ("centres", "vectors", "poses_world_cam", "stamps_ns"):
+        assert np.array_equal(getattr(loaded, name), getattr(database, name)), name
+    assert all(np.array_equal(a, b) for a, b in zip(loaded.descriptors, database.descriptors, strict=True))
+    query = _query(7, np.random.default_rng(3))
+    _assert_same_fix(loaded.locate(query), database.locate(query))
+
+
+def test_pca_databases_load_back_too(tmp_path):
+    config = replace(CONFIG, vlad=replace(CONFIG.vlad, pca_dims=8))
+    database = build_places(((k, _place_image(k), _pose(k)) for k in range(12)), CAMERA, "center", config)
+    assert database.vectors.shape == (12, 8)
+    loaded = load_places(database.save(tmp_path / "p.db"))
+    query = _query(4, np.random.default_rng(4))
+    _assert_same_fix(loaded.locate(query), database.locate(query))
+    assert database.locate(query).place == 4
+
+
+def test_damaged_or_foreign_files_are_clear_errors(database, tmp_path):
+    with pytest.raises(DataError, match="no place database"):
+        load_places(tmp_path / "missing.db")
+    garbage = tmp_path / "garbage.db"
+    garbage.write_bytes(b"not a database")
+    with pytest.raises(DataError, match="not a kartpilot place database"):
+        load_places(garbage)
+    foreign = tmp_path / "foreign.db"
+    with foreign.open("wb") as f:
+        np.savez(f, header=np.array('{"format": "something else"}'))
+    with pytest.raises(DataError, match="format 'something else'"):
+        load_places(foreign)
+    path = database.save(tmp_path / "places.db")
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays["header"] = np.array(str(arrays["header"]).replace('"version": 1', '"version": 99'))
+    newer = tmp_path / "newer.db"
+    with newer.open("wb") as f:
+        np.savez(f, **arrays)
+    with pytest.raises(DataError, match="version 99"):
+        load_places(newer)
+    del arrays["vectors"]
+    arrays["header"] = np.array(str(arrays["header"]).replace('"version": 99', '"version": 1'))
+    with (tmp_path / "cut.db").open("wb") as f:
+        np.savez(f, **arrays)
+    with pytest.raises(DataError, match="damaged"):
+        load_places(tmp_path / "cut.db")
+
+
+def test_a_drive_without_texture_builds_no_database():
+    black = ((k, np.zeros((240, 320), np.uint8), _pose(k)) for k in range(10))
+    with pytest.raises(DataError, match="usable images"):
+        build_places(black, CAMERA, "center", CONFIG)
