@@ -41,6 +41,8 @@ def test_eval_command(tmp_path, capsys) -> None:
         (["lanes", "/does/not/exist.jpg", "--out", "x.txt"], "input not found"),
         (["drive", "--reference", "/does/not/exist.csv", "--sim", "straight20"], "no such reference path"),
         (["reference", "/does/not/exist", "--out", "x.csv"], "not a kartpilot recording"),
+        (["places", "build", "/does/not/exist", "--out", "x.db"], "not a kartpilot recording"),
+        (["places", "query", "/does/not/exist.db", "/does/not/exist"], "no place database"),
     ],
 )
 def test_user_mistakes_give_one_line_and_exit_1(argv: list[str], message: str, capsys, tmp_path) -> None:
@@ -149,3 +151,35 @@ def test_monocular_odometry_on_kitti_says_where_its_scale_comes_from(tmp_path, c
     data = json.loads(summary.read_text())
     assert data["mode"] == "mono" and data["scale_source"].startswith("ground plane")
     assert len((tmp_path / "t.txt").read_text().splitlines()) == 51
+
+
+def test_places_build_and_query_a_recording_and_an_image(tmp_path, capsys) -> None:
+    """A recording of distinct synthetic places with ground truth: build, query the recording (Recall printed),
+    query one image; a recording without positions is a one-line error."""
+    import cv2
+    from tests.odometry.test_places import CAMERA, _place_image, _pose
+
+    from kartpilot.core.trajectory import Trajectory
+    from kartpilot.record.recording import RecordingWriter
+
+    for name, with_truth in (("ref", True), ("bare", False)):
+        with RecordingWriter(tmp_path / name, {"center": CAMERA}, metadata={"groundtruth_camera": "center"}) as w:
+            for k in range(12):
+                w.write_frame("center", k * 10**8, cv2.cvtColor(_place_image(k), cv2.COLOR_GRAY2BGR))
+            if with_truth:
+                w.write_groundtruth(Trajectory.from_poses([_pose(1.5 * k) for k in range(12)],
+                                                          [k * 0.1 for k in range(12)]))
+    config = tmp_path / "places.yaml"
+    config.write_text("places: {vlad: {words: 16}}\n")
+    db = tmp_path / "places.db"
+    assert main(["places", "build", str(tmp_path / "ref"), "--out", str(db), "--config", str(config)]) == 0
+    assert "12 places over 16 m of the center camera" in capsys.readouterr().out
+    assert main(["places", "query", str(db), str(tmp_path / "ref"), "--out", str(tmp_path / "fixes.csv")]) == 0
+    assert "Recall@1 (VLAD)      100.0 %" in capsys.readouterr().out
+    assert len((tmp_path / "fixes.csv").read_text().splitlines()) == 13
+    image = next((tmp_path / "ref" / "cameras" / "center").iterdir())
+    assert main(["places", "query", str(db), str(image)]) == 0
+    assert "best place" in capsys.readouterr().out
+    assert main(["places", "build", str(tmp_path / "bare"), "--out", str(db)]) == 1
+    err = capsys.readouterr().err
+    assert "no ground truth" in err and "--positions" in err

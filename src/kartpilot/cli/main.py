@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 
 from kartpilot import __version__
-from kartpilot.cli import calibrate_commands, commands, drive_commands, record_commands
+from kartpilot.cli import calibrate_commands, commands, drive_commands, places_commands, record_commands
 from kartpilot.core.errors import KartpilotError
 
 __all__ = ["build_parser", "main"]
@@ -223,6 +223,25 @@ def build_parser() -> argparse.ArgumentParser:
     experiment.add_argument("--config", help="YAML file merged over the defaults (sections stereo_vo, drive)")
     experiment.add_argument("--no-progress", action="store_true")
     experiment.set_defaults(handler=drive_commands.experiment)
+
+    places = sub.add_parser("places", help="place recognition: a database of a reference drive, and queries")
+    places_sub = places.add_subparsers(dest="action", required=True, metavar="ACTION")
+    build = places_sub.add_parser("build", help="a place database from a recording with positions")
+    build.add_argument("recording")
+    build.add_argument("--out", required=True, help="the database file (places.db)")
+    build.add_argument("--camera", help="the camera (default: center, else the stereo pair's left, else the first)")
+    build.add_argument("--positions", help="the camera's trajectory (KITTI or TUM; default: the recording's "
+                                           "ground truth)")
+    build.add_argument("--config", help="YAML file merged over the defaults (section places)")
+    build.set_defaults(handler=places_commands.places_build)
+    query = places_sub.add_parser("query", help="where an image, or each frame of a recording, was taken")
+    query.add_argument("database")
+    query.add_argument("query", help="an image file or a recording folder")
+    query.add_argument("--camera", help="the recording's camera (default: the database's)")
+    query.add_argument("--radius", type=float, default=2.0, help="Recall@K counts places within this, m")
+    query.add_argument("--out", help="write each frame's fix here (CSV)")
+    query.add_argument("--json", help="write the recall figures here")
+    query.set_defaults(handler=places_commands.places_query)
 
     demo = sub.add_parser("demo", help="the main job on an embedded default (see README)")
     demo.add_argument("--out", default="demo_out")

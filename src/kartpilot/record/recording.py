@@ -30,7 +30,7 @@ import queue
 import re
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any
 
@@ -39,10 +39,11 @@ import cv2
 from kartpilot.calibration.rectify import stereo_setup
 from kartpilot.core.camera import PinholeCamera, StereoRig, camera_from_dict, camera_to_dict
 from kartpilot.core.errors import RecordingError
-from kartpilot.core.geometry import Array
+from kartpilot.core.geometry import Array, invert_pose
 from kartpilot.core.trajectory import Trajectory, read_tum, write_tum
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image, StereoFrame
 from kartpilot.sensors.base import StereoSource, read_gray
+from kartpilot.sensors.capture import nearest_within
 
 __all__ = [
     "FORMAT_NAME",
@@ -413,6 +414,32 @@ class RecordingReader:
     def groundtruth(self) -> Trajectory | None:
         path = self.folder / "groundtruth.tum"
         return read_tum(path) if path.is_file() else None
+
+    def camera_poses(self, camera: str, trajectory: Trajectory | None = None) -> Trajectory | None:
+        """The poses of ``camera``: ``trajectory`` if given (taken to be that camera's), else the ground
+        truth, moved by the mounts onto ``camera`` when it is another camera's; None without either."""
+        if trajectory is not None:
+            return trajectory
+        truth = self.groundtruth()
+        if truth is None:
+            return None
+        measured = self.manifest.get("metadata", {}).get("groundtruth_camera", camera)
+        if measured == camera or measured not in self.cameras or camera not in self.cameras:
+            return truth
+        cam_to_cam = invert_pose(self.cameras[measured].pose_body_cam_array) @ self.cameras[camera].pose_body_cam_array
+        return Trajectory(truth.stamps_s, truth.poses @ cam_to_cam)
+
+    def posed_frames(self, camera: str, poses: Trajectory, max_gap_s: float = 0.05
+                     ) -> Iterator[tuple[int, Image, Array]]:
+        """(stamp_ns, grey image, pose_world_cam) of each frame of ``camera`` with a pose within ``max_gap_s``;
+        frames without one are left out. An unreadable image raises DataError naming it."""
+        if camera not in self.cameras:
+            raise RecordingError(f"the recording has no camera {camera!r} (has {', '.join(self.cameras)})")
+        stamps = [round(t * 1e9) for t in poses.stamps_s]
+        for stamp_ns, path in self.frames(camera):
+            index = nearest_within(stamp_ns, stamps, round(max_gap_s * 1e9))
+            if index is not None:
+                yield stamp_ns, read_gray(path), poses.poses[index]
 
 
 class RecordingStereoSource(StereoSource):

@@ -18,6 +18,7 @@ Example ``stack.yaml``::
     watchdogs: {overrun_factor: 2.0, overrun_steps: 3}
     supervisor: {require_hold: true}
     gamepad: {hold_button: 5, estop_button: 1, max_steer_rad: 0.3}   # another pad: its axis and button numbers
+    places: {spacing_m: 0.5, vlad: {words: 64, pca_dims: 128, features: {detector: sift}}}
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from pathlib import Path
 from kartpilot.actuation.can_bus import ActuatorLimits, CanConfig
 from kartpilot.core.config import load_yaml_mapping, merge_config
 from kartpilot.odometry.mono_vo import MonoVOConfig
+from kartpilot.odometry.places import PlacesConfig
 from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.perception.lanes import LaneConfig
 from kartpilot.runtime.drive import WatchdogConfig
@@ -46,6 +48,7 @@ __all__ = ["StackConfig", "load_stack_config"]
 class StackConfig:
     stereo_vo: StereoVOConfig = field(default_factory=StereoVOConfig)
     mono_vo: MonoVOConfig = field(default_factory=MonoVOConfig)
+    places: PlacesConfig = field(default_factory=PlacesConfig)
     sim: SimConfig = field(default_factory=SimConfig)
     centerline_driver: CenterlineDriverConfig = field(default_factory=CenterlineDriverConfig)
     lane_detection: LaneConfig = field(default_factory=LaneConfig)

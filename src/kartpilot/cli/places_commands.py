@@ -1,0 +1,102 @@
+"""``kartpilot places build|query``: a place database from a reference drive, and where images were taken."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import time
+from pathlib import Path
+
+from kartpilot.core.errors import ConfigError, DataError
+from kartpilot.core.trajectory import read_trajectory
+from kartpilot.eval.places import evaluate_places
+from kartpilot.odometry.places import PlaceFix, build_places, load_places
+from kartpilot.record.recording import RecordingReader
+from kartpilot.runtime.config import load_stack_config
+from kartpilot.sensors.base import read_gray
+
+__all__ = ["places_build", "places_query"]
+
+
+def _camera(reader: RecordingReader, name: str | None) -> str:
+    if name is not None:
+        return name
+    if "center" in reader.cameras:
+        return "center"
+    if reader.stereo_pair:
+        return reader.stereo_pair[0]
+    return next(iter(reader.cameras))
+
+
+def places_build(args: argparse.Namespace) -> int:
+    config = load_stack_config(args.config).places
+    reader = RecordingReader(args.recording)
+    camera = _camera(reader, args.camera)
+    given = read_trajectory(args.positions) if args.positions else None
+    poses = reader.camera_poses(camera, given)
+    if poses is None:
+        raise DataError(f"{args.recording} has no ground truth to tag its images with: pass --positions with the "
+                        f"{camera} camera's trajectory (e.g. from `kartpilot odometry recording`)")
+    source = f"--positions {args.positions}" if given is not None else "the recording's ground truth"
+    start = time.perf_counter()
+    database = build_places(reader.posed_frames(camera, poses), reader.cameras[camera], camera, config,
+                            {"recording": str(args.recording), "positions": source})
+    path = database.save(args.out)
+    travelled = float(sum(math.dist(a[:3, 3], b[:3, 3])
+                          for a, b in zip(database.poses_world_cam[:-1], database.poses_world_cam[1:], strict=True)))
+    print(f"{len(database)} places over {travelled:.0f} m of the {camera} camera, positions from {source}; "
+          f"{config.vlad.words} words, {database.vectors.shape[1]}-dimensional vectors; "
+          f"{path.stat().st_size / 1e6:.1f} MB in {time.perf_counter() - start:.0f} s -> {path}")
+    return 0
+
+
+def places_query(args: argparse.Namespace) -> int:
+    database = load_places(args.database)
+    target = Path(args.query)
+    if target.is_file():
+        fix = database.locate(read_gray(target))
+        print(_describe(fix))
+        return 0
+    if not (target / "manifest.json").is_file():
+        raise DataError(f"{target} is neither an image nor a recording")
+    reader = RecordingReader(target)
+    camera = args.camera or database.camera_name
+    if camera not in reader.cameras:
+        raise ConfigError(f"the recording has no camera {camera!r} (the database is of {database.camera_name!r}; "
+                          f"the recording has {', '.join(reader.cameras)})")
+    truth = reader.camera_poses(camera)
+    fixes: list[PlaceFix] = []
+    if truth is not None:
+        recall = evaluate_places(database, reader.posed_frames(camera, truth), args.radius, fixes)
+        print(f"{target} against {args.database}, the truth from the recording's ground truth\n{recall.table()}")
+        if args.json:
+            Path(args.json).write_text(json.dumps(recall.to_json(), indent=2))
+    else:
+        for stamp_ns, path in reader.frames(camera):
+            fixes.append(database.locate(read_gray(path), stamp_ns))
+        accepted = sum(f.accepted for f in fixes)
+        print(f"{len(fixes)} images, {accepted} placed (no ground truth in the recording to score them)")
+    if args.out:
+        _write_fixes(fixes, Path(args.out))
+    return 0
+
+
+def _describe(fix: PlaceFix) -> str:
+    if not fix.accepted:
+        return f"no place: {fix.reason}"
+    x, y, z = fix.position_m
+    return (f"x {x:.2f} m, y {y:.2f} m, z {z:.2f} m, sigma {fix.sigma_m:.2f} m; best place {fix.place} "
+            f"({fix.inliers} inliers)")
+
+
+def _write_fixes(fixes: list[PlaceFix], path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["stamp_ns", "accepted", "x_m", "y_m", "z_m", "sigma_m", "place", "inliers", "reason"])
+        for fix in fixes:
+            x, y, z = fix.position_m
+            writer.writerow([fix.stamp_ns, int(fix.accepted), f"{x:.4f}", f"{y:.4f}", f"{z:.4f}", f"{fix.sigma_m:.4f}",
+                             fix.place, fix.inliers, fix.reason])
