@@ -28,6 +28,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/lanes.py --data $(DATA) --out benchmarks/results/lanes.json
 	$(BIN)/python benchmarks/drive.py --out benchmarks/results/drive.json
 	$(BIN)/python benchmarks/record.py --out benchmarks/results/record.json
+	$(BIN)/python benchmarks/places.py --out benchmarks/results/places.json
 
 demo: $(STAMP)
 	$(BIN)/kartpilot demo --out demo_out

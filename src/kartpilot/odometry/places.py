@@ -28,6 +28,7 @@ import itertools
 import json
 import math
 import os
+import time
 import zipfile
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -201,6 +202,8 @@ class PlaceDatabase:
         self.tree = BallTree(self.vectors)
         self._describer = _Describer(self.camera, self.config)
         self._matcher = cv2.BFMatcher(cv2.NORM_HAMMING if self._describer.binary else cv2.NORM_L2)
+        self.timing_ms: dict[str, float] = {"features": 0.0, "retrieve": 0.0, "check": 0.0}  # summed over queries
+        self.queries = 0
 
     def __len__(self) -> int:
         return len(self.vectors)
@@ -221,7 +224,11 @@ class PlaceDatabase:
     def locate(self, image: Image, stamp_ns: int = 0) -> PlaceFix:
         """Where ``image`` was taken (see the module's description)."""
         cfg = self.config
+        t0 = time.perf_counter()
+        self.queries += 1
         features = self._describer.features(image)
+        t1 = time.perf_counter()
+        self.timing_ms["features"] += (t1 - t0) * 1e3
         nothing = np.full((4, 4), np.nan)
         if len(features) < 8:
             return PlaceFix(stamp_ns, False, f"{len(features)} features outside the near road", nothing, math.inf,
@@ -229,10 +236,13 @@ class PlaceDatabase:
         indices, distances = self.retrieve(self.vector(features), max(cfg.top_k, cfg.verify_candidates
                                                                        if cfg.verify else 0))
         candidates, vlad = tuple(int(i) for i in indices), tuple(float(d) for d in distances)
+        t2 = time.perf_counter()
+        self.timing_ms["retrieve"] += (t2 - t1) * 1e3
         if not cfg.verify:
             weights = 1.0 / np.maximum(distances[:cfg.top_k], 1e-6) ** 2
             return self._fix(stamp_ns, indices[:cfg.top_k], weights, None, candidates, vlad, 0)
         checked = [self._check(features, int(i)) for i in indices]
+        self.timing_ms["check"] += (time.perf_counter() - t2) * 1e3
         inliers = np.array([c[0] for c in checked])
         order = np.argsort(-inliers, kind="stable")
         best = int(order[0])
