@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from kartpilot.core.camera import StereoRig
+from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.errors import ConfigError, OdometryError, PerceptionError
 from kartpilot.core.geometry import Array, invert_pose
 from kartpilot.core.types import FrameSet, Image, StereoFrame, VehiclePose
@@ -30,7 +30,8 @@ from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
 from kartpilot.odometry.visual_map import RelocConfig, VisualMap, relocalize
 from kartpilot.sensors.health import HealthConfig, frame_problem
 
-__all__ = ["LocalizerConfig", "StereoVOLocalizer", "between_2d", "compose_2d", "ground_poses", "vo_ground_pose"]
+__all__ = ["LocalizerConfig", "PoseTracker", "StereoVOLocalizer", "between_2d", "compose_2d", "ground_poses",
+           "vo_ground_pose"]
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +100,57 @@ def _gray(image: Image) -> Image:
 Pose2D = tuple[float, float, float]
 
 
-class StereoVOLocalizer:
+class PoseTracker:
+    """What every localiser shares: the last pose, speed and yaw rate filtered from odometry's own steps,
+    bridging a missing frame with constant speed and yaw rate, and ``lost`` after ``max_bridge_s``."""
+
+    def __init__(self, max_bridge_s: float, speed_time_constant_s: float) -> None:
+        self.max_bridge_s = max_bridge_s
+        self.speed_time_constant_s = speed_time_constant_s
+        self._last: VehiclePose | None = None
+        self._last_ok_ns: int | None = None
+
+    def _with_motion(self, stamp_ns: int, pose: Pose2D, step: Pose2D, dt: float, status: str,
+                     reason: str) -> VehiclePose:
+        """A pose with speed and yaw rate low-pass filtered from the odometry's own step (not the corrections)."""
+        last = self._last
+        if last is None or dt <= 0:
+            return VehiclePose(stamp_ns, pose[0], pose[1], pose[2], 0.0, 0.0, "ok")
+        a = dt / (dt + self.speed_time_constant_s)
+        speed, rate = step[0] / dt, step[2] / dt
+        return VehiclePose(stamp_ns, pose[0], pose[1], pose[2], last.speed_mps + a * (speed - last.speed_mps),
+                           last.yaw_rate_radps + a * (rate - last.yaw_rate_radps),
+                           "ok" if status == "ok" else "bridged", reason)
+
+    def _bridge(self, stamp_ns: int, reason: str) -> VehiclePose:
+        """Predict with constant speed and yaw rate from the last pose."""
+        last = self._last
+        if last is None:
+            pose = VehiclePose(stamp_ns, 0.0, 0.0, 0.0, 0.0, 0.0, "bridged", reason)
+        else:
+            dt = max((stamp_ns - last.stamp_ns) * 1e-9, 0.0)
+            yaw = last.yaw_rad + last.yaw_rate_radps * dt
+            heading = 0.5 * (yaw + last.yaw_rad)
+            pose = VehiclePose(stamp_ns, last.x_m + last.speed_mps * dt * math.cos(heading),
+                               last.y_m + last.speed_mps * dt * math.sin(heading), yaw,
+                               last.speed_mps, last.yaw_rate_radps, "bridged", reason)
+        log.info("pose at %d ns bridged: %s", stamp_ns, reason)
+        return self._check_lost(pose)
+
+    def _check_lost(self, pose: VehiclePose) -> VehiclePose:
+        since = None if self._last_ok_ns is None else (pose.stamp_ns - self._last_ok_ns) * 1e-9
+        if since is None or since > self.max_bridge_s:
+            pose = VehiclePose(pose.stamp_ns, pose.x_m, pose.y_m, pose.yaw_rad, pose.speed_mps,
+                               pose.yaw_rate_radps, "lost",
+                               pose.reason + (f" (no measured pose for {since:.2f} s)" if since is not None else ""))
+        return self._remember(pose)
+
+    def _remember(self, pose: VehiclePose) -> VehiclePose:
+        self._last = pose
+        return pose
+
+
+class StereoVOLocalizer(PoseTracker):
     """Stereo VO (and, with a map, relocalisation) turned into :class:`VehiclePose` messages.
 
     The pose is carried forward by VO's frame-to-frame motion; each relocalisation against the
@@ -109,6 +160,7 @@ class StereoVOLocalizer:
     def __init__(self, rig: StereoRig, pose_body_cam: Array, vo_config: StereoVOConfig | None = None,
                  config: LocalizerConfig | None = None, visual_map: VisualMap | None = None) -> None:
         self.config = config or LocalizerConfig()
+        super().__init__(self.config.max_bridge_s, self.config.speed_time_constant_s)
         self.vo = StereoVO(rig, vo_config)
         self.rig = rig
         self.map = visual_map if self.config.reloc.enabled else None
@@ -116,8 +168,6 @@ class StereoVOLocalizer:
         self._raw: Pose2D | None = None  # VO's own ground pose at the last VO frame
         self._raw_stamp_ns = 0
         self._pose_at_raw: Pose2D = (0.0, 0.0, 0.0)  # the localizer's pose at that frame
-        self._last: VehiclePose | None = None
-        self._last_ok_ns: int | None = None
         self._keyframe = 0
         self._previous_images: dict[str, Image] = {}
         self.relocalisations = 0
@@ -185,41 +235,10 @@ class StereoVOLocalizer:
         self.timing_ms["reloc"] = self.timing_ms.get("reloc", 0.0) + (time.perf_counter() - t0) * 1e3
         return pose
 
-    def _with_motion(self, stamp_ns: int, pose: Pose2D, step: Pose2D, dt: float, status: str,
-                     reason: str) -> VehiclePose:
-        """A pose with speed and yaw rate low-pass filtered from VO's own step (not the corrections)."""
-        last = self._last
-        if last is None or dt <= 0:
-            return VehiclePose(stamp_ns, pose[0], pose[1], pose[2], 0.0, 0.0, "ok")
-        a = dt / (dt + self.config.speed_time_constant_s)
-        speed, rate = step[0] / dt, step[2] / dt
-        return VehiclePose(stamp_ns, pose[0], pose[1], pose[2], last.speed_mps + a * (speed - last.speed_mps),
-                           last.yaw_rate_radps + a * (rate - last.yaw_rate_radps),
-                           "ok" if status == "ok" else "bridged", reason)
+    @property
+    def camera_name(self) -> str:
+        return self.config.left_camera
 
-    def _bridge(self, stamp_ns: int, reason: str) -> VehiclePose:
-        """Predict with constant speed and yaw rate from the last pose."""
-        last = self._last
-        if last is None:
-            pose = VehiclePose(stamp_ns, 0.0, 0.0, 0.0, 0.0, 0.0, "bridged", reason)
-        else:
-            dt = max((stamp_ns - last.stamp_ns) * 1e-9, 0.0)
-            yaw = last.yaw_rad + last.yaw_rate_radps * dt
-            heading = 0.5 * (yaw + last.yaw_rad)
-            pose = VehiclePose(stamp_ns, last.x_m + last.speed_mps * dt * math.cos(heading),
-                               last.y_m + last.speed_mps * dt * math.sin(heading), yaw,
-                               last.speed_mps, last.yaw_rate_radps, "bridged", reason)
-        log.info("pose at %d ns bridged: %s", stamp_ns, reason)
-        return self._check_lost(pose)
-
-    def _check_lost(self, pose: VehiclePose) -> VehiclePose:
-        since = None if self._last_ok_ns is None else (pose.stamp_ns - self._last_ok_ns) * 1e-9
-        if since is None or since > self.config.max_bridge_s:
-            pose = VehiclePose(pose.stamp_ns, pose.x_m, pose.y_m, pose.yaw_rad, pose.speed_mps,
-                               pose.yaw_rate_radps, "lost",
-                               pose.reason + (f" (no measured pose for {since:.2f} s)" if since is not None else ""))
-        return self._remember(pose)
-
-    def _remember(self, pose: VehiclePose) -> VehiclePose:
-        self._last = pose
-        return pose
+    @property
+    def camera(self) -> PinholeCamera:
+        return self.rig.camera

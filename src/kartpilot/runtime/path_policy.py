@@ -147,7 +147,7 @@ class PathFollowPolicy:
     def overlay(self, frames: FrameSet) -> Image | None:
         """The pipeline's view: the left image with the reference path ahead drawn where the pipeline
         believes it lies on the road, and its state."""
-        image = frames.images.get(self.localizer.config.left_camera)
+        image = frames.images.get(self.localizer.camera_name)
         if image is None or not self.samples:
             return None
         canvas = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image.copy()
@@ -160,7 +160,7 @@ class PathFollowPolicy:
         in_camera = transform_points(invert_pose(self.localizer.body_cam), body)
         in_camera = in_camera[in_camera[:, 2] > 0.2]
         if len(in_camera) >= 2:
-            pixels = self.localizer.rig.camera.project(in_camera)
+            pixels = self.localizer.camera.project(in_camera)
             cv2.polylines(canvas, [np.round(pixels).astype(np.int32).reshape(-1, 1, 2)], False, (0, 220, 0), 3,
                           cv2.LINE_AA)
         status = "STOPPED: " + self.stop_reason if self.stopped else f"pose {last.pose_status}"
