@@ -108,13 +108,15 @@ class FaultyBus(can.BusABC):
         super().shutdown()
 
 
-def failing_vo(process: Callable[[Any], Any], injection: Injection) -> Callable[[Any], Any]:
-    """Wrap a StereoVO's ``process`` so it fails on every frame from the injection's time."""
+def failing_vo(process: Callable[..., Any], injection: Injection) -> Callable[..., Any]:
+    """Wrap a VO's ``process`` so it fails on every frame from the injection's time: stereo VO's takes a frame
+    (with its ``stamp_ns``), mono VO's takes ``(index, stamp_ns, image)``."""
 
-    def wrapped(frame: Any) -> Any:
-        if injection.active(frame.stamp_ns):
+    def wrapped(*args: Any) -> Any:
+        stamp_ns = args[0].stamp_ns if len(args) == 1 else args[1]
+        if injection.active(stamp_ns):
             raise OdometryError("visual odometry failed (injected)")
-        return process(frame)
+        return process(*args)
 
     return wrapped
 

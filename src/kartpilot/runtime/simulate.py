@@ -18,6 +18,8 @@ from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError, RecordingError
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource, Image
+from kartpilot.odometry.mono_vo import MonoVOConfig
+from kartpilot.odometry.places import PlaceDatabase
 from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.odometry.visual_map import VisualMap
 from kartpilot.planning.reference_path import ReferencePath
@@ -30,6 +32,7 @@ from kartpilot.runtime.path_policy import (
     DriveConfig,
     DriveSample,
     PathFollowPolicy,
+    mono_vo_policy,
     stereo_vo_policy,
     write_drive_log,
 )
@@ -173,6 +176,20 @@ def _path_policy(sim: Simulator, reference: ReferencePath | None, config: DriveC
                             sim.config.camera_rate_hz)
 
 
+def _mono_policy(sim: Simulator, places: PlaceDatabase | None, reference: ReferencePath | None, config: DriveConfig,
+                 vo_config: MonoVOConfig | None) -> PathFollowPolicy:
+    if places is None:
+        raise ConfigError("the mono-vo pipeline localises against a place database: give --places (kartpilot places "
+                          "build writes one from a recorded drive)")
+    name = config.mono.camera
+    if name not in sim.cameras or not sim.config.render_images:
+        raise ConfigError(f"the mono-vo pipeline needs the {sim.vehicle.name}'s {name!r} camera rendered "
+                          f"(it has {', '.join(sim.cameras)})")
+    vehicle = sim.vehicle
+    return mono_vo_policy(sim.cameras[name], places, reference, config, vo_config, vehicle.wheelbase_m,
+                          vehicle.max_steer_rad, sim.config.camera_rate_hz)
+
+
 class _UntilStopped:
     """The simulator as a source that ends once the path policy has held its stop for a while."""
 
@@ -269,7 +286,7 @@ class _VideoSink:
         self._writer.release()
 
 
-SUPERVISED_PIPELINES = ("lanes", "stereo-vo")
+SUPERVISED_PIPELINES = ("lanes", "stereo-vo", "mono-vo")
 FAULT_HELD_S = 1.0  # a supervised run ends once the kart has been held in a fault this long
 
 
@@ -340,6 +357,7 @@ class _UntilSettled:
 def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", duration_s: float | None = None,
                          injections: Sequence[Injection] = (), lane_config: LanePolicyConfig | None = None,
                          drive_config: DriveConfig | None = None, vo_config: StereoVOConfig | None = None,
+                         places: PlaceDatabase | None = None, mono_config: MonoVOConfig | None = None,
                          reference: ReferencePath | None = None, visual_map: VisualMap | None = None,
                          can_config: CanConfig | None = None, watchdog_config: WatchdogConfig | None = None,
                          supervisor_config: SupervisorConfig | None = None, record_dir: str | Path | None = None,
@@ -352,13 +370,13 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
     if bus not in ("virtual", "none"):
         raise ConfigError(f"the simulator sits behind the virtual bus or none, not {bus!r}")
     at = {i.kind: i.at_s for i in injections}
-    if "vo-failure" in at and pipeline != "stereo-vo":
-        raise ConfigError("vo-failure needs the stereo-vo pipeline")
+    if "vo-failure" in at and pipeline == "lanes":
+        raise ConfigError("vo-failure needs the stereo-vo or mono-vo pipeline")
     if bus == "none" and {"can-bus-off", "heartbeat-loss"} & set(at):
         raise ConfigError("can-bus-off and heartbeat-loss need --bus virtual")
     if duration_s is not None:
         config = replace(config, max_time_s=duration_s)
-    if pipeline == "stereo-vo":
+    if pipeline != "lanes":
         config = replace(config, referee=replace(config.referee, run_on_m=math.inf))
     with Simulator(config) as sim:
         path_policy: PathFollowPolicy | None = None
@@ -366,11 +384,12 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
         if pipeline == "lanes":
             policy = LanePolicy(sim.cameras, lane_config, config.camera_rate_hz)
         else:
-            path_policy = _path_policy(sim, reference, drive_config or DriveConfig(), visual_map,
-                                       vo_config or StereoVOConfig())
+            path_policy = (_path_policy(sim, reference, drive_config or DriveConfig(), visual_map,
+                                        vo_config or StereoVOConfig()) if pipeline == "stereo-vo" else
+                           _mono_policy(sim, places, reference, drive_config or DriveConfig(), mono_config))
             if "vo-failure" in at:
-                vo = path_policy.localizer.vo
-                vo.process = failing_vo(vo.process, Injection("vo-failure", at["vo-failure"]))  # type: ignore[method-assign, assignment]
+                vo = getattr(path_policy.localizer, "vo")  # noqa: B009 (both localisers have one; the protocol not)
+                vo.process = failing_vo(vo.process, Injection("vo-failure", at["vo-failure"]))
             policy = path_policy
         if "stage-exception" in at:
             policy = RaisingPipeline(policy, at["stage-exception"])

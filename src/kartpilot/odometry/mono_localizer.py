@@ -1,0 +1,229 @@
+"""One camera, localised in metres on a reference: monocular VO fused with place fixes.
+
+Monocular VO (:mod:`kartpilot.odometry.mono_vo`) gives the motion from frame to frame with
+its scale from the ground plane; it drifts. Place recognition against the reference drive's
+database (:mod:`kartpilot.odometry.places`) gives absolute but coarse positions. An extended
+Kalman filter on the rear axle's planar pose ``x, y, yaw`` and VO's scale error ``k`` joins them:
+
+- predict with VO's step times ``k`` (the uncertainty grows with the distance driven);
+- update with each accepted place fix, every ``place_every_m`` driven: the fix's position, with
+  ``sigma_m`` along the track and at least ``cross_track_sigma_m`` across it (a fix is where the
+  reference drive was, and the kart may be on another line), and its heading when the
+  geometric check measured the rotation. A fix outside the 99.9 % gate is rejected and counted.
+- ``k`` starts at 1 with ``scale_sigma`` (the ground plane's scale is biased where the road's texture
+  is weak) and is learnt from the fixes: when VO keeps falling short of them, ``k`` grows, so a
+  biased scale does not keep pulling the estimate off between fixes.
+
+The frame is the reference's: the rear axle at the database's first place, x forward, y left
+(:func:`place_ground_poses`), so a reference path built from the same drive lines up. The first
+accepted fix places the kart, wherever it starts on the reference; until then the pose is
+bridged, and ``lost`` after ``max_bridge_s``, which stops the kart.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+
+from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.errors import ConfigError, OdometryError, PerceptionError
+from kartpilot.core.geometry import Array, invert_pose
+from kartpilot.core.types import FrameSet, VehiclePose
+from kartpilot.odometry.localizer import Pose2D, PoseTracker, between_2d, compose_2d, vo_ground_pose
+from kartpilot.odometry.mono_vo import MonoVO, MonoVOConfig
+from kartpilot.odometry.places import PlaceDatabase, PlaceFix
+from kartpilot.sensors.health import HealthConfig, frame_problem
+
+__all__ = ["MonoLocalizer", "MonoLocalizerConfig", "place_ground_poses"]
+
+log = logging.getLogger(__name__)
+
+GATE_CHI2 = 16.27  # 99.9 % of a chi-square with 3 degrees of freedom
+
+
+@dataclass(frozen=True)
+class MonoLocalizerConfig:
+    """Attributes:
+        camera: the camera's name in the frame sets.
+        health: when a frame counts as black, blank or frozen (bridged, not used).
+        max_bridge_s: how long the motion model may stand in before the pose is ``lost``.
+        speed_time_constant_s: low-pass time constant of the speed and yaw-rate estimates.
+        place_every_m: query the place database after driving this far (and on every frame until the first fix).
+        cross_track_sigma_m: a fix's least standard deviation across the track.
+        heading_sigma_rad: a checked fix's heading standard deviation.
+        vo_sigma_per_m: VO's position error per metre driven (standard deviation); ``vo_yaw_sigma_per_m`` likewise.
+        scale_sigma: the initial standard deviation of VO's scale error (relative).
+        scale_sigma_per_m: how fast the scale error may change, per metre driven.
+    """
+
+    camera: str = "center"
+    health: HealthConfig = field(default_factory=HealthConfig)
+    max_bridge_s: float = 0.5
+    speed_time_constant_s: float = 0.15
+    place_every_m: float = 2.0
+    cross_track_sigma_m: float = 1.0
+    heading_sigma_rad: float = 0.08
+    vo_sigma_per_m: float = 0.05
+    vo_yaw_sigma_per_m: float = 0.02
+    scale_sigma: float = 0.3
+    scale_sigma_per_m: float = 0.01
+
+    def __post_init__(self) -> None:
+        if self.place_every_m <= 0 or self.cross_track_sigma_m <= 0 or self.heading_sigma_rad <= 0:
+            raise ConfigError("mono_localizer.place_every_m, cross_track_sigma_m and heading_sigma_rad must be "
+                              "positive")
+        if min(self.vo_sigma_per_m, self.vo_yaw_sigma_per_m, self.scale_sigma, self.scale_sigma_per_m) <= 0:
+            raise ConfigError("mono_localizer.vo_sigma_per_m, vo_yaw_sigma_per_m, scale_sigma and scale_sigma_per_m "
+                              "must be positive")
+
+
+def place_ground_poses(poses_world_cam: Array, pose_body_cam: Array, origin_world_cam: Array) -> Array:
+    """``(N, 3)`` rear-axle ``x, y, yaw`` of camera poses, in the frame of the body at ``origin_world_cam``."""
+    body_cam_inv = invert_pose(np.asarray(pose_body_cam, float))
+    origin = invert_pose(np.asarray(origin_world_cam, float) @ body_cam_inv)
+    body = origin @ np.asarray(poses_world_cam, float).reshape(-1, 4, 4) @ body_cam_inv
+    return np.column_stack([body[:, 0, 3], body[:, 1, 3], np.arctan2(body[:, 1, 0], body[:, 0, 0])])
+
+
+class MonoLocalizer(PoseTracker):
+    """Holds the VO, the filter's state and covariance, and the recent fixes for the scale."""
+
+    def __init__(self, camera: PinholeCamera, places: PlaceDatabase, vo_config: MonoVOConfig | None = None,
+                 config: MonoLocalizerConfig | None = None) -> None:
+        self.config = config or MonoLocalizerConfig()
+        super().__init__(self.config.max_bridge_s, self.config.speed_time_constant_s)
+        if camera.size_wh != places.camera.size_wh:
+            raise ConfigError(f"the place database is of a {places.camera.size_wh} camera, the kart's "
+                              f"{self.config.camera!r} camera is {camera.size_wh}")
+        vo_config = vo_config or MonoVOConfig()
+        height = float(camera.pose_body_cam_array[2, 3])
+        if height > 0:  # the mount knows the camera's height above the road better than a default
+            vo_config = replace(vo_config, ground=replace(vo_config.ground, camera_height_m=height))
+        self.vo = MonoVO(camera, vo_config)
+        self._camera = camera
+        self.places = places
+        self.body_cam = camera.pose_body_cam_array
+        self._origin = places.poses_world_cam[0]
+        self._x: Array | None = None  # x, y, yaw in the reference frame, and VO's scale factor
+        self._p = np.zeros((4, 4))
+        self._raw: Pose2D | None = None
+        self._raw_stamp_ns = 0
+        self._odometer_m = 0.0
+        self._since_query_m = math.inf
+        self._previous_image: np.ndarray | None = None
+        self.relocalisations = 0  # accepted place fixes
+        self.rejected_fixes = 0
+        self.timing_ms: dict[str, float] = {}
+
+    @property
+    def camera_name(self) -> str:
+        return self.config.camera
+
+    @property
+    def camera(self) -> PinholeCamera:
+        return self._camera
+
+    @property
+    def scale_correction(self) -> float:
+        """The factor VO's steps are multiplied by (learnt from the place fixes)."""
+        return 1.0 if self._x is None else float(self._x[3])
+
+    def close(self) -> None:
+        pass
+
+    def update(self, frames: FrameSet) -> VehiclePose:
+        """The pose at ``frames.stamp_ns``."""
+        image = frames.images.get(self.config.camera)
+        if image is None:
+            return self._bridge(frames.stamp_ns, f"the {self.config.camera} camera delivered nothing")
+        problem = frame_problem(image, self._previous_image, self.config.health)
+        self._previous_image = image
+        if problem:
+            return self._bridge(frames.stamp_ns, f"the {self.config.camera} camera's frame is {problem}")
+        gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+        t0 = time.perf_counter()
+        try:
+            estimate = self.vo.process(frames.index, frames.stamp_ns, gray)
+        except (PerceptionError, OdometryError) as exc:
+            return self._bridge(frames.stamp_ns, str(exc))
+        t1 = time.perf_counter()
+        raw = vo_ground_pose(estimate.pose_world_cam, self.body_cam)
+        vo_step = (0.0, 0.0, 0.0) if self._raw is None else between_2d(self._raw, raw)
+        scale = self.scale_correction
+        step = (vo_step[0] * scale, vo_step[1] * scale, vo_step[2])
+        dt = 0.0 if self._raw is None else (frames.stamp_ns - self._raw_stamp_ns) * 1e-9
+        self._raw, self._raw_stamp_ns = raw, frames.stamp_ns
+        distance = math.hypot(step[0], step[1])
+        self._odometer_m += distance
+        self._since_query_m += distance
+        if self._x is not None:
+            self._predict(vo_step)
+        fixed = False
+        if self._since_query_m >= self.config.place_every_m or self._x is None:
+            fixed = self._fix(self.places.locate(gray, frames.stamp_ns))
+        t2 = time.perf_counter()
+        self.timing_ms["vo"] = self.timing_ms.get("vo", 0.0) + (t1 - t0) * 1e3
+        self.timing_ms["places"] = self.timing_ms.get("places", 0.0) + (t2 - t1) * 1e3
+        if self._x is None:
+            return self._bridge(frames.stamp_ns, "not placed on the reference yet")
+        if estimate.status == "bridged" and not fixed:
+            return self._bridge(frames.stamp_ns, estimate.reason)
+        self._last_ok_ns = frames.stamp_ns
+        pose = (float(self._x[0]), float(self._x[1]), float(self._x[2]))
+        return self._remember(self._with_motion(frames.stamp_ns, pose, step, dt, "ok", ""))
+
+    def _predict(self, vo_step: Pose2D) -> None:
+        """Move by VO's step times the scale factor; the uncertainty grows with the distance."""
+        assert self._x is not None
+        x, y, yaw, scale = self._x
+        c, s = math.cos(yaw), math.sin(yaw)
+        dx, dy = scale * vo_step[0], scale * vo_step[1]
+        jacobian = np.eye(4)
+        jacobian[0, 2], jacobian[1, 2] = -s * dx - c * dy, c * dx - s * dy
+        jacobian[0, 3], jacobian[1, 3] = c * vo_step[0] - s * vo_step[1], s * vo_step[0] + c * vo_step[1]
+        self._x = np.array([*compose_2d((x, y, yaw), (dx, dy, vo_step[2])), scale])
+        cfg, distance = self.config, math.hypot(dx, dy)
+        noise = np.diag([(cfg.vo_sigma_per_m * distance) ** 2] * 2 + [(cfg.vo_yaw_sigma_per_m * distance) ** 2,
+                                                                      (cfg.scale_sigma_per_m * distance) ** 2])
+        self._p = jacobian @ self._p @ jacobian.T + noise
+
+    def _fix(self, fix: PlaceFix) -> bool:
+        """Fold a place fix into the filter; True when it was used."""
+        self._since_query_m = 0.0
+        if not fix.accepted:
+            return False
+        measured = place_ground_poses(fix.pose_world_cam, self.body_cam, self._origin)[0]
+        checked = fix.inliers > 0
+        place_yaw = float(place_ground_poses(self.places.poses_world_cam[fix.place], self.body_cam, self._origin)[0, 2])
+        c, s = math.cos(place_yaw), math.sin(place_yaw)
+        turn = np.array([[c, -s], [s, c]])
+        noise = np.zeros((3, 3))
+        noise[:2, :2] = turn @ np.diag([fix.sigma_m, max(fix.sigma_m, self.config.cross_track_sigma_m)]) ** 2 @ turn.T
+        noise[2, 2] = self.config.heading_sigma_rad ** 2 if checked else math.pi ** 2
+        if self._x is None:  # the first fix places the kart
+            self._x = np.r_[measured, 1.0]
+            self._p = np.zeros((4, 4))
+            self._p[:3, :3] = noise
+            self._p[3, 3] = self.config.scale_sigma ** 2
+            self.relocalisations += 1
+            log.info("placed on the reference at x %.1f m, y %.1f m (place %d)", measured[0], measured[1], fix.place)
+            return True
+        innovation = measured - self._x[:3]
+        innovation[2] = math.remainder(float(innovation[2]), math.tau)
+        covariance = self._p[:3, :3] + noise
+        if float(innovation @ np.linalg.solve(covariance, innovation)) > GATE_CHI2:
+            self.rejected_fixes += 1
+            log.info("place fix %d rejected: %.1f m from the estimate", fix.place, math.hypot(*innovation[:2]))
+            return False
+        gain = self._p[:, :3] @ np.linalg.inv(covariance)
+        self._x = self._x + gain @ innovation
+        self._x[2] = math.remainder(float(self._x[2]), math.tau)
+        self._x[3] = float(np.clip(self._x[3], 0.5, 2.0))
+        self._p = self._p - gain @ self._p[:3, :]
+        self.relocalisations += 1
+        return True
