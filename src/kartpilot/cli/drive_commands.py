@@ -14,6 +14,7 @@ from kartpilot.calibration.rig import load_rig
 from kartpilot.control.path_follow import steer_bias_of_drive
 from kartpilot.core.errors import ConfigError, KartpilotError, RecordingError
 from kartpilot.odometry.localizer import ground_poses
+from kartpilot.odometry.places import load_places
 from kartpilot.odometry.run import run_teach
 from kartpilot.odometry.visual_map import VisualMap, load_visual_map, map_path_for
 from kartpilot.planning.reference_path import (
@@ -104,6 +105,15 @@ def drive(args: argparse.Namespace) -> int:
     vehicle = _drive_vehicle(args)
     path: ReferencePath | None = None
     visual_map = None
+    places = None
+    if args.pipeline == "mono-vo":
+        if not args.places:
+            raise ConfigError("the mono-vo pipeline localises against a place database: give --places (kartpilot "
+                              "places build writes one from a recorded drive)")
+        if not args.sim:
+            raise ConfigError("the mono-vo pipeline runs in the simulator so far (--sim TRACK)")
+        places = load_places(args.places)
+        path = load_reference_path(args.reference) if args.reference else None
     if args.pipeline == "stereo-vo":
         if not args.reference:
             raise ConfigError("the stereo-vo pipeline follows a reference: give --reference (kartpilot reference "
@@ -113,7 +123,8 @@ def drive(args: argparse.Namespace) -> int:
     follow = stack.drive.follow if args.speed is None else replace(stack.drive.follow, max_speed_mps=args.speed)
     drive_config = replace(stack.drive, follow=follow)
     if args.sim:
-        cameras = (vehicle.stereo_pair or ()) if args.pipeline == "stereo-vo" else stack.sim.cameras
+        cameras = {"stereo-vo": vehicle.stereo_pair or (), "mono-vo": (stack.drive.mono.camera,)}.get(
+            args.pipeline, stack.sim.cameras)
         overrides = {"track": args.sim, "vehicle": vehicle.name, "seed": args.seed, "camera_rate_hz": args.rate,
                      "speed_mode_mps": args.speed_mode / 3.6 if args.speed_mode else None}
         sim: SimConfig = replace(stack.sim, cameras=cameras,
@@ -126,6 +137,7 @@ def drive(args: argparse.Namespace) -> int:
             sim, args.pipeline, bus=args.bus or "virtual", duration_s=args.duration,
             injections=[parse_injection(text) for text in args.inject or []], lane_config=stack.lane_policy,
             drive_config=drive_config, vo_config=stack.stereo_vo, reference=path, visual_map=visual_map,
+            places=places, mono_config=stack.mono_vo,
             can_config=stack.can, watchdog_config=stack.watchdogs, supervisor_config=stack.supervisor,
             record_dir=args.record, result_path=args.result, video_path=args.video, drive_log=args.log,
             progress=not args.no_progress)

@@ -161,7 +161,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     drive = sub.add_parser("drive", help="a supervised drive: lanes or stereo-VO, simulated or replayed")
     drive.add_argument("--vehicle", help="rc-kart or sdc-kart (default: sdc-kart for lanes, rc-kart for stereo-vo)")
-    drive.add_argument("--pipeline", choices=("lanes", "stereo-vo"), default="stereo-vo")
+    drive.add_argument("--pipeline", choices=("lanes", "stereo-vo", "mono-vo"), default="stereo-vo",
+                       help="mono-vo: one camera, monocular VO fused with place fixes (--places; --sim only so far)")
+    drive.add_argument("--places", help="mono-vo: the place database of the reference drive (kartpilot places "
+                                        "build); its drive is the reference unless --reference is given")
     drive.add_argument("--reference", help="stereo-vo: a path written by 'kartpilot reference'")
     where = drive.add_mutually_exclusive_group()
     where.add_argument("--sim", metavar="TRACK", help="drive in the simulator on this track")

@@ -39,7 +39,7 @@ from kartpilot.odometry.mono_vo import MonoVO, MonoVOConfig
 from kartpilot.odometry.places import PlaceDatabase, PlaceFix
 from kartpilot.sensors.health import HealthConfig, frame_problem
 
-__all__ = ["MonoLocalizer", "MonoLocalizerConfig", "place_ground_poses"]
+__all__ = ["FixFilter", "MonoLocalizer", "MonoLocalizerConfig", "along_arc", "place_ground_poses"]
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +65,7 @@ class MonoLocalizerConfig:
     health: HealthConfig = field(default_factory=HealthConfig)
     max_bridge_s: float = 0.5
     speed_time_constant_s: float = 0.15
-    place_every_m: float = 2.0
+    place_every_m: float = 1.0
     cross_track_sigma_m: float = 1.0
     heading_sigma_rad: float = 0.08
     vo_sigma_per_m: float = 0.05
@@ -82,12 +82,80 @@ class MonoLocalizerConfig:
                               "must be positive")
 
 
+def along_arc(step: Pose2D) -> Pose2D:
+    """A planar step as a kart can make it: its length along a circular arc with its change of heading.
+
+    A kart does not move sideways (Ackermann steering, no slip at these speeds), so the sideways
+    part of a step is VO's error: the direction of a monocular translation is its least certain
+    part, and at half a metre per frame a few degrees off give decimetres sideways.
+    """
+    forward, sideways, turn = step
+    length = math.copysign(math.hypot(forward, sideways), forward)
+    return length * math.cos(turn / 2), length * math.sin(turn / 2), turn
+
+
 def place_ground_poses(poses_world_cam: Array, pose_body_cam: Array, origin_world_cam: Array) -> Array:
     """``(N, 3)`` rear-axle ``x, y, yaw`` of camera poses, in the frame of the body at ``origin_world_cam``."""
     body_cam_inv = invert_pose(np.asarray(pose_body_cam, float))
     origin = invert_pose(np.asarray(origin_world_cam, float) @ body_cam_inv)
     body = origin @ np.asarray(poses_world_cam, float).reshape(-1, 4, 4) @ body_cam_inv
     return np.column_stack([body[:, 0, 3], body[:, 1, 3], np.arctan2(body[:, 1, 0], body[:, 0, 0])])
+
+
+class FixFilter:
+    """The extended Kalman filter on ``x, y, yaw`` and VO's scale factor ``k`` (see the module's description).
+    Holds only the state and its covariance; empty until :meth:`place` sets the first fix."""
+
+    def __init__(self, config: MonoLocalizerConfig) -> None:
+        self.config = config
+        self.state: Array | None = None
+        self.covariance = np.zeros((4, 4))
+
+    @property
+    def scale(self) -> float:
+        return 1.0 if self.state is None else float(self.state[3])
+
+    def place(self, measured: Array, noise: Array) -> None:
+        """Start at a fix (``x, y, yaw`` and its 3x3 covariance), with the scale factor 1 and ``scale_sigma``."""
+        self.state = np.r_[np.asarray(measured, float), 1.0]
+        self.covariance = np.zeros((4, 4))
+        self.covariance[:3, :3] = noise
+        self.covariance[3, 3] = self.config.scale_sigma ** 2
+
+    def predict(self, vo_step: Pose2D) -> None:
+        """Move by VO's step (in VO's units) times the scale factor; the uncertainty grows with the distance."""
+        assert self.state is not None
+        x, y, yaw, scale = self.state
+        c, s = math.cos(yaw), math.sin(yaw)
+        dx, dy = scale * vo_step[0], scale * vo_step[1]
+        jacobian = np.eye(4)
+        jacobian[0, 2], jacobian[1, 2] = -s * dx - c * dy, c * dx - s * dy
+        jacobian[0, 3], jacobian[1, 3] = c * vo_step[0] - s * vo_step[1], s * vo_step[0] + c * vo_step[1]
+        self.state = np.array([*compose_2d((x, y, yaw), (dx, dy, vo_step[2])), scale])
+        cfg, distance = self.config, math.hypot(dx, dy)
+        noise = np.diag([(cfg.vo_sigma_per_m * distance) ** 2] * 2 + [(cfg.vo_yaw_sigma_per_m * distance) ** 2,
+                                                                      (cfg.scale_sigma_per_m * distance) ** 2])
+        self.covariance = jacobian @ self.covariance @ jacobian.T + noise
+
+    def correct(self, measured: Array, noise: Array) -> bool:
+        """Fold in a fix (``x, y, yaw`` and its covariance); False when the 99.9 % gate rejects it. A heading
+        beyond three sigma is dropped and the position still used: the check's rotation is its least
+        reliable part in bends (two views of a turn a metre apart)."""
+        assert self.state is not None
+        noise = np.array(noise, float)
+        innovation = np.asarray(measured, float) - self.state[:3]
+        innovation[2] = math.remainder(float(innovation[2]), math.tau)
+        if innovation[2] ** 2 > 9.0 * (self.covariance[2, 2] + noise[2, 2]):
+            innovation[2], noise[2, 2] = 0.0, math.pi ** 2
+        covariance = self.covariance[:3, :3] + noise
+        if float(innovation @ np.linalg.solve(covariance, innovation)) > GATE_CHI2:
+            return False
+        gain = self.covariance[:, :3] @ np.linalg.inv(covariance)
+        self.state = self.state + gain @ innovation
+        self.state[2] = math.remainder(float(self.state[2]), math.tau)
+        self.state[3] = float(np.clip(self.state[3], 0.5, 2.0))
+        self.covariance = self.covariance - gain @ self.covariance[:3, :]
+        return True
 
 
 class MonoLocalizer(PoseTracker):
@@ -109,8 +177,7 @@ class MonoLocalizer(PoseTracker):
         self.places = places
         self.body_cam = camera.pose_body_cam_array
         self._origin = places.poses_world_cam[0]
-        self._x: Array | None = None  # x, y, yaw in the reference frame, and VO's scale factor
-        self._p = np.zeros((4, 4))
+        self.filter = FixFilter(self.config)
         self._raw: Pose2D | None = None
         self._raw_stamp_ns = 0
         self._odometer_m = 0.0
@@ -131,7 +198,7 @@ class MonoLocalizer(PoseTracker):
     @property
     def scale_correction(self) -> float:
         """The factor VO's steps are multiplied by (learnt from the place fixes)."""
-        return 1.0 if self._x is None else float(self._x[3])
+        return self.filter.scale
 
     def close(self) -> None:
         pass
@@ -153,44 +220,34 @@ class MonoLocalizer(PoseTracker):
             return self._bridge(frames.stamp_ns, str(exc))
         t1 = time.perf_counter()
         raw = vo_ground_pose(estimate.pose_world_cam, self.body_cam)
-        vo_step = (0.0, 0.0, 0.0) if self._raw is None else between_2d(self._raw, raw)
+        vo_step = (0.0, 0.0, 0.0) if self._raw is None else along_arc(between_2d(self._raw, raw))
         scale = self.scale_correction
-        step = (vo_step[0] * scale, vo_step[1] * scale, vo_step[2])
         dt = 0.0 if self._raw is None else (frames.stamp_ns - self._raw_stamp_ns) * 1e-9
+        if estimate.status == "bridged" and self._last is not None:
+            # VO skipped this frame's motion (it is lost for good: the next frame is matched to this one), so
+            # the motion model stands in for it, in VO's units
+            vo_step = along_arc((self._last.speed_mps * dt / scale, 0.0, self._last.yaw_rate_radps * dt))
+        step = (vo_step[0] * scale, vo_step[1] * scale, vo_step[2])
         self._raw, self._raw_stamp_ns = raw, frames.stamp_ns
         distance = math.hypot(step[0], step[1])
         self._odometer_m += distance
         self._since_query_m += distance
-        if self._x is not None:
-            self._predict(vo_step)
+        if self.filter.state is not None:
+            self.filter.predict(vo_step)
         fixed = False
-        if self._since_query_m >= self.config.place_every_m or self._x is None:
+        if self._since_query_m >= self.config.place_every_m or self.filter.state is None:
             fixed = self._fix(self.places.locate(gray, frames.stamp_ns))
         t2 = time.perf_counter()
         self.timing_ms["vo"] = self.timing_ms.get("vo", 0.0) + (t1 - t0) * 1e3
         self.timing_ms["places"] = self.timing_ms.get("places", 0.0) + (t2 - t1) * 1e3
-        if self._x is None:
+        if self.filter.state is None:
             return self._bridge(frames.stamp_ns, "not placed on the reference yet")
         if estimate.status == "bridged" and not fixed:
             return self._bridge(frames.stamp_ns, estimate.reason)
         self._last_ok_ns = frames.stamp_ns
-        pose = (float(self._x[0]), float(self._x[1]), float(self._x[2]))
+        x, y, yaw, _ = self.filter.state
+        pose = (float(x), float(y), float(yaw))
         return self._remember(self._with_motion(frames.stamp_ns, pose, step, dt, "ok", ""))
-
-    def _predict(self, vo_step: Pose2D) -> None:
-        """Move by VO's step times the scale factor; the uncertainty grows with the distance."""
-        assert self._x is not None
-        x, y, yaw, scale = self._x
-        c, s = math.cos(yaw), math.sin(yaw)
-        dx, dy = scale * vo_step[0], scale * vo_step[1]
-        jacobian = np.eye(4)
-        jacobian[0, 2], jacobian[1, 2] = -s * dx - c * dy, c * dx - s * dy
-        jacobian[0, 3], jacobian[1, 3] = c * vo_step[0] - s * vo_step[1], s * vo_step[0] + c * vo_step[1]
-        self._x = np.array([*compose_2d((x, y, yaw), (dx, dy, vo_step[2])), scale])
-        cfg, distance = self.config, math.hypot(dx, dy)
-        noise = np.diag([(cfg.vo_sigma_per_m * distance) ** 2] * 2 + [(cfg.vo_yaw_sigma_per_m * distance) ** 2,
-                                                                      (cfg.scale_sigma_per_m * distance) ** 2])
-        self._p = jacobian @ self._p @ jacobian.T + noise
 
     def _fix(self, fix: PlaceFix) -> bool:
         """Fold a place fix into the filter; True when it was used."""
@@ -205,25 +262,15 @@ class MonoLocalizer(PoseTracker):
         noise = np.zeros((3, 3))
         noise[:2, :2] = turn @ np.diag([fix.sigma_m, max(fix.sigma_m, self.config.cross_track_sigma_m)]) ** 2 @ turn.T
         noise[2, 2] = self.config.heading_sigma_rad ** 2 if checked else math.pi ** 2
-        if self._x is None:  # the first fix places the kart
-            self._x = np.r_[measured, 1.0]
-            self._p = np.zeros((4, 4))
-            self._p[:3, :3] = noise
-            self._p[3, 3] = self.config.scale_sigma ** 2
+        if self.filter.state is None:  # the first fix places the kart
+            self.filter.place(measured, noise)
             self.relocalisations += 1
             log.info("placed on the reference at x %.1f m, y %.1f m (place %d)", measured[0], measured[1], fix.place)
             return True
-        innovation = measured - self._x[:3]
-        innovation[2] = math.remainder(float(innovation[2]), math.tau)
-        covariance = self._p[:3, :3] + noise
-        if float(innovation @ np.linalg.solve(covariance, innovation)) > GATE_CHI2:
+        if not self.filter.correct(measured, noise):
             self.rejected_fixes += 1
-            log.info("place fix %d rejected: %.1f m from the estimate", fix.place, math.hypot(*innovation[:2]))
+            log.info("place fix %d rejected: %.1f m from the estimate", fix.place,
+                     math.hypot(*(measured[:2] - self.filter.state[:2])))
             return False
-        gain = self._p[:, :3] @ np.linalg.inv(covariance)
-        self._x = self._x + gain @ innovation
-        self._x[2] = math.remainder(float(self._x[2]), math.tau)
-        self._x[3] = float(np.clip(self._x[3], 0.5, 2.0))
-        self._p = self._p - gain @ self._p[:3, :]
         self.relocalisations += 1
         return True

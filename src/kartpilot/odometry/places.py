@@ -293,8 +293,9 @@ class PlaceDatabase:
         if rotation is not None:  # x_place = R x_query: the query camera's orientation is R_world_place @ R
             pose[:3, :3] = pose[:3, :3] @ rotation
         pose[:3, 3] = mean
-        return PlaceFix(stamp_ns, True, "", pose, math.hypot(spread, self.config.spacing_m / 2), best, candidates,
-                        vlad, inliers)
+        # the weighted mean's standard error (Kish's effective count), and half the spacing of the places
+        sigma = math.hypot(spread / math.sqrt(1.0 / float((w * w).sum())), self.config.spacing_m / 2)
+        return PlaceFix(stamp_ns, True, "", pose, sigma, best, candidates, vlad, inliers)
 
     def save(self, path: str | Path) -> Path:
         """Write the database (atomically: a crash leaves the old file or none, never half of one)."""

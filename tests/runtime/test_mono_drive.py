@@ -1,0 +1,51 @@
+"""The mono-vo pipeline closed-loop in the simulator: the SDC kart's centre camera alone, monocular VO fused
+with place fixes from a taught drive, through the supervisor and the CAN layer."""
+
+from dataclasses import replace
+
+import pytest
+
+from kartpilot.cli.main import main
+from kartpilot.control.path_follow import PathFollowConfig
+from kartpilot.odometry.places import build_places
+from kartpilot.planning.reference_path import PathConfig
+from kartpilot.record.recording import RecordingReader
+from kartpilot.runtime.drive import WatchdogConfig
+from kartpilot.runtime.path_policy import DriveConfig
+from kartpilot.runtime.simulate import run_simulation, run_supervised_drive
+from kartpilot.sim.drivers import CenterlineDriverConfig
+from kartpilot.sim.render import RenderConfig
+from kartpilot.sim.simulator import SimConfig
+
+SIM = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0,
+                render=RenderConfig(scenery_spacing_m=15.0))
+
+
+@pytest.mark.slow
+def test_one_camera_follows_the_taught_straight_on_place_fixes(tmp_path):
+    """Taught at 5 m/s over 24 s, repeated for 20 s (about 40 m of the start straight, accelerating from rest)
+    with the thesis's constant throttle. The overrun watchdog is relaxed: this runner takes about 170 ms per
+    monocular step and the simulator waits for it. The first sharp bend (s = 130 m) still defeats it; see the
+    issue's note."""
+    run_simulation(replace(SIM, max_time_s=24.0, seed=1), "centerline",
+                   driver_config=CenterlineDriverConfig(speed_mps=5.0), record_dir=tmp_path / "teach")
+    teach = RecordingReader(tmp_path / "teach")
+    places = build_places(teach.posed_frames("center", teach.camera_poses("center")), teach.cameras["center"],
+                          "center")
+    drive = DriveConfig(path=PathConfig(cruise_speed_mps=5.0, max_lateral_accel_mps2=2.0),
+                        follow=PathFollowConfig(speed_control="constant_throttle", constant_throttle=0.2))
+    run = run_supervised_drive(replace(SIM, seed=2), "mono-vo", bus="virtual", duration_s=20.0, places=places,
+                               drive_config=drive, watchdog_config=WatchdogConfig(overrun_factor=10.0))
+    payload = run.payload
+    print(f"\nmono-vo: {payload['distance_m']:.1f} m, centre offset max {payload['max_center_offset_m']:.2f} m, "
+          f"{payload['relocalised_frames']} place fixes used, {payload['bridged_frames']} bridged")
+    assert run.error is None and not payload["disqualified"]
+    assert payload["final_state"] == "autonomous"
+    assert payload["distance_m"] > 30.0
+    assert payload["relocalised_frames"] >= 20
+    assert payload["max_center_offset_m"] < 1.0
+
+
+def test_the_mono_pipeline_without_a_database_is_a_one_line_error(capsys):
+    assert main(["drive", "--pipeline", "mono-vo", "--sim", "sdc-assen", "--vehicle", "sdc-kart"]) == 1
+    assert "give --places" in capsys.readouterr().err
