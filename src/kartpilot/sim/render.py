@@ -127,6 +127,7 @@ class Renderer:
         buffer.set_clear_color(core.LColor(*(np.array(textures.HAZE_BGR[::-1]) / 255.0), 1))
 
         self.root = core.NodePath("world")
+        self._textures: dict[int, tuple[Image, Any]] = {}  # id -> (the image, kept alive; its texture)
         self._lights = self._make_lights()
         self._background = self.root.attach_new_node("background")
         self._build_world(track, show_cones)
@@ -294,7 +295,11 @@ class Renderer:
         core = self._core
         node = self.root.attach_new_node(geom_node)
         if image is not None:
-            node.set_texture(_texture(core, image))
+            # one Panda3D texture per image, shared by every chunk that shows it: a texture per chunk took
+            # 1.8 GB for sdc-assen, and Panda3D does not give it back when the renderer closes
+            if id(image) not in self._textures:
+                self._textures[id(image)] = (image, _texture(core, image))
+            node.set_texture(self._textures[id(image)][1])
         else:
             node.set_texture_off(10)
         node.set_bin("background", order)
