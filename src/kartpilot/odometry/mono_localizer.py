@@ -180,7 +180,6 @@ class MonoLocalizer(PoseTracker):
         self.filter = FixFilter(self.config)
         self._raw: Pose2D | None = None
         self._raw_stamp_ns = 0
-        self._odometer_m = 0.0
         self._since_query_m = math.inf
         self._previous_image: np.ndarray | None = None
         self.relocalisations = 0  # accepted place fixes
@@ -230,7 +229,6 @@ class MonoLocalizer(PoseTracker):
         step = (vo_step[0] * scale, vo_step[1] * scale, vo_step[2])
         self._raw, self._raw_stamp_ns = raw, frames.stamp_ns
         distance = math.hypot(step[0], step[1])
-        self._odometer_m += distance
         self._since_query_m += distance
         if self.filter.state is not None:
             self.filter.predict(vo_step)
