@@ -127,7 +127,7 @@ class Renderer:
         buffer.set_clear_color(core.LColor(*(np.array(textures.HAZE_BGR[::-1]) / 255.0), 1))
 
         self.root = core.NodePath("world")
-        self._textures: dict[int, tuple[Image, Any]] = {}  # id -> (the image, kept alive; its texture)
+        self._textures: dict[tuple[int, bool], tuple[Image, Any]] = {}  # (id, wrap) -> (image kept alive, texture)
         self._lights = self._make_lights()
         self._background = self.root.attach_new_node("background")
         self._build_world(track, show_cones)
@@ -257,7 +257,7 @@ class Renderer:
                                                            marking.cone_height_m))
                 cones.set_texture_off(10)
         if track.barriers:
-            wall_tex = _texture(core, textures.tyre_wall_texture(seed + 4))
+            wall_tex = self._texture_of(textures.tyre_wall_texture(seed + 4))
             for wall in track.barriers:
                 for (part,) in _chunks(wall):
                     node = solids.attach_new_node(_wall_mesh(core, part, spec.barrier_height_m))
@@ -268,7 +268,7 @@ class Renderer:
             mine = boxes[k::_FACADES]
             if len(mine):
                 node = solids.attach_new_node(_boxes_mesh(core, mine))
-                node.set_texture(_texture(core, textures.facade_texture(seed + 100 + k)))
+                node.set_texture(self._texture_of(textures.facade_texture(seed + 100 + k)))
                 node.set_two_sided(True)
         self._light(solids)
 
@@ -278,7 +278,7 @@ class Renderer:
         radius = self.config.background_radius_m
         lo, hi = textures.HORIZON_BAND_DEG
         band = self._background.attach_new_node(_cylinder_mesh(core, radius, lo, hi))
-        band.set_texture(_texture(core, textures.horizon_band(seed), wrap=False))
+        band.set_texture(self._texture_of(textures.horizon_band(seed), wrap=False))
         elevations = np.array([hi, 12.0, 25.0, 45.0])
         colours = [np.r_[np.array(textures.sky_bgr(e))[::-1] / 255.0, 1.0] for e in elevations]
         for (e0, e1), (c0, c1) in zip(itertools.pairwise(elevations),
@@ -295,11 +295,7 @@ class Renderer:
         core = self._core
         node = self.root.attach_new_node(geom_node)
         if image is not None:
-            # one Panda3D texture per image, shared by every chunk that shows it: a texture per chunk took
-            # 1.8 GB for sdc-assen, and Panda3D does not give it back when the renderer closes
-            if id(image) not in self._textures:
-                self._textures[id(image)] = (image, _texture(core, image))
-            node.set_texture(self._textures[id(image)][1])
+            node.set_texture(self._texture_of(image))
         else:
             node.set_texture_off(10)
         node.set_bin("background", order)
@@ -308,6 +304,14 @@ class Renderer:
         if alpha:
             node.set_transparency(core.TransparencyAttrib.M_alpha)
         self._light(node)
+
+    def _texture_of(self, image: Image, wrap: bool = True) -> Any:
+        """The Panda3D texture of an image, made once and shared by every node that shows it: a texture per
+        track chunk took 1.8 GB for sdc-assen, and Panda3D does not give it back when the renderer closes."""
+        key = (id(image), wrap)
+        if key not in self._textures:
+            self._textures[key] = (image, _texture(self._core, image, wrap))
+        return self._textures[key][1]
 
     def _make_lights(self) -> tuple[Any, Any]:
         core = self._core
