@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,13 +20,10 @@ from kartpilot.sensors.base import StereoSource
 __all__ = ["MonoRun", "OdometryRun", "run_mono_vo", "run_stereo_vo", "run_teach"]
 
 
-@dataclass(frozen=True)
-class OdometryRun:
-    """A VO run: the trajectory, each frame's estimate, and what went wrong where."""
+class _RunCounts:
+    """What every VO run reports: frames bridged, and frames per second over the run's wall time."""
 
-    trajectory: Trajectory
-    estimates: tuple[VOEstimate, ...]
-    unreadable_frames: tuple[int, ...]
+    estimates: Sequence[VOEstimate | MonoEstimate]
     wall_time_s: float
 
     @property
@@ -36,6 +33,16 @@ class OdometryRun:
     @property
     def frames_per_second(self) -> float:
         return len(self.estimates) / self.wall_time_s if self.wall_time_s > 0 else float("nan")
+
+
+@dataclass(frozen=True)
+class OdometryRun(_RunCounts):
+    """A VO run: the trajectory, each frame's estimate, and what went wrong where."""
+
+    trajectory: Trajectory
+    estimates: tuple[VOEstimate, ...]
+    unreadable_frames: tuple[int, ...]
+    wall_time_s: float
 
     def stage_ms(self) -> dict[str, float]:
         """Mean milliseconds per stage over the frames that ran every stage."""
@@ -101,7 +108,7 @@ def run_teach(source: StereoSource, pose_body_cam: Array, config: StereoVOConfig
 
 
 @dataclass(frozen=True)
-class MonoRun:
+class MonoRun(_RunCounts):
     """A monocular VO run: the trajectory (metres, from the ground plane) and each frame's estimate."""
 
     trajectory: Trajectory
@@ -111,18 +118,14 @@ class MonoRun:
     timing_ms: dict[str, float]
 
     @property
-    def bridged_frames(self) -> int:
-        return sum(1 for e in self.estimates if e.status == "bridged")
-
-    @property
     def scale_source(self) -> str:
         return self.estimates[-1].scale_source if self.estimates else ""
 
     def summary(self) -> str:
         road = [e.road_inliers for e in self.estimates if e.status == "ok"]
-        fps = len(self.estimates) / self.wall_time_s if self.wall_time_s > 0 else float("nan")
         return (f"{len(self.estimates)} frames, {self.bridged_frames} bridged, {len(self.unreadable_frames)} "
-                f"unreadable, median road inliers {int(np.median(road)) if road else 0}, {fps:.1f} frames/s; "
+                f"unreadable, median road inliers {int(np.median(road)) if road else 0}, "
+                f"{self.frames_per_second:.1f} frames/s; "
                 f"scale from the {self.scale_source}")
 
 
