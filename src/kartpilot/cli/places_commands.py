@@ -5,12 +5,11 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import math
 import time
 from pathlib import Path
 
 from kartpilot.core.errors import ConfigError, DataError
-from kartpilot.core.trajectory import read_trajectory
+from kartpilot.core.trajectory import Trajectory, read_trajectory
 from kartpilot.eval.places import evaluate_places
 from kartpilot.odometry.places import PlaceFix, build_places, load_places
 from kartpilot.record.recording import RecordingReader
@@ -44,8 +43,7 @@ def places_build(args: argparse.Namespace) -> int:
     database = build_places(reader.posed_frames(camera, poses), reader.cameras[camera], camera, config,
                             {"recording": str(args.recording), "positions": source})
     path = database.save(args.out)
-    travelled = float(sum(math.dist(a[:3, 3], b[:3, 3])
-                          for a, b in zip(database.poses_world_cam[:-1], database.poses_world_cam[1:], strict=True)))
+    travelled = Trajectory.from_poses(database.poses_world_cam).path_length_m
     print(f"{len(database)} places over {travelled:.0f} m of the {camera} camera, positions from {source}; "
           f"{config.vlad.words} words, {database.vectors.shape[1]}-dimensional vectors; "
           f"{path.stat().st_size / 1e6:.1f} MB in {time.perf_counter() - start:.0f} s -> {path}")

@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import IO, Any
 
 import cv2
+import numpy as np
 
 from kartpilot.calibration.rectify import stereo_setup
 from kartpilot.core.camera import PinholeCamera, StereoRig, camera_from_dict, camera_to_dict
@@ -435,7 +436,7 @@ class RecordingReader:
         frames without one are left out. An unreadable image raises DataError naming it."""
         if camera not in self.cameras:
             raise RecordingError(f"the recording has no camera {camera!r} (has {', '.join(self.cameras)})")
-        stamps = [round(t * 1e9) for t in poses.stamps_s]
+        stamps = np.round(poses.stamps_s * 1e9).astype(np.int64)  # once, not per frame
         for stamp_ns, path in self.frames(camera):
             index = nearest_within(stamp_ns, stamps, round(max_gap_s * 1e9))
             if index is not None:

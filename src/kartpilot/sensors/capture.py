@@ -28,6 +28,7 @@ from typing import Any, Protocol
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from kartpilot.calibration.rig import Rig
 from kartpilot.core.camera import CaptureSettings
@@ -105,9 +106,9 @@ def open_capture(settings: CaptureSettings, width_px: int, height_px: int) -> cv
     return capture
 
 
-def nearest_within(reference_ns: int, stamps: Sequence[int], tolerance_ns: int) -> int | None:
+def nearest_within(reference_ns: int, stamps: Sequence[int] | NDArray[np.int64], tolerance_ns: int) -> int | None:
     """The index of the stamp nearest ``reference_ns``, if it is within ``tolerance_ns``."""
-    if not stamps:
+    if len(stamps) == 0:
         return None
     distances = np.abs(np.asarray(stamps, np.int64) - reference_ns)
     best = int(np.argmin(distances))
