@@ -106,13 +106,10 @@ def drive(args: argparse.Namespace) -> int:
     path: ReferencePath | None = None
     visual_map = None
     places = None
-    if args.pipeline == "mono-vo":
-        if not args.places:
-            raise ConfigError("the mono-vo pipeline localises against a place database: give --places (kartpilot "
-                              "places build writes one from a recorded drive)")
+    if args.pipeline == "mono-vo":  # without --places, the simulated drive says what is missing
         if not args.sim:
             raise ConfigError("the mono-vo pipeline runs in the simulator so far (--sim TRACK)")
-        places = load_places(args.places)
+        places = load_places(args.places) if args.places else None
         path = load_reference_path(args.reference) if args.reference else None
     if args.pipeline == "stereo-vo":
         if not args.reference:
