@@ -9,7 +9,7 @@ import pytest
 
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import DataError, PerceptionError
-from kartpilot.odometry.places import PlacesConfig, build_places, load_places, place_mask
+from kartpilot.odometry.places import PlacesConfig, build_places, load_places
 from kartpilot.perception.vlad import VladConfig
 
 CAMERA = PinholeCamera(300.0, 300.0, 159.5, 119.5, 320, 240)  # level: the ground starts below row 120
@@ -49,14 +49,6 @@ def _assert_same_fix(a, b) -> None:
 def database():
     return build_places(((k * 10**8, _place_image(k), _pose(k * 1.5)) for k in range(20)), CAMERA, "center",
                         CONFIG, {"positions": "test"})
-
-
-def test_the_mask_leaves_out_the_near_ground_only():
-    mask = place_mask(CAMERA, 8.0)
-    # level camera, 8 heights: straight ahead, the ground nearer than that is below 300 / 8 = 37.5 px under
-    # the horizon; to the sides the same distance comes sooner
-    assert mask[:157].all() and not mask[158:, 159].any() and not mask[170:].any()
-    assert place_mask(CAMERA, 0.0).all()
 
 
 def test_each_place_is_found_again_and_its_position_given(database):

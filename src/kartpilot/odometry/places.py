@@ -45,12 +45,12 @@ from kartpilot.core.config import config_to_dict, merge_config
 from kartpilot.core.errors import ConfigError, DataError, KartpilotError, PerceptionError
 from kartpilot.core.geometry import Array
 from kartpilot.core.types import Image
-from kartpilot.odometry.mono_vo import ground_normal_prior
+from kartpilot.odometry.mono_vo import beyond_ground_mask
 from kartpilot.perception.features import Features, create_detector, detect_features
 from kartpilot.perception.vlad import Pca, VladConfig, fit_pca, project_pca, train_vocabulary, vlad_vector
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "PlaceDatabase", "PlaceFix", "PlacesConfig", "build_places",
-           "load_places", "place_mask"]
+           "load_places"]
 
 FORMAT = "kartpilot-places"
 FORMAT_VERSION = 1
@@ -127,21 +127,6 @@ class PlaceFix:
         return self.pose_world_cam[:3, 3]
 
 
-def place_mask(camera: PinholeCamera, ignore_ground_heights: float) -> NDArray[np.uint8]:
-    """255 where features are used: everything but the ground nearer than ``ignore_ground_heights``
-    camera heights (the ground's direction from the camera's mount, level without one)."""
-    mask = np.full((camera.height_px, camera.width_px), 255, np.uint8)
-    if ignore_ground_heights <= 0:
-        return mask
-    u, v = np.meshgrid(np.arange(camera.width_px), np.arange(camera.height_px))
-    rays = np.stack([(u - camera.cx_px) / camera.fx_px, (v - camera.cy_px) / camera.fy_px, np.ones(u.shape)], -1)
-    down = rays @ ground_normal_prior(camera)
-    with np.errstate(divide="ignore"):
-        distance_in_heights = np.where(down > 0, np.linalg.norm(rays, axis=-1) / down, np.inf)
-    mask[distance_in_heights < ignore_ground_heights] = 0
-    return mask
-
-
 class _Describer:
     """The detector and mask for one camera: image -> features. Only the mask's bounding box is searched
     (the near road is most of the image's lower part)."""
@@ -149,7 +134,7 @@ class _Describer:
     def __init__(self, camera: PinholeCamera, config: PlacesConfig) -> None:
         self.config = config
         self.detector, self.binary = create_detector(config.vlad.features)
-        self.mask = place_mask(camera, config.ignore_ground_heights)
+        self.mask = beyond_ground_mask(camera, config.ignore_ground_heights)
         self.size_wh = camera.size_wh
         rows, cols = np.flatnonzero(self.mask.any(1)), np.flatnonzero(self.mask.any(0))
         if len(rows) < 16 or len(cols) < 16:
