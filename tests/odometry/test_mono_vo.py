@@ -17,7 +17,6 @@ from kartpilot.odometry.mono_vo import (
     MonoVOConfig,
     arc_step,
     beyond_ground_mask,
-    fit_arc_yaw,
     fit_ground_homography,
     ground_normal_prior,
     ground_region,
@@ -88,31 +87,46 @@ def test_an_arc_step_moves_the_camera_along_the_kart_s_heading_and_turns_it_abou
     assert math.hypot(body[0, 3], body[1, 3]) == pytest.approx(0.5) and body[2, 3] == pytest.approx(0.0)
 
 
-@pytest.mark.parametrize("yaw_deg", [-4.0, -0.3, 0.0, 1.7, 6.0])
-def test_the_arc_s_turn_is_found_among_outliers_and_noise(yaw_deg):
-    """A kart's camera (1.2 m ahead of the rear axle, 0.6 m up, pitched 12 degrees) driving 0.5 m: points 8
-    to 60 m away, 0.3 px of noise, and 30 % of the tracks wrong by up to 15 px."""
-    camera = PinholeCamera(480.0, 480.0, 319.5, 239.5, 640, 480,
-                           pose_body_cam=mount_pose(1.2, 0.0, 0.6, pitch_down_deg=12.0))
-    mount = camera.pose_body_cam_array
-    rng = np.random.default_rng(7)
-    body_points = np.stack([rng.uniform(8, 60, 500), rng.uniform(-25, 25, 500), rng.uniform(-0.6, 6, 500)], 1)
-    points = transform_points(np.linalg.inv(mount), body_points)
-    step = arc_step(math.radians(yaw_deg), 0.5, mount)
-    p0 = camera.project(points)
-    p1 = camera.project(transform_points(np.linalg.inv(step), points))
-    p0, p1 = (p + rng.normal(0, 0.3, p.shape) for p in (p0, p1))
-    wrong = rng.random(len(p1)) < 0.3
-    p1[wrong] += rng.uniform(-15, 15, (int(wrong.sum()), 2))
-    yaw, inliers = fit_arc_yaw(p0.astype(np.float32), p1.astype(np.float32), camera.matrix, mount, 0.5,
-                               math.radians(12), 1.0)
-    assert math.degrees(yaw) == pytest.approx(yaw_deg, abs=0.03)
-    assert inliers[~wrong].mean() > 0.9 and inliers[wrong].mean() < 0.2
+KART = PinholeCamera(480.0, 480.0, 319.5, 239.5, 640, 480, pose_body_cam=mount_pose(1.2, 0.0, 0.6, pitch_down_deg=12.0))
+
+
+def _road_view(texture: np.ndarray, body_pose: np.ndarray, metres_per_px: float) -> np.ndarray:
+    """The kart camera's view of a flat textured road (texture pixel (u, v) at x = u * res - 5, y = v * res - 20
+    on the ground), with the rear axle at ``body_pose``."""
+    cam_from_world = np.linalg.inv(body_pose @ KART.pose_body_cam_array)
+    ground_to_image = KART.matrix @ cam_from_world[:3][:, [0, 1, 3]]
+    texture_to_ground = np.array([[metres_per_px, 0.0, -5.0], [0.0, metres_per_px, -20.0], [0.0, 0.0, 1.0]])
+    return cv2.warpPerspective(texture, ground_to_image @ texture_to_ground, (640, 480), flags=cv2.INTER_LINEAR)
+
+
+@pytest.mark.parametrize(("yaw_deg", "length_m"), [(0.0, 0.5), (-1.1, 0.5), (2.5, 0.3), (0.4, 1.2), (0.0, 0.0)])
+def test_the_arc_step_is_found_by_aligning_the_road(yaw_deg, length_m):
+    rng = np.random.default_rng(4)
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (4000, 4000)).astype(np.float32), (0, 0), 2.0)
+    texture = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    step = arc_step(math.radians(yaw_deg), length_m, np.eye(4))  # the rear axle's own motion
+    before, after = (_road_view(texture, pose, 0.01) for pose in (np.eye(4), step))
+    vo = MonoVO(KART, MonoVOConfig(ground=GroundConfig(camera_height_m=0.6)))
+    assert vo.process(0, 0, before).status == "init"
+    estimate = vo.process(1, 10**8, after)
+    assert estimate.status == "ok"
+    body = KART.pose_body_cam_array @ estimate.pose_world_cam @ np.linalg.inv(KART.pose_body_cam_array)
+    print(f"true {yaw_deg:+.2f} deg {length_m:.3f} m; found {math.degrees(math.atan2(body[1, 0], body[0, 0])):+.3f} "
+          f"deg {math.hypot(body[0, 3], body[1, 3]):.4f} m")
+    assert math.degrees(math.atan2(body[1, 0], body[0, 0])) == pytest.approx(yaw_deg, abs=0.05)
+    assert math.hypot(body[0, 3], body[1, 3]) == pytest.approx(length_m, abs=0.01 + 0.01 * length_m)
+
+
+def test_a_blank_road_gives_no_arc_step():
+    vo = MonoVO(KART, MonoVOConfig(ground=GroundConfig(camera_height_m=0.6)))
+    grey = np.full((480, 640), 90, np.uint8)
+    vo.process(0, 0, grey)
+    estimate = vo.process(1, 10**8, grey)
+    assert estimate.status == "bridged" and "no texture" in estimate.reason
 
 
 def test_vo_uses_the_arc_for_a_mounted_camera_and_the_general_motion_without_a_mount():
-    mounted = PinholeCamera(480.0, 480.0, 319.5, 239.5, 640, 480,
-                            pose_body_cam=mount_pose(1.2, 0.0, 0.6, pitch_down_deg=12.0))
+    mounted = KART
     assert MonoVO(mounted, MonoVOConfig(ground=GroundConfig(camera_height_m=0.6))).arc
     assert not MonoVO(CAMERA, MonoVOConfig()).arc
     assert not MonoVO(mounted, MonoVOConfig(motion="general", ground=GroundConfig(camera_height_m=0.6))).arc

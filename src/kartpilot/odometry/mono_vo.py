@@ -32,6 +32,7 @@ also gives the prior of the plane's normal; the normal itself is then estimated.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import time
@@ -48,7 +49,7 @@ from kartpilot.core.geometry import Array
 from kartpilot.core.types import Image
 from kartpilot.perception.tracking import KltConfig, track_klt
 
-__all__ = ["GroundConfig", "MonoEstimate", "MonoVO", "MonoVOConfig", "arc_step", "beyond_ground_mask", "fit_arc_yaw",
+__all__ = ["GroundConfig", "MonoEstimate", "MonoVO", "MonoVOConfig", "align_road_arc", "arc_step", "beyond_ground_mask",
            "fit_ground_homography", "ground_normal_prior", "ground_region", "level_mount", "relative_pose"]
 
 log = logging.getLogger(__name__)
@@ -102,17 +103,18 @@ class MonoVOConfig:
         ransac_px, ransac_confidence: the essential matrix's RANSAC.
         min_inliers: fewer inliers bridge the frame.
         min_flow_px: a median flow below this is a standing camera (no motion, no scale).
-        motion: ``arc``: the vehicle's motion between frames is an arc of a circle on the road, fitted to the
-            tracks by its one angle (see :func:`fit_arc_yaw`); ``general``: the essential matrix's five degrees of
-            freedom, as in the thesis; ``auto``: the arc for a camera with a mount (its place on the body makes the
-            arc exact), the general motion without one (KITTI's cameras: 1.2 % end drift on sequence 06, against
-            3 to 4 % with an arc about a guessed axle).
-        max_yaw_step_deg: the arc's turn between two frames is searched within this.
-        arc_ignore_ground_heights: with the arc, corners on the ground nearer than this many camera heights are not
-            tracked. The turn is measured best far away, where a view moves by the turn alone; the near road
-            changes its shape from frame to frame (foreshortening), which pulls KLT's square windows along its
-            flow, and at 1 px those biased tracks outvote the far ones in a bend. (The road still gives the
-            scale, with its own tracks.)
+        motion: ``arc``: the vehicle's motion between frames is an arc of a circle on the road, its turn and
+            length aligned directly on the road (see :func:`align_road_arc`); ``general``: the essential
+            matrix's five degrees of freedom with the road's scale, as in the thesis; ``auto``: the arc for a
+            camera with a mount (its place on the body makes the arc exact), the general motion without one
+            (KITTI's cameras).
+        max_yaw_step_deg: the arc's turn between two frames is searched within this (when the search starts
+            afresh; after that near the last step).
+        max_step_heights: the longest arc step between two frames, in camera heights (3 m, 30 m/s at 10 Hz on the kart).
+        max_alignment_ratio: an arc step whose road alignment costs more than this times the search's median cost
+            is no clear minimum: the frame is bridged.
+        min_road_contrast: a road region whose grey levels vary less than this (standard deviation) is blank
+            (a black or covered lens, fog): the frame is bridged.
     """
 
     corners: int = 3000
@@ -125,15 +127,17 @@ class MonoVOConfig:
     min_flow_px: float = 0.5
     ground: GroundConfig = field(default_factory=GroundConfig)
     motion: Literal["auto", "arc", "general"] = "auto"
-    max_yaw_step_deg: float = 12.0
-    arc_ignore_ground_heights: float = 20.0
+    max_yaw_step_deg: float = 6.0
+    max_step_heights: float = 5.0
+    max_alignment_ratio: float = 0.9
+    min_road_contrast: float = 2.0
     seed: int = 0
 
     def __post_init__(self) -> None:
         if self.motion not in ("auto", "arc", "general"):
             raise ConfigError(f"mono_vo.motion must be 'auto', 'arc' or 'general', got {self.motion!r}")
-        if self.max_yaw_step_deg <= 0 or self.arc_ignore_ground_heights < 0:
-            raise ConfigError("mono_vo.max_yaw_step_deg must be positive and arc_ignore_ground_heights not negative")
+        if min(self.max_yaw_step_deg, self.max_step_heights, self.max_alignment_ratio) <= 0:
+            raise ConfigError("mono_vo.max_yaw_step_deg, max_step_heights and max_alignment_ratio must be positive")
 
 
 @dataclass(frozen=True)
@@ -184,49 +188,91 @@ def arc_step(yaw_rad: float, length_m: float, pose_body_cam: Array) -> Array:
     return np.linalg.inv(pose_body_cam) @ body @ pose_body_cam
 
 
-def _sampson_px(x0: Array, x1: Array, steps: Array, focal_px: float) -> Array:
-    """Sampson distances in pixels (``(G, N)``) of normalised rays ``x0 -> x1`` under each of ``G`` camera
-    poses after the step (``(G, 4, 4)``, as :func:`arc_step`)."""
-    inverse = np.linalg.inv(steps)
-    rotation, t = inverse[:, :3, :3], inverse[:, :3, 3]
-    t = t / np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
-    skew = np.zeros_like(rotation)
-    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -t[:, 2], t[:, 1], -t[:, 0]
-    skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = t[:, 2], -t[:, 1], t[:, 0]
-    essential = skew @ rotation
-    line1 = np.einsum("gij,nj->gni", essential, x0)
-    line0 = np.einsum("gji,nj->gni", essential, x1)
-    residual = np.einsum("ni,gni->gn", x1, line1)
-    norm = line1[..., 0] ** 2 + line1[..., 1] ** 2 + line0[..., 0] ** 2 + line0[..., 1] ** 2
-    return focal_px * np.abs(residual) / np.sqrt(np.maximum(norm, 1e-18))
+@dataclass(frozen=True)
+class RoadLevel:
+    """The road region at one image scale: the scaled camera matrix and the region's mask and bounding box."""
+
+    scale: float
+    camera_matrix: Array
+    mask: NDArray[np.bool_]
+    box: tuple[int, int, int, int]  # rows r0:r1, columns c0:c1
 
 
-def fit_arc_yaw(p0: F32, p1: F32, camera_matrix: Array, pose_body_cam: Array, length_m: float,
-                max_yaw_rad: float, threshold_px: float) -> tuple[float, NDArray[np.bool_]]:
-    """The turn of an arc step of ``length_m`` (negative: reversing) that best explains tracks ``p0 -> p1``,
-    and its inliers (Sampson distance within ``threshold_px``).
+def road_levels(camera: PinholeCamera, region: NDArray[np.uint8], scales: tuple[float, ...]) -> list[RoadLevel]:
+    """The road region at each image scale (coarse first), for :func:`align_road_arc`."""
+    levels = []
+    for scale in scales:
+        k = camera.matrix.copy()
+        k[:2] *= scale
+        k[:2, 2] = (camera.matrix[:2, 2] + 0.5) * scale - 0.5
+        size = (round(camera.width_px * scale), round(camera.height_px * scale))
+        mask = cv2.resize(region, size, interpolation=cv2.INTER_NEAREST) > 0
+        rows, cols = np.flatnonzero(mask.any(1)), np.flatnonzero(mask.any(0))
+        if len(rows) == 0:
+            raise ConfigError("the road region ahead is hardly in the image: check the camera's height and mount")
+        box = (int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1)
+        levels.append(RoadLevel(scale, k, mask[box[0]:box[1], box[2]:box[3]], box))
+    return levels
 
-    The one-parameter motion model of a wheeled vehicle (Scaramuzza, "1-point RANSAC", 2009), with the camera's
-    mount: where the general essential matrix trades a turn for a sideways translation (the two look alike
-    through a narrow lens), the arc has no sideways translation to trade. The turn is searched exhaustively
-    on a 0.25 degree grid with a truncated quadratic cost (every track votes, outliers count a constant), then
-    refined on the inliers."""
-    k_inv = np.linalg.inv(camera_matrix)
-    x0 = np.c_[p0, np.ones(len(p0))] @ k_inv.T
-    x1 = np.c_[p1, np.ones(len(p1))] @ k_inv.T
-    focal = float(camera_matrix[0, 0])
 
-    def cost(yaws: Array) -> Array:
-        steps = np.array([arc_step(float(y), length_m, pose_body_cam) for y in yaws])
-        return np.minimum(_sampson_px(x0, x1, steps, focal), threshold_px) ** 2
+def road_image(image: Image, level: RoadLevel) -> NDArray[np.float32]:
+    """The image at a level's scale, smoothed, as float (the whole image: a warp reads outside the box)."""
+    size = (round(image.shape[1] * level.scale), round(image.shape[0] * level.scale))
+    small = image if level.scale == 1 else cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    return cv2.GaussianBlur(small, (3, 3), 0).astype(np.float32)
 
-    grid_step = math.radians(0.25)
-    grid = np.arange(-max_yaw_rad, max_yaw_rad + grid_step / 2, grid_step)
-    best = float(grid[int(np.argmin(cost(grid).sum(1)))])
-    fine = np.linspace(best - grid_step, best + grid_step, 21)
-    best = float(fine[int(np.argmin(cost(fine).sum(1)))])
-    inliers = cost(np.array([best]))[0] < threshold_px ** 2
-    return best, inliers
+
+def road_alignment_cost(previous: NDArray[np.float32], current: NDArray[np.float32], level: RoadLevel,
+                        pose_after: Array, normal: Array, height_m: float) -> float:
+    """Mean absolute grey-level difference between the previous image's road and the current image pulled back
+    through the road plane's homography for the camera motion ``pose_after`` (metric); inf when the warp
+    leaves too little of the road in view."""
+    inverse = np.linalg.inv(pose_after)
+    k = level.camera_matrix
+    homography = k @ (inverse[:3, :3] + np.outer(inverse[:3, 3], normal) / height_m) @ np.linalg.inv(k)
+    r0, r1, c0, c1 = level.box
+    shift = np.array([[1.0, 0.0, c0], [0.0, 1.0, r0], [0.0, 0.0, 1.0]])
+    warped = cv2.warpPerspective(current, homography @ shift, (c1 - c0, r1 - r0),
+                                 flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderValue=-1e4)
+    valid = level.mask & (warped >= 0)
+    if int(valid.sum()) < 0.3 * int(level.mask.sum()):
+        return math.inf
+    return float(np.abs(warped[valid] - previous[r0:r1, c0:c1][valid]).mean())
+
+
+def align_road_arc(previous: list[NDArray[np.float32]], current: list[NDArray[np.float32]], levels: list[RoadLevel],
+                   pose_body_cam: Array, normal: Array, height_m: float, yaw_grid: Array, length_grid: Array
+                   ) -> tuple[float, float, float]:
+    """The arc step (turn, length in metres) that best aligns the road between two frames, and its cost
+    over the median cost of the coarse grid (well below 1 for a clear minimum).
+
+    The road ahead is a plane at the camera's known height, so an arc step predicts where every road
+    pixel goes (the plane-induced homography): its length shows in the road's expansion, its turn in its
+    sideways shift. Aligning the whole region directly needs no tracks, whose square windows the road's
+    foreshortening pulls along the flow. The grid is searched on the coarsest level, then refined four
+    times on the finest, halving the steps."""
+    def cost(level: int, yaw: float, length: float) -> float:
+        return road_alignment_cost(previous[level], current[level], levels[level],
+                                   arc_step(yaw, length, pose_body_cam), normal, height_m)
+
+    coarse = np.array([[cost(0, float(y), float(d)) for d in length_grid] for y in yaw_grid])
+    i, j = np.unravel_index(int(np.argmin(coarse)), coarse.shape)
+    yaw, length, best = float(yaw_grid[i]), float(length_grid[j]), float(coarse[i, j])
+    yaw_step = float(yaw_grid[1] - yaw_grid[0]) if len(yaw_grid) > 1 else math.radians(0.5)
+    length_step = float(length_grid[1] - length_grid[0]) if len(length_grid) > 1 else 0.05 * height_m
+    finest = len(levels) - 1
+    best = cost(finest, yaw, length)
+    for _ in range(4):
+        yaw_step, length_step = yaw_step / 2, length_step / 2
+        for dy, dl in itertools.product((-1, 0, 1), (-1, 0, 1)):
+            candidate = (yaw + dy * yaw_step, max(length + dl * length_step, 0.0))
+            value = cost(finest, *candidate)
+            if value < best:
+                best, (yaw, length) = value, candidate
+    finite = coarse[np.isfinite(coarse)]
+    typical = float(np.median(finite)) if len(finite) else 0.0
+    quality = float(coarse[i, j]) / typical if typical > 0 else math.inf  # a blank road aligns everywhere
+    return yaw, length, quality
 
 
 def _points_motion(pose_after: Array) -> tuple[Array, Array]:
@@ -345,10 +391,12 @@ class MonoVO:
         self._mount = level_mount(camera)
         self.arc = self.config.motion == "arc" or (self.config.motion == "auto"
                                                    and not np.allclose(camera.pose_body_cam_array, np.eye(4)))
-        self._corner_mask = beyond_ground_mask(camera, self.config.arc_ignore_ground_heights) if self.arc else None
         self._road_mask = ground_region(camera, self._prior_normal, self.config.ground)
         if int(np.count_nonzero(self._road_mask)) < 0.01 * camera.width_px * camera.height_px:
             raise ConfigError("the road region ahead is hardly in the image: check the camera's height and mount")
+        self._levels = road_levels(camera, self._road_mask, (0.25, 0.5)) if self.arc else []
+        self._road_images: list[NDArray[np.float32]] | None = None
+        self._last_arc: tuple[float, float] | None = None
         self.timing_ms: dict[str, float] = {"track": 0.0, "pose": 0.0, "ground": 0.0}
         self.frames = 0
         self.bridged = 0
@@ -378,11 +426,13 @@ class MonoVO:
         self.frames += 1
         previous, self._previous = self._previous, gray
         if previous is None:
+            self._road_images = [road_image(gray, level) for level in self._levels]
             return self._estimate(index, stamp_ns, "init", "")
+        if self.arc:
+            return self._arc(index, stamp_ns, gray)
         cfg = self.config
         t0 = time.perf_counter()
-        corners = cv2.goodFeaturesToTrack(previous, cfg.corners, cfg.corner_quality, cfg.corner_spacing_px,
-                                          mask=self._corner_mask)
+        corners = cv2.goodFeaturesToTrack(previous, cfg.corners, cfg.corner_quality, cfg.corner_spacing_px)
         if corners is None:
             return self._estimate(index, stamp_ns, "bridged", "no corners in the image")
         p0 = corners.reshape(-1, 2).astype(np.float32)
@@ -392,40 +442,61 @@ class MonoVO:
         self.timing_ms["track"] += (t1 - t0) * 1e3
         if len(p0) < cfg.min_inliers:
             return self._estimate(index, stamp_ns, "bridged", f"{len(p0)} tracks")
-        flow = np.linalg.norm(p1 - p0, axis=1)
-        # the far tracks (with the arc) hardly move on a straight, the near ones at the sides do
-        if float(np.percentile(flow, 90 if self.arc else 50)) < cfg.min_flow_px:
+        if float(np.median(np.linalg.norm(p1 - p0, axis=1))) < cfg.min_flow_px:
             return self._estimate(index, stamp_ns, "ok", "standing", len(p0))
-        if self.arc:  # driving forward; before the first scale, a step of one camera height stands in for the length
-            length = self.scale_m if self.scale_m > 0 else cfg.ground.camera_height_m
-            yaw, inliers = fit_arc_yaw(p0, p1, self.k, self._mount, length, math.radians(cfg.max_yaw_step_deg),
-                                       cfg.ransac_px)
-            rotation, t = _points_motion(arc_step(yaw, length, self._mount))
-        else:
-            motion = relative_pose(p0, p1, self.k, cfg.ransac_px, cfg.ransac_confidence)
-            if motion is None:
-                return self._estimate(index, stamp_ns, "bridged", "no essential matrix")
-            rotation, t, inliers = motion
+        motion = relative_pose(p0, p1, self.k, cfg.ransac_px, cfg.ransac_confidence)
         t2 = time.perf_counter()
         self.timing_ms["pose"] += (t2 - t1) * 1e3
-        if int(inliers.sum()) < cfg.min_inliers:
-            return self._estimate(index, stamp_ns, "bridged", f"{int(inliers.sum())} inliers to the motion")
+        if motion is None or int(motion[2].sum()) < cfg.min_inliers:
+            return self._estimate(index, stamp_ns, "bridged", "no essential matrix with enough inliers")
+        rotation, t, inliers = motion
         road = self._ground(previous, gray, rotation, t)
         self.timing_ms["ground"] += (time.perf_counter() - t2) * 1e3
         if self.scale_m <= 0:
             return self._estimate(index, stamp_ns, "bridged", "no ground plane seen yet: no scale",
                                   int(inliers.sum()), road)
-        if self.arc:
-            # the arc whose camera translation has the scale's length (the mount's lever arm makes it a little
-            # longer or shorter than the rear axle's chord)
-            for _ in range(2):
-                length *= self.scale_m / float(np.linalg.norm(arc_step(yaw, length, self._mount)[:3, 3]))
-            self._pose = self._pose @ arc_step(yaw, length, self._mount)
-        else:
-            step = np.eye(4)
-            step[:3, :3], step[:3, 3] = rotation, t * self.scale_m
-            self._pose = self._pose @ np.linalg.inv(step)
+        step = np.eye(4)
+        step[:3, :3], step[:3, 3] = rotation, t * self.scale_m
+        self._pose = self._pose @ np.linalg.inv(step)
         return self._estimate(index, stamp_ns, "ok", "", int(inliers.sum()), road)
+
+    def _arc(self, index: int, stamp_ns: int, gray: Image) -> MonoEstimate:
+        """One arc step, aligned on the road (:func:`align_road_arc`); searched near the last step, or over
+        the whole range at the start, after a bridged frame, or when the best lies on the window's edge."""
+        cfg, g = self.config, self.config.ground
+        t0 = time.perf_counter()
+        previous, self._road_images = self._road_images, [road_image(gray, level) for level in self._levels]
+        assert previous is not None
+        last = self._last_arc
+        self._last_arc = None
+        result = None
+        if last is not None:
+            yaw_grid = last[0] + np.radians(np.arange(-2.0, 2.01, 0.5))
+            spread = 0.4 * last[1] + 0.05 * g.camera_height_m
+            length_grid = np.linspace(max(last[1] - spread, 0.0), last[1] + spread, 9)
+            result = align_road_arc(previous, self._road_images, self._levels, self._mount, self._prior_normal,
+                                    g.camera_height_m, yaw_grid, length_grid)
+            edge = (abs(result[0] - last[0]) > math.radians(1.9) or not length_grid[0] + 1e-9 < result[1]
+                    or result[1] > length_grid[-1] - 1e-9)
+            if edge and result[1] > 0:
+                result = None
+        if result is None:
+            wide = math.radians(cfg.max_yaw_step_deg)
+            result = align_road_arc(previous, self._road_images, self._levels, self._mount, self._prior_normal,
+                                    g.camera_height_m, np.arange(-wide, wide + 1e-9, math.radians(0.5)),
+                                    np.linspace(0.0, cfg.max_step_heights * g.camera_height_m, 25))
+        yaw, length, quality = result
+        self.timing_ms["ground"] += (time.perf_counter() - t0) * 1e3
+        r0, r1, c0, c1 = self._levels[-1].box
+        if float(previous[-1][r0:r1, c0:c1][self._levels[-1].mask].std()) < cfg.min_road_contrast:
+            return self._estimate(index, stamp_ns, "bridged", "the road ahead has no texture to align")
+        if not quality <= cfg.max_alignment_ratio:
+            return self._estimate(index, stamp_ns, "bridged", f"the road does not align (cost ratio {quality:.2f})")
+        self._last_arc = (yaw, length)
+        step = arc_step(yaw, length, self._mount)
+        self._scales.append(float(np.linalg.norm(step[:3, 3])))
+        self._pose = self._pose @ step
+        return self._estimate(index, stamp_ns, "ok", "standing" if length < 1e-3 else "")
 
     def _ground(self, previous: Image, gray: Image, rotation: Array, t: Array) -> int:
         """Track the road from its predicted position and update the scale; the road inliers."""
