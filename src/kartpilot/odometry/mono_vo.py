@@ -28,6 +28,10 @@ The road region is taken from geometry: the ground from 2.5 to 15 camera heights
 2.5 to each side, projected with the camera's intrinsics, its height and
 its mount (``pose_body_cam``; a camera without a mount is taken as level). The mount
 also gives the prior of the plane's normal; the normal itself is then estimated.
+
+That is the ``general`` motion, the thesis's. A camera with a mount uses the ``arc`` instead (``motion:
+auto``): the vehicle's step is an arc of a circle (a turn and a length), and both are found by aligning the
+road region between the frames through the plane's homography (:func:`align_road_arc`), with no tracks.
 """
 
 from __future__ import annotations
