@@ -261,7 +261,7 @@ def align_road_arc(previous: list[NDArray[np.float32]], current: list[NDArray[np
 
     coarse = np.array([[cost(0, float(y), float(d)) for d in length_grid] for y in yaw_grid])
     i, j = np.unravel_index(int(np.argmin(coarse)), coarse.shape)
-    yaw, length, best = float(yaw_grid[i]), float(length_grid[j]), float(coarse[i, j])
+    yaw, length = float(yaw_grid[i]), float(length_grid[j])
     yaw_step = float(yaw_grid[1] - yaw_grid[0]) if len(yaw_grid) > 1 else math.radians(0.5)
     length_step = float(length_grid[1] - length_grid[0]) if len(length_grid) > 1 else 0.05 * height_m
     finest = len(levels) - 1
@@ -277,23 +277,6 @@ def align_road_arc(previous: list[NDArray[np.float32]], current: list[NDArray[np
     typical = float(np.median(finite)) if len(finite) else 0.0
     quality = float(coarse[i, j]) / typical if typical > 0 else math.inf  # a blank road aligns everywhere
     return yaw, length, quality
-
-
-def _points_motion(pose_after: Array) -> tuple[Array, Array]:
-    """``(R, unit t)`` taking points from the camera's frame before a step to its frame after it."""
-    inverse = np.linalg.inv(pose_after)
-    t = inverse[:3, 3]
-    return inverse[:3, :3], t / max(float(np.linalg.norm(t)), 1e-12)
-
-
-def ground_normal_prior(camera: PinholeCamera) -> Array:
-    """The road's normal (pointing down, towards the road) in the camera frame, from the camera's mount; a
-    camera without a mount (identity pose) is taken as level: (0, 1, 0)."""
-    pose = camera.pose_body_cam_array
-    if np.allclose(pose, np.eye(4)):
-        return np.array([0.0, 1.0, 0.0])
-    normal = pose[:3, :3].T @ np.array([0.0, 0.0, -1.0])
-    return normal / np.linalg.norm(normal)
 
 
 def beyond_ground_mask(camera: PinholeCamera, ignore_ground_heights: float) -> NDArray[np.uint8]:
