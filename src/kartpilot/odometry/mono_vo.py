@@ -279,6 +279,16 @@ def align_road_arc(previous: list[NDArray[np.float32]], current: list[NDArray[np
     return yaw, length, quality
 
 
+def ground_normal_prior(camera: PinholeCamera) -> Array:
+    """The road's normal (pointing down, towards the road) in the camera frame, from the camera's mount; a
+    camera without a mount (identity pose) is taken as level: (0, 1, 0)."""
+    pose = camera.pose_body_cam_array
+    if np.allclose(pose, np.eye(4)):
+        return np.array([0.0, 1.0, 0.0])
+    normal = pose[:3, :3].T @ np.array([0.0, 0.0, -1.0])
+    return normal / np.linalg.norm(normal)
+
+
 def beyond_ground_mask(camera: PinholeCamera, ignore_ground_heights: float) -> NDArray[np.uint8]:
     """255 everywhere but where the ground nearer than ``ignore_ground_heights`` camera heights is seen (the
     ground's direction from the camera's mount, level without one): 0 ignores nothing."""
