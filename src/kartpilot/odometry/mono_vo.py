@@ -47,6 +47,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from kartpilot.calibration.rig import mount_pose
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array
@@ -54,7 +55,7 @@ from kartpilot.core.types import Image
 from kartpilot.perception.tracking import KltConfig, track_klt
 
 __all__ = ["GroundConfig", "MonoEstimate", "MonoVO", "MonoVOConfig", "align_road_arc", "arc_step", "beyond_ground_mask",
-           "fit_ground_homography", "ground_normal_prior", "ground_region", "level_mount", "relative_pose"]
+           "fit_ground_homography", "ground_normal_prior", "ground_region", "has_mount", "level_mount", "relative_pose"]
 
 log = logging.getLogger(__name__)
 
@@ -171,15 +172,15 @@ def relative_pose(p0: F32, p1: F32, camera_matrix: Array, ransac_px: float, conf
     return rotation, translation.ravel(), mask.ravel() > 0
 
 
+def has_mount(camera: PinholeCamera) -> bool:
+    """Whether the camera's pose on the body is known (a camera without a mount has the identity pose)."""
+    return not np.allclose(camera.pose_body_cam_array, np.eye(4))
+
+
 def level_mount(camera: PinholeCamera) -> Array:
-    """The camera's pose on the body (rear axle, x forward, z up); a camera without a mount (identity pose) is
-    taken as level, looking forward, on the rear axle."""
-    pose = camera.pose_body_cam_array
-    if not np.allclose(pose, np.eye(4)):
-        return pose
-    level = np.eye(4)
-    level[:3, :3] = [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]
-    return level
+    """The camera's pose on the body (rear axle, x forward, z up); a camera without a mount is taken as level,
+    looking forward, on the rear axle."""
+    return camera.pose_body_cam_array if has_mount(camera) else mount_pose()
 
 
 def arc_step(yaw_rad: float, length_m: float, pose_body_cam: Array) -> Array:
@@ -281,11 +282,8 @@ def align_road_arc(previous: list[NDArray[np.float32]], current: list[NDArray[np
 
 def ground_normal_prior(camera: PinholeCamera) -> Array:
     """The road's normal (pointing down, towards the road) in the camera frame, from the camera's mount; a
-    camera without a mount (identity pose) is taken as level: (0, 1, 0)."""
-    pose = camera.pose_body_cam_array
-    if np.allclose(pose, np.eye(4)):
-        return np.array([0.0, 1.0, 0.0])
-    normal = pose[:3, :3].T @ np.array([0.0, 0.0, -1.0])
+    camera without a mount is taken as level: (0, 1, 0)."""
+    normal = level_mount(camera)[:3, :3].T @ np.array([0.0, 0.0, -1.0])
     return normal / np.linalg.norm(normal)
 
 
@@ -386,8 +384,7 @@ class MonoVO:
         self._normals: list[Array] = []
         self._prior_normal = ground_normal_prior(camera)
         self._mount = level_mount(camera)
-        self.arc = self.config.motion == "arc" or (self.config.motion == "auto"
-                                                   and not np.allclose(camera.pose_body_cam_array, np.eye(4)))
+        self.arc = self.config.motion == "arc" or (self.config.motion == "auto" and has_mount(camera))
         self._road_mask = ground_region(camera, self._prior_normal, self.config.ground)
         if int(np.count_nonzero(self._road_mask)) < 0.01 * camera.width_px * camera.height_px:
             raise ConfigError("the road region ahead is hardly in the image: check the camera's height and mount")
