@@ -126,10 +126,9 @@ def test_a_blank_road_gives_no_arc_step():
 
 
 def test_vo_uses_the_arc_for_a_mounted_camera_and_the_general_motion_without_a_mount():
-    mounted = KART
-    assert MonoVO(mounted, MonoVOConfig(ground=GroundConfig(camera_height_m=0.6))).arc
+    assert MonoVO(KART, MonoVOConfig(ground=GroundConfig(camera_height_m=0.6))).arc
     assert not MonoVO(CAMERA, MonoVOConfig()).arc
-    assert not MonoVO(mounted, MonoVOConfig(motion="general", ground=GroundConfig(camera_height_m=0.6))).arc
+    assert not MonoVO(KART, MonoVOConfig(motion="general", ground=GroundConfig(camera_height_m=0.6))).arc
     with pytest.raises(ConfigError, match=r"mono_vo\.motion"):
         MonoVOConfig(motion="holonomic")  # type: ignore[arg-type]
 

@@ -463,6 +463,9 @@ class MonoVO:
         assert previous is not None
         last = self._last_arc
         self._last_arc = None
+        r0, r1, c0, c1 = self._levels[-1].box
+        if float(previous[-1][r0:r1, c0:c1][self._levels[-1].mask].std()) < cfg.min_road_contrast:
+            return self._estimate(index, stamp_ns, "bridged", "the road ahead has no texture to align")
         result = None
         if last is not None:
             yaw_grid = last[0] + np.radians(np.arange(-2.0, 2.01, 0.5))
@@ -481,9 +484,6 @@ class MonoVO:
                                     np.linspace(0.0, cfg.max_step_heights * g.camera_height_m, 25))
         yaw, length, quality = result
         self.timing_ms["ground"] += (time.perf_counter() - t0) * 1e3
-        r0, r1, c0, c1 = self._levels[-1].box
-        if float(previous[-1][r0:r1, c0:c1][self._levels[-1].mask].std()) < cfg.min_road_contrast:
-            return self._estimate(index, stamp_ns, "bridged", "the road ahead has no texture to align")
         if not quality <= cfg.max_alignment_ratio:
             return self._estimate(index, stamp_ns, "bridged", f"the road does not align (cost ratio {quality:.2f})")
         self._last_arc = (yaw, length)
