@@ -4,12 +4,34 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
+from kartpilot.calibration.rig import mount_pose
 from kartpilot.core.camera import PinholeCamera, StereoRig
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+# the SDC kart's centre camera: 60 cm above the road, 1.2 m ahead of the rear axle, pitched 12 degrees down
+KART = PinholeCamera(480.0, 480.0, 319.5, 239.5, 640, 480, pose_body_cam=mount_pose(1.2, 0.0, 0.6, pitch_down_deg=12.0))
+
+
+def road_texture(seed: int, size_px: int = 4000) -> np.ndarray:
+    """A square of smoothed noise, a road's texture for :func:`road_view`."""
+    noise = np.random.default_rng(seed).uniform(0, 255, (size_px, size_px)).astype(np.float32)
+    texture = cv2.GaussianBlur(noise, (0, 0), 2.0)
+    return cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+
+
+def road_view(texture: np.ndarray, body_pose: np.ndarray, metres_per_px: float) -> np.ndarray:
+    """The kart camera's view of a flat textured road (texture pixel (u, v) at x = u * res - 5, y = v * res - 20
+    on the ground), with the rear axle at ``body_pose``."""
+    cam_from_world = np.linalg.inv(body_pose @ KART.pose_body_cam_array)
+    ground_to_image = KART.matrix @ cam_from_world[:3][:, [0, 1, 3]]
+    texture_to_ground = np.array([[metres_per_px, 0.0, -5.0], [0.0, metres_per_px, -20.0], [0.0, 0.0, 1.0]])
+    return cv2.warpPerspective(texture, ground_to_image @ texture_to_ground, (640, 480), flags=cv2.INTER_LINEAR)
 
 
 def data_path(*parts: str) -> Path:

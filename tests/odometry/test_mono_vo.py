@@ -6,6 +6,7 @@ import math
 import cv2
 import numpy as np
 import pytest
+from tests.conftest import KART, road_texture, road_view
 
 from kartpilot.calibration.rig import mount_pose
 from kartpilot.core.camera import PinholeCamera
@@ -87,25 +88,11 @@ def test_an_arc_step_moves_the_camera_along_the_kart_s_heading_and_turns_it_abou
     assert math.hypot(body[0, 3], body[1, 3]) == pytest.approx(0.5) and body[2, 3] == pytest.approx(0.0)
 
 
-KART = PinholeCamera(480.0, 480.0, 319.5, 239.5, 640, 480, pose_body_cam=mount_pose(1.2, 0.0, 0.6, pitch_down_deg=12.0))
-
-
-def _road_view(texture: np.ndarray, body_pose: np.ndarray, metres_per_px: float) -> np.ndarray:
-    """The kart camera's view of a flat textured road (texture pixel (u, v) at x = u * res - 5, y = v * res - 20
-    on the ground), with the rear axle at ``body_pose``."""
-    cam_from_world = np.linalg.inv(body_pose @ KART.pose_body_cam_array)
-    ground_to_image = KART.matrix @ cam_from_world[:3][:, [0, 1, 3]]
-    texture_to_ground = np.array([[metres_per_px, 0.0, -5.0], [0.0, metres_per_px, -20.0], [0.0, 0.0, 1.0]])
-    return cv2.warpPerspective(texture, ground_to_image @ texture_to_ground, (640, 480), flags=cv2.INTER_LINEAR)
-
-
 @pytest.mark.parametrize(("yaw_deg", "length_m"), [(0.0, 0.5), (-1.1, 0.5), (2.5, 0.3), (0.4, 1.2), (0.0, 0.0)])
 def test_the_arc_step_is_found_by_aligning_the_road(yaw_deg, length_m):
-    rng = np.random.default_rng(4)
-    texture = cv2.GaussianBlur(rng.uniform(0, 255, (4000, 4000)).astype(np.float32), (0, 0), 2.0)
-    texture = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    texture = road_texture(4)
     step = arc_step(math.radians(yaw_deg), length_m, np.eye(4))  # the rear axle's own motion
-    before, after = (_road_view(texture, pose, 0.01) for pose in (np.eye(4), step))
+    before, after = (road_view(texture, pose, 0.01) for pose in (np.eye(4), step))
     vo = MonoVO(KART, MonoVOConfig(ground=GroundConfig(camera_height_m=0.6)))
     assert vo.process(0, 0, before).status == "init"
     estimate = vo.process(1, 10**8, after)
