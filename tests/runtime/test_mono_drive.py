@@ -6,7 +6,6 @@ from dataclasses import replace
 import pytest
 
 from kartpilot.cli.main import main
-from kartpilot.control.path_follow import PathFollowConfig
 from kartpilot.odometry.places import build_places
 from kartpilot.planning.reference_path import PathConfig
 from kartpilot.record.recording import RecordingReader
@@ -22,27 +21,27 @@ SIM = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), came
 
 
 @pytest.mark.slow
-def test_one_camera_follows_the_taught_straight_on_place_fixes(tmp_path):
-    """Taught at 5 m/s over 24 s, repeated for 20 s (about 40 m of the start straight, accelerating from rest)
-    with the thesis's constant throttle. The overrun watchdog is relaxed: a shared CI runner may be slower than
-    the 32 ms a step takes here. Longer runs (the first bends, to s = 224 m) are in the issue's note."""
-    run_simulation(replace(SIM, max_time_s=24.0, seed=1), "centerline",
+def test_one_camera_follows_the_taught_drive_through_the_bends_on_place_fixes(tmp_path):
+    """Taught at 5 m/s on the centre line over 55 s, repeated for 50 s at 5 m/s: about 230 m of sdc-assen, through
+    its first sharp bend and the hairpin, where monocular VO alone (even metric) would have left the track. The
+    overrun watchdog is relaxed: a shared CI runner may be slower than the 38 ms a step takes here. The whole
+    lap is measured by benchmarks/mono_drive.py."""
+    run_simulation(replace(SIM, max_time_s=55.0, seed=1), "centerline",
                    driver_config=CenterlineDriverConfig(speed_mps=5.0), record_dir=tmp_path / "teach")
     teach = RecordingReader(tmp_path / "teach")
     places = build_places(teach.posed_frames("center", teach.camera_poses("center")), teach.cameras["center"],
                           "center")
-    drive = DriveConfig(path=PathConfig(cruise_speed_mps=5.0, max_lateral_accel_mps2=2.0),
-                        follow=PathFollowConfig(speed_control="constant_throttle", constant_throttle=0.2))
-    run = run_supervised_drive(replace(SIM, seed=2), "mono-vo", bus="virtual", duration_s=20.0, places=places,
+    drive = DriveConfig(path=PathConfig(cruise_speed_mps=5.0, max_lateral_accel_mps2=2.0))
+    run = run_supervised_drive(replace(SIM, seed=2), "mono-vo", bus="virtual", duration_s=50.0, places=places,
                                drive_config=drive, watchdog_config=WatchdogConfig(overrun_factor=10.0))
     payload = run.payload
     print(f"\nmono-vo: {payload['distance_m']:.1f} m, centre offset max {payload['max_center_offset_m']:.2f} m, "
           f"{payload['relocalised_frames']} place fixes used, {payload['bridged_frames']} bridged")
     assert run.error is None and not payload["disqualified"]
     assert payload["final_state"] == "autonomous"
-    assert payload["distance_m"] > 30.0
-    assert payload["relocalised_frames"] >= 20
-    assert payload["max_center_offset_m"] < 1.0
+    assert payload["distance_m"] > 200.0
+    assert payload["relocalised_frames"] >= 150
+    assert payload["max_center_offset_m"] < 0.5
 
 
 def test_the_mono_pipeline_without_a_database_is_a_one_line_error(capsys):

@@ -85,16 +85,19 @@ def _describe(fix: PlaceFix) -> str:
     if not fix.accepted:
         return f"no place: {fix.reason}"
     x, y, z = fix.position_m
+    road = f", registered on the road (across the track {fix.cross_track_sigma_m:.2f} m)" if fix.registered else ""
     return (f"x {x:.2f} m, y {y:.2f} m, z {z:.2f} m, sigma {fix.sigma_m:.2f} m; best place {fix.place} "
-            f"({fix.inliers} inliers)")
+            f"({fix.inliers} inliers){road}")
 
 
 def _write_fixes(fixes: list[PlaceFix], path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as handle:
         writer = csv.writer(handle)
-        writer.writerow(["stamp_ns", "accepted", "x_m", "y_m", "z_m", "sigma_m", "place", "inliers", "reason"])
+        writer.writerow(["stamp_ns", "accepted", "x_m", "y_m", "z_m", "sigma_m", "place", "inliers", "registered",
+                         "cross_track_sigma_m", "heading_sigma_rad", "reason"])
         for fix in fixes:
             x, y, z = fix.position_m
             writer.writerow([fix.stamp_ns, int(fix.accepted), f"{x:.4f}", f"{y:.4f}", f"{z:.4f}", f"{fix.sigma_m:.4f}",
-                             fix.place, fix.inliers, fix.reason])
+                             fix.place, fix.inliers, int(fix.registered), f"{fix.cross_track_sigma_m:.4f}",
+                             f"{fix.heading_sigma_rad:.4f}", fix.reason])

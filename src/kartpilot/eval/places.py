@@ -3,7 +3,9 @@
 A query counts for Recall@K when one of its K nearest database places (by VLAD distance) lies
 within ``radius_m`` of where the query image was truly taken. Recall@1 after the geometric check
 takes the place the check ranked best instead, and counts a rejected query as a miss. The
-position error is that of the combined fix, over the accepted queries.
+position error is that of the combined fix, over the accepted queries; its part across the track
+(along the true camera's x axis) and the heading error (the angle between the fix's and the true
+camera's orientation) are also given over the fixes registered on the road.
 """
 
 from __future__ import annotations
@@ -44,6 +46,11 @@ class PlaceRecall:
     accepted: float
     median_error_m: float
     p90_error_m: float
+    registered: float
+    median_cross_track_error_m: float
+    p90_cross_track_error_m: float
+    median_heading_error_deg: float
+    p90_heading_error_deg: float
     ms_per_query: float
 
     def to_json(self) -> dict[str, float | int]:
@@ -57,6 +64,11 @@ class PlaceRecall:
             f"Recall@1 (checked)   {100 * self.checked_recall_at_1:.1f} %   after the geometric check",
             f"accepted             {100 * self.accepted:.1f} %",
             f"fix error            median {self.median_error_m:.2f} m, 90 % {self.p90_error_m:.2f} m",
+            f"registered on road   {100 * self.registered:.1f} %",
+            f"  across the track   median {self.median_cross_track_error_m:.3f} m, "
+            f"90 % {self.p90_cross_track_error_m:.3f} m",
+            f"  heading            median {self.median_heading_error_deg:.2f} deg, "
+            f"90 % {self.p90_heading_error_deg:.2f} deg",
             f"time                 {self.ms_per_query:.1f} ms per query",
         ])
 
@@ -69,6 +81,8 @@ def evaluate_places(database: PlaceDatabase, queries: Iterable[tuple[int, Image,
     retrieved: list[Array] = []
     checked: list[Array] = []
     errors: list[float] = []
+    across: list[float] = []
+    heading: list[float] = []
     accepted = 0
     elapsed = 0.0
     width = max(5, database.config.top_k)
@@ -88,11 +102,18 @@ def evaluate_places(database: PlaceDatabase, queries: Iterable[tuple[int, Image,
         if fix.accepted:
             accepted += 1
             errors.append(float(np.linalg.norm(fix.position_m - position)))
+        if fix.registered:
+            rotation = np.asarray(pose, float)[:3, :3]
+            across.append(abs(float((rotation.T @ (fix.position_m - position))[0])))
+            turn = fix.pose_world_cam[:3, :3].T @ rotation
+            heading.append(float(np.degrees(np.arccos(np.clip((np.trace(turn) - 1) / 2, -1.0, 1.0)))))
     t = np.array(truth).reshape(-1, 3)
     if len(t) == 0:
         raise EvaluationError("no query image had a true pose")
     r = np.array(retrieved)
-    error = np.array(errors) if errors else np.array([np.nan])
+    error, cross, turned = (np.array(v) if v else np.array([np.nan]) for v in (errors, across, heading))
     return PlaceRecall(len(t), radius_m, recall_at_k(t, r, 1, radius_m), recall_at_k(t, r, 5, radius_m),
                        recall_at_k(t, np.array(checked)[:, None], 1, radius_m), accepted / len(t),
-                       float(np.median(error)), float(np.percentile(error, 90)), 1e3 * elapsed / len(t))
+                       float(np.median(error)), float(np.percentile(error, 90)), len(across) / len(t),
+                       float(np.median(cross)), float(np.percentile(cross, 90)), float(np.median(turned)),
+                       float(np.percentile(turned, 90)), 1e3 * elapsed / len(t))

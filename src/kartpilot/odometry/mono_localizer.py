@@ -7,9 +7,11 @@ Kalman filter on the rear axle's planar pose ``x, y, yaw`` and VO's scale error 
 
 - predict with VO's step times ``k`` (the uncertainty grows with the distance driven);
 - update with each accepted place fix, every ``place_every_m`` driven: the fix's position, with
-  ``sigma_m`` along the track and at least ``cross_track_sigma_m`` across it (a fix is where the
-  reference drive was, and the kart may be on another line), and its heading when the
-  geometric check measured the rotation. A fix outside the 99.9 % gate is rejected and counted.
+  ``sigma_m`` along the track, and its heading. Across the track and in heading a fix registered on
+  the place's road (a top view, :mod:`kartpilot.perception.birdseye`) is good to centimetres and a
+  fraction of a degree; an unregistered one gets at least ``cross_track_sigma_m`` across the track (it
+  is where the reference drive was, and the kart may be on another line) and the check's heading,
+  if any. A fix outside the 99.9 % gate is rejected and counted.
 - ``k`` starts at 1 with ``scale_sigma`` (the ground plane's scale is biased where the road's texture
   is weak) and is learnt from the fixes: when VO keeps falling short of them, ``k`` grows, so a
   biased scale does not keep pulling the estimate off between fixes.
@@ -54,8 +56,7 @@ class MonoLocalizerConfig:
         max_bridge_s: how long the motion model may stand in before the pose is ``lost``.
         speed_time_constant_s: low-pass time constant of the speed and yaw-rate estimates.
         place_every_m: query the place database after driving this far (and on every frame until the first fix).
-        cross_track_sigma_m: a fix's least standard deviation across the track.
-        heading_sigma_rad: a checked fix's heading standard deviation.
+        cross_track_sigma_m: an unregistered fix's least standard deviation across the track.
         vo_sigma_per_m: VO's position error per metre driven (standard deviation); ``vo_yaw_sigma_per_m`` likewise.
         scale_sigma: the initial standard deviation of VO's scale error (relative).
         scale_sigma_per_m: how fast the scale error may change, per metre driven.
@@ -67,16 +68,14 @@ class MonoLocalizerConfig:
     speed_time_constant_s: float = 0.15
     place_every_m: float = 1.0
     cross_track_sigma_m: float = 1.0
-    heading_sigma_rad: float = 0.08
     vo_sigma_per_m: float = 0.05
     vo_yaw_sigma_per_m: float = 0.02
     scale_sigma: float = 0.3
     scale_sigma_per_m: float = 0.01
 
     def __post_init__(self) -> None:
-        if self.place_every_m <= 0 or self.cross_track_sigma_m <= 0 or self.heading_sigma_rad <= 0:
-            raise ConfigError("mono_localizer.place_every_m, cross_track_sigma_m and heading_sigma_rad must be "
-                              "positive")
+        if self.place_every_m <= 0 or self.cross_track_sigma_m <= 0:
+            raise ConfigError("mono_localizer.place_every_m and cross_track_sigma_m must be positive")
         if min(self.vo_sigma_per_m, self.vo_yaw_sigma_per_m, self.scale_sigma, self.scale_sigma_per_m) <= 0:
             raise ConfigError("mono_localizer.vo_sigma_per_m, vo_yaw_sigma_per_m, scale_sigma and scale_sigma_per_m "
                               "must be positive")
@@ -253,13 +252,13 @@ class MonoLocalizer(PoseTracker):
         if not fix.accepted:
             return False
         measured = place_ground_poses(fix.pose_world_cam, self.body_cam, self._origin)[0]
-        checked = fix.inliers > 0
         place_yaw = float(place_ground_poses(self.places.poses_world_cam[fix.place], self.body_cam, self._origin)[0, 2])
         c, s = math.cos(place_yaw), math.sin(place_yaw)
         turn = np.array([[c, -s], [s, c]])
         noise = np.zeros((3, 3))
-        noise[:2, :2] = turn @ np.diag([fix.sigma_m, max(fix.sigma_m, self.config.cross_track_sigma_m)]) ** 2 @ turn.T
-        noise[2, 2] = self.config.heading_sigma_rad ** 2 if checked else math.pi ** 2
+        across = fix.cross_track_sigma_m if fix.registered else max(fix.sigma_m, self.config.cross_track_sigma_m)
+        noise[:2, :2] = turn @ np.diag([fix.sigma_m, across]) ** 2 @ turn.T
+        noise[2, 2] = min(fix.heading_sigma_rad, math.pi) ** 2
         if self.filter.state is None:  # the first fix places the kart
             self.filter.place(measured, noise)
             self.relocalisations += 1

@@ -17,6 +17,12 @@ truth), it answers "where was the image most like this one taken?" for a new ima
 4. The position: the inlier-weighted (or, unchecked, similarity-weighted) mean of the top
    places that lie within ``consistent_m`` of the best, with a standard deviation from their
    spread and the database's spacing.
+5. Across the track and in heading, a camera with a mount does much better: the database keeps a
+   top view of the road ahead of each place (:mod:`kartpilot.perception.birdseye`), and the query's
+   top view is registered on the best place's. That gives the query's offset across the track and its
+   heading relative to the place to a few centimetres and a fraction of a degree, where the
+   retrieval alone only says "near this place" (the reference drive's line). The along-track part
+   stays the retrieval's: on a straight, streaked road the registration's is the weakest.
 
 The database is written as one versioned NumPy archive (no pickles) and loads back
 identically: the same arrays, the same BallTree, the same answers.
@@ -45,7 +51,15 @@ from kartpilot.core.config import config_to_dict, merge_config
 from kartpilot.core.errors import ConfigError, DataError, KartpilotError, PerceptionError
 from kartpilot.core.geometry import Array
 from kartpilot.core.types import Image
-from kartpilot.odometry.mono_vo import beyond_ground_mask
+from kartpilot.odometry.mono_vo import beyond_ground_mask, has_mount
+from kartpilot.perception.birdseye import (
+    BirdseyeConfig,
+    RoadRegistration,
+    birdseye,
+    planar_transform,
+    register_birdseye,
+    road_grids,
+)
 from kartpilot.perception.features import Features, create_detector, detect_features
 from kartpilot.perception.vlad import Pca, VladConfig, fit_pca, project_pca, train_vocabulary, vlad_vector
 
@@ -53,7 +67,7 @@ __all__ = ["FORMAT", "FORMAT_VERSION", "PlaceDatabase", "PlaceFix", "PlacesConfi
            "load_places"]
 
 FORMAT = "kartpilot-places"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 F32 = NDArray[np.float32]
 
@@ -73,6 +87,11 @@ class PlacesConfig:
         ratio: Lowe's ratio test in the check's matching.
         ransac_px: the essential matrix's RANSAC threshold.
         consistent_m: top places within this of the best one are averaged into the position.
+        check_heading_sigma_rad: the heading's standard deviation from the check's rotation alone.
+        register: keep a top view of the road per place and register queries on it (a camera with a mount).
+        road: the top view and its registration.
+        road_cross_track_sigma_m, road_heading_sigma_rad: a registered fix's standard deviations across the
+            track and in heading (measured in the simulator: 99 % of the errors within 5 cm and 1.4 degrees).
     """
 
     vlad: VladConfig = field(default_factory=VladConfig)
@@ -86,6 +105,11 @@ class PlacesConfig:
     ratio: float = 0.8
     ransac_px: float = 1.0
     consistent_m: float = 3.0
+    check_heading_sigma_rad: float = 0.08
+    register: bool = True
+    road: BirdseyeConfig = field(default_factory=BirdseyeConfig)
+    road_cross_track_sigma_m: float = 0.05
+    road_heading_sigma_rad: float = 0.01
 
     def __post_init__(self) -> None:
         if self.spacing_m <= 0:
@@ -94,6 +118,9 @@ class PlacesConfig:
             raise ConfigError("places.top_k and places.verify_candidates must be at least 1")
         if self.ignore_ground_heights < 0 or self.min_inliers < 5:
             raise ConfigError("places.ignore_ground_heights must not be negative and min_inliers at least 5")
+        if min(self.check_heading_sigma_rad, self.road_cross_track_sigma_m, self.road_heading_sigma_rad) <= 0:
+            raise ConfigError("places.check_heading_sigma_rad, road_cross_track_sigma_m and road_heading_sigma_rad "
+                              "must be positive")
 
 
 @dataclass(frozen=True)
@@ -110,6 +137,10 @@ class PlaceFix:
         place: the best place's index; ``candidates`` the retrieved ones, best first by VLAD distance;
             ``vlad_distances`` their distances.
         inliers: the best place's essential-matrix inliers (0 without the check).
+        registered: the road's top view was registered on the best place's: the position across the track
+            and the heading are the registration's, with ``cross_track_sigma_m`` and ``heading_sigma_rad``
+            (across the track an unregistered fix has ``sigma_m``, and its heading ``heading_sigma_rad``
+            from the check, or inf).
     """
 
     stamp_ns: int
@@ -121,6 +152,9 @@ class PlaceFix:
     candidates: tuple[int, ...]
     vlad_distances: tuple[float, ...]
     inliers: int
+    registered: bool = False
+    cross_track_sigma_m: float = math.inf
+    heading_sigma_rad: float = math.inf
 
     @property
     def position_m(self) -> Array:
@@ -176,6 +210,7 @@ class PlaceDatabase:
     keypoints: list[F32]
     descriptors: list[NDArray[Any]]
     info: dict[str, Any]
+    road_views: NDArray[np.uint8] | None = None  # (N, rows, columns): each place's top view of the road
 
     def __post_init__(self) -> None:
         count = len(self.vectors)
@@ -184,10 +219,15 @@ class PlaceDatabase:
         if not (len(self.poses_world_cam) == len(self.stamps_ns) == len(self.keypoints) == len(self.descriptors)
                 == count):
             raise DataError("a place database's arrays disagree in length")
+        self._grids = road_grids(self.camera, self.config.road) if self.road_views is not None else None
+        if self.road_views is not None and self._grids is not None and (
+                len(self.road_views) != count or self.road_views.shape[1:] != self._grids[0].shape):
+            raise DataError(f"a place database's road views {self.road_views.shape} do not fit its {count} places "
+                            f"and road patch {self._grids[0].shape}")
         self.tree = BallTree(self.vectors)
         self._describer = _Describer(self.camera, self.config)
         self._matcher = cv2.BFMatcher(cv2.NORM_HAMMING if self._describer.binary else cv2.NORM_L2)
-        self.timing_ms: dict[str, float] = {"features": 0.0, "retrieve": 0.0, "check": 0.0}  # summed over queries
+        self.timing_ms: dict[str, float] = {"features": 0.0, "retrieve": 0.0, "check": 0.0, "register": 0.0}
         self.queries = 0
 
     def __len__(self) -> int:
@@ -225,7 +265,7 @@ class PlaceDatabase:
         self.timing_ms["retrieve"] += (t2 - t1) * 1e3
         if not cfg.verify:
             weights = 1.0 / np.maximum(distances[:cfg.top_k], 1e-6) ** 2
-            return self._fix(stamp_ns, indices[:cfg.top_k], weights, None, candidates, vlad, 0)
+            return self._fix(image, stamp_ns, indices[:cfg.top_k], weights, None, candidates, vlad, 0)
         checked = [self._check(features, int(i)) for i in indices]
         self.timing_ms["check"] += (time.perf_counter() - t2) * 1e3
         inliers = np.array([c[0] for c in checked])
@@ -237,8 +277,8 @@ class PlaceDatabase:
                             candidates, vlad, int(inliers[best]))
         top = order[:cfg.top_k]
         top = top[inliers[top] >= cfg.min_inliers]
-        return self._fix(stamp_ns, indices[top], inliers[top].astype(float), checked[best][1], candidates, vlad,
-                         int(inliers[best]))
+        return self._fix(image, stamp_ns, indices[top], inliers[top].astype(float), checked[best][1], candidates,
+                         vlad, int(inliers[best]))
 
     def _matchable(self, descriptors: NDArray[Any]) -> NDArray[Any]:
         return descriptors if self._describer.binary else descriptors.astype(np.float32)
@@ -266,8 +306,21 @@ class PlaceDatabase:
         _, rotation, _, _ = cv2.recoverPose(essential, query, place_points, k, mask=mask.copy())
         return int(mask.sum()), rotation
 
-    def _fix(self, stamp_ns: int, places: NDArray[np.intp], weights: Array, rotation: Array | None,
+    def register(self, image: Image, place: int, yaw_guess_rad: float = 0.0) -> RoadRegistration | None:
+        """The query body's planar pose relative to a place's, from the road's top views (None without them,
+        or when the registration finds none)."""
+        if self.road_views is None or self._grids is None:
+            return None
+        start = time.perf_counter()
+        reference, query = self._grids
+        found = register_birdseye(self.road_views[place], birdseye(image, query), reference, query, yaw_guess_rad,
+                                  self.config.road)
+        self.timing_ms["register"] += (time.perf_counter() - start) * 1e3
+        return found
+
+    def _fix(self, image: Image, stamp_ns: int, places: NDArray[np.intp], weights: Array, rotation: Array | None,
              candidates: tuple[int, ...], vlad: tuple[float, ...], inliers: int) -> PlaceFix:
+        cfg = self.config
         best = int(places[0])
         positions = self.positions_m[places]
         near = np.linalg.norm(positions - positions[0], axis=1) <= self.config.consistent_m
@@ -279,8 +332,24 @@ class PlaceDatabase:
             pose[:3, :3] = pose[:3, :3] @ rotation
         pose[:3, 3] = mean
         # the weighted mean's standard error (Kish's effective count), and half the spacing of the places
-        sigma = math.hypot(spread / math.sqrt(1.0 / float((w * w).sum())), self.config.spacing_m / 2)
-        return PlaceFix(stamp_ns, True, "", pose, sigma, best, candidates, vlad, inliers)
+        sigma = math.hypot(spread / math.sqrt(1.0 / float((w * w).sum())), cfg.spacing_m / 2)
+        heading_sigma = cfg.check_heading_sigma_rad if rotation is not None else math.inf
+        body_cam = self.camera.pose_body_cam_array
+        turn = body_cam[:3, :3] @ rotation @ body_cam[:3, :3].T if rotation is not None else np.eye(3)
+        road = self.register(image, best, math.atan2(turn[1, 0], turn[0, 0]))
+        if road is None:
+            return PlaceFix(stamp_ns, True, "", pose, sigma, best, candidates, vlad, inliers, False, sigma,
+                            heading_sigma)
+        # across the track and in heading the registration's pose; along it the retrieval's: the query camera
+        # lies as far along the place's heading as the places' mean
+        world_body = self.poses_world_cam[best] @ np.linalg.inv(body_cam)
+        along = float((np.linalg.inv(world_body) @ np.r_[mean, 1.0])[0])
+        c, s = math.cos(road.yaw_rad), math.sin(road.yaw_rad)
+        relative = np.eye(4)
+        relative[:2, :2] = planar_transform(0.0, 0.0, road.yaw_rad)[:2, :2]
+        relative[:2, 3] = along - (c * body_cam[0, 3] - s * body_cam[1, 3]), road.y_m
+        return PlaceFix(stamp_ns, True, "", world_body @ relative @ body_cam, sigma, best, candidates, vlad, inliers,
+                        True, cfg.road_cross_track_sigma_m, cfg.road_heading_sigma_rad)
 
     def save(self, path: str | Path) -> Path:
         """Write the database (atomically: a crash leaves the old file or none, never half of one)."""
@@ -294,6 +363,8 @@ class PlaceDatabase:
             "poses_world_cam": self.poses_world_cam, "stamps_ns": self.stamps_ns, "feature_counts": counts,
             "keypoints": np.concatenate(self.keypoints).reshape(-1, 2),
             "descriptors": np.concatenate(self.descriptors).reshape(int(counts.sum()), -1)}
+        if self.road_views is not None:
+            arrays["road_views"] = self.road_views
         if self.pca is not None:
             arrays.update(pca_mean=self.pca.mean, pca_components=self.pca.components, pca_variances=self.pca.variances)
         temporary = path.with_name(path.name + ".partial")
@@ -332,7 +403,7 @@ def load_places(path: str | Path) -> PlaceDatabase:
             header["camera_name"], camera_from_dict(header["camera_name"], header["camera"], f"in {path}"), config,
             arrays["centres"], pca, arrays["vectors"], arrays["poses_world_cam"], arrays["stamps_ns"],
             [arrays["keypoints"][a:b] for a, b in spans], [arrays["descriptors"][a:b] for a, b in spans],
-            header["info"])
+            header["info"], arrays.get("road_views"))
     except KartpilotError as exc:
         raise DataError(f"{path}: {exc}") from exc
     except (KeyError, ValueError, TypeError) as exc:
@@ -345,7 +416,9 @@ def build_places(images: Iterable[tuple[int, Image, Array]], camera: PinholeCame
     ``spacing_m``. ``info`` says where the images and positions came from (kept in the file)."""
     config = config or PlacesConfig()
     describer = _Describer(camera, config)
+    grids = road_grids(camera, config.road) if config.register and has_mount(camera) else None
     kept: list[tuple[int, Array, Features]] = []
+    views: list[NDArray[np.uint8]] = []
     last: Array | None = None
     for stamp_ns, image, pose in images:
         position = np.asarray(pose, float)[:3, 3]
@@ -355,6 +428,8 @@ def build_places(images: Iterable[tuple[int, Image, Array]], camera: PinholeCame
         if len(features) < 8:
             continue  # a black or blank frame is no place
         kept.append((stamp_ns, np.asarray(pose, float), features))
+        if grids is not None:
+            views.append(birdseye(image, grids[0]))
         last = position
     if len(kept) < 2:
         raise DataError(f"{len(kept)} usable images {config.spacing_m:g} m apart: a place database needs a "
@@ -367,4 +442,4 @@ def build_places(images: Iterable[tuple[int, Image, Array]], camera: PinholeCame
     return PlaceDatabase(camera_name, camera, config, centres, pca, np.ascontiguousarray(vectors, np.float32),
                          np.array([p for _, p, _ in kept]), np.array([s for s, _, _ in kept], np.int64),
                          [f.points_px.astype(np.float32) for f in strongest],
-                         [f.descriptors for f in strongest], dict(info or {}))
+                         [f.descriptors for f in strongest], dict(info or {}), np.array(views) if views else None)
