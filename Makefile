@@ -29,6 +29,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/drive.py --out benchmarks/results/drive.json
 	$(BIN)/python benchmarks/record.py --out benchmarks/results/record.json
 	$(BIN)/python benchmarks/places.py --out benchmarks/results/places.json
+	$(BIN)/python benchmarks/mono_drive.py --out benchmarks/results/mono_drive.json
 
 demo: $(STAMP)
 	$(BIN)/kartpilot demo --out demo_out
