@@ -220,7 +220,7 @@ class PlaceDatabase:
                 == count):
             raise DataError("a place database's arrays disagree in length")
         self._grids = road_grids(self.camera, self.config.road) if self.road_views is not None else None
-        if self.road_views is not None and self._grids is not None and (
+        if self.road_views is not None and self._grids is not None and (  # (mypy: _grids is set with the views)
                 len(self.road_views) != count or self.road_views.shape[1:] != self._grids[0].shape):
             raise DataError(f"a place database's road views {self.road_views.shape} do not fit its {count} places "
                             f"and road patch {self._grids[0].shape}")
@@ -344,10 +344,10 @@ class PlaceDatabase:
         # lies as far along the place's heading as the places' mean
         world_body = self.poses_world_cam[best] @ np.linalg.inv(body_cam)
         along = float((np.linalg.inv(world_body) @ np.r_[mean, 1.0])[0])
-        c, s = math.cos(road.yaw_rad), math.sin(road.yaw_rad)
         relative = np.eye(4)
         relative[:2, :2] = planar_transform(0.0, 0.0, road.yaw_rad)[:2, :2]
-        relative[:2, 3] = along - (c * body_cam[0, 3] - s * body_cam[1, 3]), road.y_m
+        camera_along = relative[0, :2] @ body_cam[:2, 3]  # the camera's lever arm, turned, along the place's heading
+        relative[:2, 3] = along - camera_along, road.y_m
         return PlaceFix(stamp_ns, True, "", world_body @ relative @ body_cam, sigma, best, candidates, vlad, inliers,
                         True, cfg.road_cross_track_sigma_m, cfg.road_heading_sigma_rad)
 
@@ -416,7 +416,10 @@ def build_places(images: Iterable[tuple[int, Image, Array]], camera: PinholeCame
     ``spacing_m``. ``info`` says where the images and positions came from (kept in the file)."""
     config = config or PlacesConfig()
     describer = _Describer(camera, config)
-    grids = road_grids(camera, config.road) if config.register and has_mount(camera) else None
+    try:
+        grids = road_grids(camera, config.road) if config.register and has_mount(camera) else None
+    except ConfigError as exc:
+        raise ConfigError(f"{exc} (or build without the road's top views: places.register: false)") from exc
     kept: list[tuple[int, Array, Features]] = []
     views: list[NDArray[np.uint8]] = []
     last: Array | None = None
