@@ -170,15 +170,17 @@ def register_birdseye(reference: NDArray[np.uint8], query: NDArray[np.uint8], re
     seen = query_grid.mask > 0
     if template.std() < 1.0 or not seen.any() or float(query[seen].std()) < 1.0:
         return None  # a blank road matches anywhere
-    filled = query.astype(np.float32)
-    filled[~seen] = float(filled[seen].mean())
-    to_query_px, from_reference_px = query_grid.pixel_from_body, np.linalg.inv(reference_grid.pixel_from_body)
+    measured = query.astype(np.float32)
+    filled = measured.copy()  # the search's correlation sees no edge where the view ends; ECC masks it instead
+    filled[~seen] = float(measured[seen].mean())
+    to_query_px, from_query_px = query_grid.pixel_from_body, np.linalg.inv(query_grid.pixel_from_body)
+    from_reference_px = np.linalg.inv(reference_grid.pixel_from_body)
     step = math.radians(config.yaw_step_deg)
     count = round(config.yaw_span_deg / config.yaw_step_deg)
     best: tuple[float, float, tuple[int, int], Array] | None = None
     for yaw in yaw_guess_rad + step * np.arange(-count, count + 1):
         # the query's view turned by the heading about the rear axle: pixel p shows body point R^T q(p)
-        turn = to_query_px @ planar_transform(0.0, 0.0, -float(yaw)) @ np.linalg.inv(to_query_px)
+        turn = to_query_px @ planar_transform(0.0, 0.0, -float(yaw)) @ from_query_px
         turned = cv2.warpAffine(filled, turn[:2], query.shape[::-1], flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                 borderMode=cv2.BORDER_REPLICATE)
         scores = cv2.matchTemplate(turned, template, cv2.TM_CCOEFF_NORMED)
@@ -191,17 +193,17 @@ def register_birdseye(reference: NDArray[np.uint8], query: NDArray[np.uint8], re
         return None  # the best lies on the edge: the true offset may lie beyond the margins
     # the reference's pixel p sits on the turned query's pixel p + corner, so the reference body's point b and
     # the turned query's g = b - t differ by the shift t (read at p = 0)
-    shift = from_reference_px @ [0.0, 0.0, 1.0] - np.linalg.inv(to_query_px) @ [corner[0], corner[1], 1.0]
+    shift = from_reference_px @ [0.0, 0.0, 1.0] - from_query_px @ [corner[0], corner[1], 1.0]
     guess = planar_transform(float(shift[0]), float(shift[1]), yaw)
     warp = to_query_px @ np.linalg.inv(guess) @ from_reference_px
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-5)
     try:
-        correlation, warp = cv2.findTransformECC(template, query.astype(np.float32), warp[:2].astype(np.float32),
+        correlation, warp = cv2.findTransformECC(template, measured, warp[:2].astype(np.float32),
                                                  cv2.MOTION_EUCLIDEAN, criteria, query_grid.mask, 3)
     except cv2.error:
         return None  # the refinement diverged: no pose
     if correlation < config.min_correlation:
         return None
-    pose = np.linalg.inv(np.linalg.inv(to_query_px) @ np.r_[warp, [[0.0, 0.0, 1.0]]] @ reference_grid.pixel_from_body)
+    pose = np.linalg.inv(from_query_px @ np.r_[warp, [[0.0, 0.0, 1.0]]] @ reference_grid.pixel_from_body)
     return RoadRegistration(float(pose[0, 2]), float(pose[1, 2]), math.atan2(pose[1, 0], pose[0, 0]), peak,
                             float(correlation))
