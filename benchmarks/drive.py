@@ -22,6 +22,7 @@ import numpy as np
 from common import write_json
 from kartpilot.control.path_follow import PathFollowConfig
 from kartpilot.core.types import FrameSet
+from kartpilot.core.vehicle import get_vehicle
 from kartpilot.odometry.localizer import StereoVOLocalizer, ground_poses
 from kartpilot.odometry.run import run_teach
 from kartpilot.planning.reference_path import PathConfig, build_reference_path
@@ -30,7 +31,6 @@ from kartpilot.runtime.path_policy import PathFollowPolicy
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import SimConfig
-from kartpilot.sim.vehicle import get_vehicle
 
 
 def main() -> None:

@@ -24,13 +24,13 @@ from common import write_json
 from kartpilot.control.lane_follow import LaneFollowConfig, LaneFollowState, lane_follow_step
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.types import FrameSet
+from kartpilot.core.vehicle import get_vehicle
 from kartpilot.perception.lanes import LaneConfig, detect_lanes
 from kartpilot.runtime.lane_policy import LanePolicy
 from kartpilot.sim.dynamics import VehicleState
 from kartpilot.sim.render import Renderer
 from kartpilot.sim.simulator import body_pose
 from kartpilot.sim.track import load_track
-from kartpilot.sim.vehicle import get_vehicle
 
 W, H = 960, 540
 

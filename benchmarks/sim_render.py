@@ -16,13 +16,13 @@ import time
 from typing import Any
 
 from common import write_json
+from kartpilot.core.vehicle import get_vehicle
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.dynamics import VehicleState
 from kartpilot.sim.render import Renderer
 from kartpilot.sim.simulator import SimConfig, Simulator, body_pose
 from kartpilot.sim.track import bundled_tracks, load_track
-from kartpilot.sim.vehicle import get_vehicle
 
 
 def render_rate(track_name: str, pairs: int) -> dict[str, float]:

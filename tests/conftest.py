@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from kartpilot.calibration.rig import mount_pose
 from kartpilot.core.camera import PinholeCamera, StereoRig
+from kartpilot.core.geometry import mount_pose
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

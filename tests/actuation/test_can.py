@@ -1,4 +1,5 @@
-"""The CAN layer on python-can's virtual bus: the DBC, limits, spacing, status and faults."""
+"""The CAN layer on python-can's virtual bus with our own protocol (the rc-kart's): the DBC, limits, the
+periodic schedule, status and faults. The RDW kart's protocol is tested in test_rdw.py."""
 
 import itertools
 import time
@@ -6,19 +7,12 @@ import time
 import can
 import pytest
 
-from kartpilot.actuation.can_bus import (
-    ActuatorLimits,
-    CanActuator,
-    CanConfig,
-    command_frames,
-    decode,
-    limit_command,
-    load_dbc,
-    open_bus,
-)
+from kartpilot.actuation.can_bus import ActuatorLimits, CanActuator, CanConfig, limit_command, open_bus
+from kartpilot.actuation.kartpilot_protocol import KartpilotProtocol, command_frames, decode, load_dbc
 from kartpilot.core.errors import ActuationError, ConfigError
 from kartpilot.core.types import ActuatorCommand
-from kartpilot.sim.can_ecu import SimEcus
+from kartpilot.core.vehicle import get_vehicle
+from kartpilot.sim.can_ecu import KartpilotEcus
 
 _channels = itertools.count()
 
@@ -40,12 +34,9 @@ class Clock:
         self.ns += round(seconds * 1e9)
 
 
-class Vehicle:
-    def __init__(self) -> None:
-        self.commands: list[ActuatorCommand] = []
-
-    def send(self, command: ActuatorCommand) -> None:
-        self.commands.append(command)
+def _actuator(bus, config, clock, **kwargs):
+    return CanActuator(bus, KartpilotProtocol(config.dbc, config.ecus, config.status_timeout_s, clock()), config,
+                       clock=clock, **kwargs)
 
 
 def test_frames_round_trip_through_the_dbc_and_a_corrupted_byte_is_refused():
@@ -74,6 +65,15 @@ def test_a_dbc_without_the_kart_s_messages_is_named(tmp_path):
         load_dbc(tmp_path / "missing.dbc")
 
 
+def test_the_limits_narrow_the_kart_s_own_range_and_are_checked():
+    sdc = get_vehicle("sdc-kart")
+    assert ActuatorLimits().for_vehicle(sdc).max_steer_rad == sdc.max_steer_rad
+    assert ActuatorLimits(max_steer_rad=0.3).for_vehicle(sdc).max_steer_rad == 0.3
+    assert ActuatorLimits(max_steer_rad=0.9).for_vehicle(sdc).max_steer_rad == sdc.max_steer_rad
+    with pytest.raises(ConfigError, match=r"limits\.max_throttle"):
+        ActuatorLimits(max_throttle=float("nan"))
+
+
 def test_commands_are_clamped_rate_limited_and_braking_drops_the_throttle():
     limits = ActuatorLimits(max_steer_rad=0.4, max_steer_rate_radps=2.0, max_throttle=0.8,
                             max_throttle_rise_per_s=1.0)
@@ -90,34 +90,38 @@ def test_commands_are_clamped_rate_limited_and_braking_drops_the_throttle():
 def test_the_simulated_ecus_apply_what_the_actuator_sends_and_report_back():
     kart_bus, ecu_bus, config = _pair()
     clock = Clock()
-    actuator = CanActuator(kart_bus, config, clock=clock)
-    vehicle = Vehicle()
-    ecus = SimEcus(ecu_bus, vehicle, clock, measured=lambda: (0.05, 1.5))
+    actuator = _actuator(kart_bus, config, clock)
+    ecus = KartpilotEcus(ecu_bus, clock, measured=lambda: (0.05, 1.5))
     actuator.state = "autonomous"
     for k in range(5):
-        clock.advance(0.02)
+        clock.advance(0.04)
         actuator.send(ActuatorCommand(clock.ns, 0.01 * k, 0.3, 0.0))
-        ecus.step()
+        actuator.tick()
+        applied = ecus.step()
         actuator.poll()
-    assert vehicle.commands[-1].steer_rad == pytest.approx(0.04, abs=1e-4)
-    assert vehicle.commands[-1].throttle == pytest.approx(0.3, abs=1e-4)
+    assert applied.steer_rad == pytest.approx(0.04, abs=1e-4)
+    assert applied.throttle == pytest.approx(0.3, abs=1e-4)
     assert actuator.faults() == []
-    assert actuator.ecu_values("drive")["Speed"] == pytest.approx(1.5)
+    assert actuator.protocol.ecu_values("drive")["Speed"] == pytest.approx(1.5)
+    assert actuator.feedback().speed_mps == pytest.approx(1.5)
     kart_bus.shutdown()
     ecu_bus.shutdown()
 
 
-def test_sends_closer_than_the_minimum_spacing_are_held_back_but_a_stop_never_is():
+def test_commands_go_out_on_a_fixed_schedule_but_a_stop_goes_out_at_once():
     kart_bus, ecu_bus, config = _pair()
     clock = Clock()
-    actuator = CanActuator(kart_bus, CanConfig(channel=config.channel, min_spacing_ms=5.0), clock=clock)
-    actuator.send(ActuatorCommand(0, 0.0, 0.2, 0.0))
+    actuator = _actuator(kart_bus, CanConfig(channel=config.channel, send_rate_hz=25.0), clock)
+    actuator.send(ActuatorCommand(0, 0.0, 0.2, 0.0))  # the first command starts the schedule
+    assert actuator.frames_sent == 4
+    for _ in range(20):  # the loop sends every 10 ms, the bus hears every 40 ms
+        clock.advance(0.01)
+        actuator.send(ActuatorCommand(clock.ns, 0.0, 0.2, 0.0))
+        actuator.tick()
+    assert actuator.frames_sent == 4 * 6
     clock.advance(0.001)
-    actuator.send(ActuatorCommand(0, 0.0, 0.2, 0.0))
-    assert actuator.skipped_sends == 1 and actuator.frames_sent == 4
-    clock.advance(0.001)
-    actuator.send(ActuatorCommand.stop(0))
-    assert actuator.frames_sent == 8
+    actuator.send(ActuatorCommand.stop(clock.ns))
+    assert actuator.frames_sent == 4 * 7
     frames = []
     while (frame := ecu_bus.recv(timeout=0.0)) is not None:
         frames.append(frame)
@@ -129,8 +133,8 @@ def test_sends_closer_than_the_minimum_spacing_are_held_back_but_a_stop_never_is
 def test_missing_ecu_status_an_ecu_fault_and_a_bus_off_are_reported():
     kart_bus, ecu_bus, config = _pair()
     clock = Clock()
-    actuator = CanActuator(kart_bus, config, clock=clock)
-    ecus = SimEcus(ecu_bus, Vehicle(), clock)
+    actuator = _actuator(kart_bus, config, clock)
+    ecus = KartpilotEcus(ecu_bus, clock)
     actuator.send(ActuatorCommand(0, 0.0, 0.2, 0.0))
     ecus.step()
     actuator.poll()
@@ -143,6 +147,12 @@ def test_missing_ecu_status_an_ecu_fault_and_a_bus_off_are_reported():
     assert ecus.step().brake == 1.0 and ecus.applied[-1].source == "ecu-timeout"
     actuator.poll()
     assert "the steer ECU reports command_timeout" in actuator.faults()
+    ecus.inject("ecu-error")  # the heartbeat is back, but an ECU's actuator has failed
+    clock.advance(0.05)
+    actuator.tick()
+    ecus.step()
+    actuator.poll()
+    assert "the steer ECU reports actuator" in actuator.faults()
 
     class BusOff(can.BusABC):
         def __init__(self) -> None:
@@ -154,7 +164,7 @@ def test_missing_ecu_status_an_ecu_fault_and_a_bus_off_are_reported():
         def _recv_internal(self, timeout):
             return None, False
 
-    broken = CanActuator(BusOff(), config, clock=clock)
+    broken = _actuator(BusOff(), config, clock)
     broken.send(ActuatorCommand(0, 0.0, 0.2, 0.0))
     assert broken.tx_errors == 1 and "CAN transmit failed (bus-off)" in broken.faults()
     kart_bus.shutdown()
@@ -163,7 +173,8 @@ def test_missing_ecu_status_an_ecu_fault_and_a_bus_off_are_reported():
 
 def test_the_live_sender_repeats_the_command_and_stops_by_itself_when_the_loop_goes_quiet():
     kart_bus, ecu_bus, config = _pair()
-    actuator = CanActuator(kart_bus, CanConfig(channel=config.channel, send_rate_hz=100.0, command_timeout_s=0.1))
+    actuator = _actuator(kart_bus, CanConfig(channel=config.channel, send_rate_hz=100.0, command_timeout_s=0.1),
+                         time.monotonic_ns)
     actuator.start()
     actuator.send(ActuatorCommand(0, 0.1, 0.4, 0.0))
     time.sleep(0.3)  # the loop has hung

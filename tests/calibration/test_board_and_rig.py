@@ -10,10 +10,11 @@ import pytest
 from tests.conftest import data_path
 
 from kartpilot.calibration.board import BoardConfig, calibrate_mono, calibrate_stereo, find_board, read_views
-from kartpilot.calibration.rig import Rig, load_rig, mount_pose, save_rig
+from kartpilot.calibration.rig import Rig, load_rig, save_rig
 from kartpilot.cli.main import main
 from kartpilot.core.errors import CalibrationError
-from kartpilot.sim.vehicle import get_vehicle
+from kartpilot.core.geometry import mount_pose
+from kartpilot.core.vehicle import get_vehicle
 
 
 def opencv_left_fx() -> float:

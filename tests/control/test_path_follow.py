@@ -18,6 +18,7 @@ from kartpilot.control.path_follow import (
 from kartpilot.control.stanley import StanleyConfig, stanley_steer
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import ActuatorCommand, VehiclePose
+from kartpilot.core.vehicle import get_vehicle
 from kartpilot.planning.reference_path import (
     PathConfig,
     ReferencePath,
@@ -26,7 +27,6 @@ from kartpilot.planning.reference_path import (
     lateral_offset,
 )
 from kartpilot.sim.dynamics import Disturbances, VehicleState, step_vehicle
-from kartpilot.sim.vehicle import get_vehicle
 
 KART = get_vehicle("rc-kart")
 RATE_HZ = 15.0

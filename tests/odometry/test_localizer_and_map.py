@@ -9,6 +9,7 @@ import pytest
 
 from kartpilot.core.errors import PlanningError
 from kartpilot.core.types import FrameSet
+from kartpilot.core.vehicle import camera_pose_on_body
 from kartpilot.odometry.localizer import (
     LocalizerConfig,
     StereoVOLocalizer,
@@ -20,7 +21,6 @@ from kartpilot.odometry.localizer import (
 from kartpilot.odometry.run import run_teach
 from kartpilot.odometry.visual_map import RelocConfig, load_visual_map, map_path_for, relocalize
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
-from kartpilot.sim.vehicle import camera_pose_on_body
 
 # the synthetic rig's camera looks straight ahead from 0.6 m up, at the rear axle
 BODY_CAM = np.array(camera_pose_on_body(0.0, 0.0, 0.6))

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from kartpilot.calibration.rig import mount_pose
+from kartpilot.core.geometry import mount_pose
 from kartpilot.odometry.mono_localizer import FixFilter, MonoLocalizerConfig, along_arc, place_ground_poses
 
 

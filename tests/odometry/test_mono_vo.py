@@ -8,10 +8,9 @@ import numpy as np
 import pytest
 from tests.conftest import KART, road_texture, road_view
 
-from kartpilot.calibration.rig import mount_pose
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.geometry import transform_points
+from kartpilot.core.geometry import mount_pose, transform_points
 from kartpilot.odometry.mono_vo import (
     GroundConfig,
     MonoVO,

@@ -1,6 +1,7 @@
-"""Fault injection: for every kind, the stop command reaches the bus in time, the supervisor says why,
-and the recording is intact. Simulated drives on python-can's virtual bus, lanes pipeline on sdc-assen
-(centre camera) and stereo VO on straight20."""
+"""Fault injection: for every kind, the stop command reaches the kart in time, the supervisor says why,
+and the recording is intact. Simulated drives on python-can's virtual bus with the simulated ECUs: the
+lanes pipeline on sdc-assen (centre camera) on the RDW kart's protocol, the bus faults on our own
+protocol too; stereo VO on straight20."""
 
 import json
 
@@ -8,30 +9,43 @@ import can
 import numpy as np
 import pytest
 
-from kartpilot.actuation.can_bus import decode, load_dbc
+from kartpilot.actuation.can_bus import CanConfig
+from kartpilot.actuation.kartpilot_protocol import decode, load_dbc
+from kartpilot.actuation.rdw_protocol import decode_rdw, load_rdw_dbc
 from kartpilot.cli.main import main
 from kartpilot.planning.reference_path import PathConfig, build_reference_path
 from kartpilot.record.recording import RecordingReader
 from kartpilot.runtime.faults import BUS_OFF_S, parse_injection
-from kartpilot.runtime.simulate import run_supervised_drive
+from kartpilot.runtime.simulate import BUS_STEP_S, run_supervised_drive
 from kartpilot.sim.simulator import SimConfig
 
 RATE = 15.0
 PERIOD = 1.0 / RATE
 FAULT_AT = 1.0
+SEND_S = 1 / 25  # the actuator's period
 LANES = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=RATE, seed=1,
                   speed_mode_mps=15 / 3.6)
+RDW, OURS = CanConfig(), CanConfig(protocol="kartpilot")
+STATUS_S = OURS.status_timeout_s
 
-# kind -> (the longest the stop may take, words of the supervisor's reason)
+# (protocol, kind) -> (the longest the stop may take, words of the supervisor's reason). A fault seen at a
+# loop step stops the kart at once: it reaches the ECUs at the bus's next step.
 EXPECTED = {
-    "camera-freeze": (PERIOD, "camera center: frozen frame"),
-    "black-frame": (PERIOD, "camera center: black frame"),
-    "gamepad-unplug": (PERIOD, "operator link lost"),
-    "stage-exception": (PERIOD, "the pipeline raised RuntimeError"),
-    # the ECUs report every period; their status is missed after 2.5 periods, then the stop goes out
-    "heartbeat-loss": (2.5 * PERIOD + 2 * PERIOD, "no status from the steer ECU"),
-    # nothing can be sent while the controller is bus-off: the ECUs brake on their own after 2.5 periods
-    "can-bus-off": (2.5 * PERIOD + PERIOD, "CAN transmit failed (bus-off"),
+    ("rdw", "camera-freeze"): (PERIOD + BUS_STEP_S, "camera center: frozen frame"),
+    ("rdw", "black-frame"): (PERIOD + BUS_STEP_S, "camera center: black frame"),
+    ("rdw", "gamepad-unplug"): (PERIOD + BUS_STEP_S, "operator link lost"),
+    ("rdw", "stage-exception"): (PERIOD + BUS_STEP_S, "the pipeline raised RuntimeError"),
+    # the kart falls silent: the steering sensor's 0.2 s are the first to run out
+    ("rdw", "heartbeat-loss"): (RDW.rdw.sensor_timeout_s + PERIOD + BUS_STEP_S, "no steering sensor (0x1e5)"),
+    ("rdw", "steering-sensor-loss"): (RDW.rdw.sensor_timeout_s + PERIOD + BUS_STEP_S, "no steering sensor (0x1e5)"),
+    ("rdw", "steering-sensor-range"): (0.01 + PERIOD + BUS_STEP_S, "steering sensor out of range"),
+    ("rdw", "ecu-error"): (0.05 + PERIOD + BUS_STEP_S, "the steering ECU reports error 3"),
+    # nothing can be sent while bus-off: the motor ECU idles after 200 ms; the brake comes when the bus is back
+    ("rdw", "can-bus-off"): (BUS_OFF_S + PERIOD + BUS_STEP_S, "CAN transmit failed (bus-off"),
+    ("kartpilot", "heartbeat-loss"): (STATUS_S + PERIOD + BUS_STEP_S, "no status from the steer ECU"),
+    ("kartpilot", "ecu-error"): (0.02 + PERIOD + BUS_STEP_S, "the steer ECU reports actuator"),
+    # nothing can be sent while bus-off: our ECUs brake on their own once the heartbeat is missing
+    ("kartpilot", "can-bus-off"): (0.1 + SEND_S + BUS_STEP_S, "CAN transmit failed (bus-off"),
 }
 
 
@@ -46,13 +60,15 @@ def _check_recording(folder, run) -> RecordingReader:
     return reader
 
 
-@pytest.mark.parametrize("kind", list(EXPECTED))
-def test_a_fault_stops_the_kart_in_time_with_its_reason_and_the_recording_intact(kind, tmp_path):
-    limit_s, reason = EXPECTED[kind]
-    run = run_supervised_drive(LANES, "lanes", bus="virtual", duration_s=4.0,
+@pytest.mark.parametrize(("protocol", "kind"), list(EXPECTED))
+def test_a_fault_stops_the_kart_in_time_with_its_reason_and_the_recording_intact(protocol, kind, tmp_path):
+    limit_s, reason = EXPECTED[protocol, kind]
+    run = run_supervised_drive(LANES, "lanes", bus="virtual", duration_s=3.0, can_config=CanConfig(protocol=protocol),
                                injections=[parse_injection(f"{kind}@{FAULT_AT}")], record_dir=tmp_path / "rec")
     payload = run.payload
-    print(kind, payload["transitions"][-1], f"fault to stop {payload['fault_to_stop_s']} s by {payload['stop_by']}")
+    print(protocol, kind, payload["transitions"][-1], f"fault to stop {payload['fault_to_stop_s']} s by "
+          f"{payload['stop_by']}")
+    assert payload["can"]["protocol"] == protocol
     assert payload["final_state"] == "fault" and reason in payload["transitions"][-1]["reason"]
     assert payload["fault_to_stop_s"] is not None and payload["fault_to_stop_s"] <= limit_s + 1e-6
     assert payload["transitions"][-1]["t_s"] >= FAULT_AT - 1e-6  # nothing before the fault
@@ -62,12 +78,28 @@ def test_a_fault_stops_the_kart_in_time_with_its_reason_and_the_recording_intact
     if kind == "stage-exception":
         assert run.error is not None and "RuntimeError" in (tmp_path / "rec" / "error.txt").read_text()
     if kind == "can-bus-off":
-        assert payload["stop_by"] == "ecu-timeout" and payload["can"]["tx_errors"] > 0
-        db = load_dbc()  # once the bus came back, it carried stops only
-        brakes = [decode(db, can.Message(arbitration_id=i, data=d))[1]["Brake"]
-                  for t, direction, i, d in reader.can_frames()
-                  if direction == "tx" and i == 0x102 and t * 1e-9 >= FAULT_AT + BUS_OFF_S]
-        assert brakes and all(b == 1.0 for b in brakes)
+        assert payload["can"]["tx_errors"] > 0
+        sent = [(t, i, d) for t, direction, i, d in reader.can_frames()
+                if direction == "tx" and t * 1e-9 >= FAULT_AT + BUS_OFF_S]
+        if protocol == "kartpilot":
+            assert payload["stop_by"] == "ecu-timeout"
+            db = load_dbc()  # once the bus came back, it carried stops only
+            brakes = [decode(db, can.Message(arbitration_id=i, data=d))[1]["Brake"] for _, i, d in sent if i == 0x102]
+            assert brakes and all(b == 1.0 for b in brakes)
+        else:
+            rdw = load_rdw_dbc()
+            brakes = [decode_rdw(rdw, can.Message(arbitration_id=i, data=d))[1]["BrakePercent"]
+                      for _, i, d in sent if i == 0x110]
+            assert brakes and all(b == 100 for b in brakes)
+
+
+def test_a_silent_loop_is_stopped_by_the_actuator_before_the_motor_ecu_idles(tmp_path):
+    run = run_supervised_drive(LANES, "lanes", bus="virtual", duration_s=2.0,
+                               injections=[parse_injection(f"loop-stall@{FAULT_AT}")], record_dir=tmp_path / "rec")
+    payload = run.payload
+    print(f"fault to stop {payload['fault_to_stop_s']} s by {payload['stop_by']}")
+    assert payload["can"]["quiet_stops"] == 1 and payload["stop_by"] == "command"  # ours, not the motor ECU's idle
+    assert payload["fault_to_stop_s"] <= RDW.command_timeout_s + 2 * BUS_STEP_S + 1e-6
 
 
 def test_a_vo_failure_stops_the_kart_once_the_localizer_gives_up(tmp_path):

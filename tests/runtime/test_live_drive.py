@@ -1,6 +1,7 @@
-"""A live drive end to end without a kart: a video file stands in for the centre camera, python-can's
-virtual bus for the kart's CAN, a thread of simulated ECUs answers, and the person is the web page,
-driven over HTTP. The person arms autonomy, holds, then closes the page: the kart must stop."""
+"""A live drive end to end without a kart: a video file stands in for the centre camera (on the RDW kart's
+protocol, found through the organiser's camera-mapping files), python-can's virtual bus for the kart's CAN,
+a thread of simulated ECUs answers, and the person is the web page, driven over HTTP. The person arms
+autonomy, holds, then closes the page: the kart must stop."""
 
 import json
 import socket
@@ -11,17 +12,22 @@ from dataclasses import replace
 
 import can
 import cv2
+import pytest
 
-from kartpilot.actuation.can_bus import CanConfig, decode, load_dbc, open_bus
-from kartpilot.calibration.rig import Rig
+from kartpilot.actuation.can_bus import CanConfig, open_bus
+from kartpilot.actuation.kartpilot_protocol import decode, load_dbc
+from kartpilot.actuation.rdw_protocol import RdwConfig
+from kartpilot.calibration.rig import Rig, apply_camera_maps
 from kartpilot.core.camera import CaptureSettings
+from kartpilot.core.errors import CalibrationError
 from kartpilot.core.types import ActuatorCommand
+from kartpilot.core.vehicle import get_vehicle
 from kartpilot.record.recording import RecordingReader
 from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.live_drive import LiveDriveSetup, run_live_drive
 from kartpilot.runtime.simulate import run_simulation
+from kartpilot.sim.can_ecu import KartpilotEcus, RdwEcus
 from kartpilot.sim.simulator import SimConfig
-from kartpilot.sim.vehicle import get_vehicle
 
 
 def _free_port() -> int:
@@ -35,10 +41,8 @@ def _post(url: str, body: dict) -> None:
     urllib.request.urlopen(request, timeout=1.0).read()
 
 
-def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(tmp_path):
-    from kartpilot.sim.can_ecu import SimEcus
-
-    # the camera: a short rendered drive as a video file
+def _camera_video(tmp_path):
+    """A short rendered drive of the SDC kart's centre camera as a video file, and its calibration."""
     sim_config = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=15.0,
                            max_time_s=4.0, seed=1)
     run_simulation(sim_config, "centerline", record_dir=tmp_path / "teach")
@@ -49,28 +53,47 @@ def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(t
     for _, path in frames:
         video.write(cv2.imread(str(path)))
     video.release()
-    camera = RecordingReader(tmp_path / "teach").cameras["center"]  # the simulator's calibration
-    rig = Rig({"center": camera}, None, {"center": CaptureSettings(str(tmp_path / "center.mp4"), fps=15.0)})
+    return tmp_path / "center.mp4", RecordingReader(tmp_path / "teach").cameras["center"]
+
+
+def _organiser_camera_maps(tmp_path, video):
+    """Two karts' camera-mapping files as the organiser ships them: the first kart's devices are not on this
+    machine, the second's are (faked: its by-path device is the video file)."""
+    by_path = tmp_path / "dev" / "v4l" / "by-path"
+    by_path.mkdir(parents=True)
+    device = by_path / "pci-0000:00:14.0-usb-0:2:1.0-video-index0"
+    device.symlink_to(video)
+    other = {"front": str(by_path / "pci-0000:00:14.0-usb-0:9:1.0-video-index0"), "left": "/dev/v4l/by-path/none-1",
+             "right": "/dev/v4l/by-path/none-2"}
+    ours = {"front": str(device), "left": str(by_path / "left-missing"), "right": str(by_path / "right-missing")}
+    (tmp_path / "kart1.json").write_text(json.dumps(other))
+    (tmp_path / "kart2.json").write_text(json.dumps({"front": str(device)}))
+    (tmp_path / "kart3.json").write_text(json.dumps(ours))
+    return [str(tmp_path / f"kart{k}.json") for k in (1, 2)]
+
+
+@pytest.mark.parametrize("protocol", ["rdw", "kartpilot"])
+def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(protocol, tmp_path):
+    video, camera = _camera_video(tmp_path)
+    if protocol == "rdw":  # the real kart: its cameras from the organiser's camera-mapping files
+        rig = Rig({"center": camera}, None, {"center": CaptureSettings("unset", fps=15.0)},
+                  camera_maps=tuple(_organiser_camera_maps(tmp_path, video)))
+    else:
+        rig = Rig({"center": camera}, None, {"center": CaptureSettings(str(video), fps=15.0)})
 
     # the kart's ECUs on the virtual bus
     channel = f"live-test-{time.monotonic_ns()}"
     ecu_bus = open_bus(CanConfig(channel=channel))
-
-    class Wheels:
-        def __init__(self) -> None:
-            self.commands: list[ActuatorCommand] = []
-
-        def send(self, command: ActuatorCommand) -> None:
-            self.commands.append(command)
-
-    wheels = Wheels()
-    ecus = SimEcus(ecu_bus, wheels, time.monotonic_ns)
+    sdc = get_vehicle("sdc-kart")
+    ecus = (RdwEcus(ecu_bus, time.monotonic_ns, sdc.steering) if protocol == "rdw"
+            else KartpilotEcus(ecu_bus, time.monotonic_ns))
+    executed: list[ActuatorCommand] = []
     stop = threading.Event()
 
     def ecu_loop():
         while not stop.is_set():
-            ecus.step()
-            time.sleep(0.01)
+            executed.append(ecus.step())
+            time.sleep(0.005)
 
     threading.Thread(target=ecu_loop, daemon=True).start()
 
@@ -92,26 +115,53 @@ def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(t
             time.sleep(0.1)
 
     threading.Thread(target=person, daemon=True).start()
-    stack = replace(StackConfig(), can=CanConfig(channel=channel, status_timeout_s=0.2))
-    setup = LiveDriveSetup(rig, "lanes", get_vehicle("sdc-kart").wheelbase_m, web_port=port,
-                           record_dir=tmp_path / "live", duration_s=3.0)
+    # the watchdogs' timing is tested with a simulated clock; here threads share two cores with a video decoder
+    can_config = CanConfig(channel=channel, protocol=protocol, status_timeout_s=0.3,
+                           rdw=RdwConfig(sensor_timeout_s=0.5, feedback_timeout_s=0.5))
+    setup = LiveDriveSetup(rig, "lanes", sdc, web_port=port, record_dir=tmp_path / "live", duration_s=3.0)
     try:
-        summary = run_live_drive(setup, stack)
+        summary = run_live_drive(setup, replace(StackConfig(), can=can_config))
     finally:
         stop.set()
     states = [(t["state"], t["reason"]) for t in summary["transitions"]]
     print(summary["ended"], states, summary["cameras"]["skew_ms"], summary["stage_ms"].get("policy"))
+    assert summary["can"]["protocol"] == protocol
     assert states[0] == ("autonomous", "autonomous requested by the operator (web)")
     assert states[-1] == ("fault", "operator link lost (web)")
-    assert any(c.throttle > 0 for c in wheels.commands)  # it drove while the person held
-    assert wheels.commands[-1].brake == 1.0  # and stopped
+    assert any(c.throttle > 0 for c in executed)  # it drove while the person held
+    assert executed[-1].throttle == 0.0 and ecus.applied[-1].command.brake == 1.0  # and stopped
     reader = RecordingReader(tmp_path / "live")
     assert reader.closed and len(reader.frames("center")) > 20
+    assert reader.manifest["metadata"]["vehicle"] == "sdc-kart"
     assert {row["state"] for row in reader.outputs("supervisor")} >= {"autonomous", "fault"}
-    db = load_dbc()
-    sent = [decode(db, can.Message(arbitration_id=i, data=d)) for _, direction, i, d in reader.can_frames()
-            if direction == "tx"]
-    assert sent[-2][0] == "BrakeCommand" and sent[-2][1]["Brake"] == 1.0
+    sent = [(i, d) for _, direction, i, d in reader.can_frames() if direction == "tx"]
+    if protocol == "rdw":
+        assert {i for i, _ in sent} == {0x110, 0x220, 0x330}
+        assert sent[-3] == (0x110, bytes.fromhex("6400000000000000"))  # the last brake: 100 %
+        assert any(row["Speed"] == row["Speed"] for row in reader.outputs("kart"))  # decoded feedback, not NaN
+    else:
+        db = load_dbc()
+        last = [decode(db, can.Message(arbitration_id=i, data=d)) for i, d in sent][-2]
+        assert last[0] == "BrakeCommand" and last[1]["Brake"] == 1.0
     assert any(direction == "rx" for _, direction, _, _ in reader.can_frames())
     assert json.loads((tmp_path / "live" / "result.json").read_text())["final_state"] == "fault"
     ecu_bus.shutdown()
+
+
+def test_the_first_camera_map_whose_devices_all_exist_wins_and_a_misfit_names_each_file(tmp_path):
+    video = tmp_path / "front.mp4"
+    video.write_bytes(b"")
+    maps = _organiser_camera_maps(tmp_path, video)
+    camera = get_vehicle("sdc-kart").camera("center")
+    rig = Rig({"center": camera}, None, {"center": CaptureSettings("unset", fps=20.0)})
+    mapped = apply_camera_maps(rig, maps)
+    assert mapped.capture["center"].device.endswith("usb-0:2:1.0-video-index0")
+    assert mapped.capture["center"].fps == 20.0  # the rig's own capture settings stay
+    with pytest.raises(CalibrationError) as error:
+        apply_camera_maps(Rig({"center": camera, "left": camera}), [maps[0], str(tmp_path / "kart3.json"),
+                                                                   str(tmp_path / "nope.json")])
+    message = str(error.value)
+    print(message)
+    assert "kart1.json: missing" in message and "usb-0:9:1.0-video-index0" in message
+    assert "kart3.json: missing " + str(tmp_path / "dev/v4l/by-path/left-missing") in message
+    assert "nope.json: no such file" in message

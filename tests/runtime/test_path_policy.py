@@ -4,11 +4,11 @@ import numpy as np
 
 from kartpilot.control.path_follow import PathFollowConfig
 from kartpilot.core.types import ActuatorCommand, FrameSet
+from kartpilot.core.vehicle import camera_pose_on_body
 from kartpilot.odometry.localizer import LocalizerConfig, StereoVOLocalizer
 from kartpilot.planning.reference_path import PathConfig, build_reference_path
 from kartpilot.runtime.path_policy import PathFollowPolicy, write_drive_log
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
-from kartpilot.sim.vehicle import camera_pose_on_body
 
 
 def test_losing_vo_stops_the_kart_and_it_stays_stopped(tmp_path):

@@ -194,8 +194,8 @@ def test_kartpilot_record_writes_a_closed_recording_with_health_and_skew(tmp_pat
     import json
     from dataclasses import replace
 
-    from kartpilot.calibration.rig import mount_pose
     from kartpilot.cli.main import main
+    from kartpilot.core.geometry import mount_pose
 
     camera = PinholeCamera(60.0, 60.0, 31.5, 23.5, W, H)
     left, right = (replace(camera, pose_body_cam=tuple(map(tuple, mount_pose(0.4, y, 0.19)))) for y in (0.07, -0.07))

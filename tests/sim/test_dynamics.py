@@ -4,8 +4,8 @@ from dataclasses import replace
 import pytest
 
 from kartpilot.core.types import ActuatorCommand
+from kartpilot.core.vehicle import VEHICLES, get_vehicle
 from kartpilot.sim.dynamics import Disturbances, VehicleState, actuate, step_vehicle
-from kartpilot.sim.vehicle import VEHICLES, get_vehicle
 
 RC = get_vehicle("rc-kart")
 

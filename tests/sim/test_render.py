@@ -4,11 +4,11 @@ import cv2
 import numpy as np
 import pytest
 
+from kartpilot.core.vehicle import VEHICLES
 from kartpilot.sim.dynamics import VehicleState
 from kartpilot.sim.render import Renderer
 from kartpilot.sim.simulator import body_pose
 from kartpilot.sim.track import load_track
-from kartpilot.sim.vehicle import VEHICLES
 
 
 @pytest.fixture(scope="module")

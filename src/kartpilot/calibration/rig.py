@@ -16,6 +16,8 @@ takes its cameras from here. Example::
         capture: {device: /dev/video0, fps: 30, exposure: 150, fourcc: MJPG}
       right: {...}
     stereo_pair: [left, right]
+    steering: {value_sign: -1, rad_per_value: 0.31, counts_per_value: -598.2, count_offset: 3.5}
+    camera_maps: [kart1.json, kart2.json]
 
 A camera's pose on the body (x forward, y left, z up, at the rear axle) is either a
 ``mount`` (position and yaw left / pitch down, as a person measures it) or the full
@@ -23,12 +25,21 @@ A camera's pose on the body (x forward, y left, z up, at the rear axle) is eithe
 so that the measured relative pose is kept exactly. ``capture`` (optional) says how
 to open the live camera (:class:`~kartpilot.core.camera.CaptureSettings`); its
 resolution is the calibration's.
+
+``steering`` (optional) is the kart's steering calibration as ``kartpilot calibrate steering`` wrote
+it (:class:`~kartpilot.core.vehicle.SteeringCalibration`); it overrides the vehicle's default.
+``camera_maps`` (optional) lists the Self Driving Challenge organiser's camera-mapping files, relative
+to the rig file: each maps ``front``, ``left`` and ``right`` to a ``/dev/v4l/by-path/...`` device, and
+the first whose paths all exist on this machine says which device each camera is (``front`` is our
+``center``), since a team may get another kart on the day. They are applied when the cameras are
+opened (:func:`apply_camera_maps`), not when the file is read, so a rig file written back keeps them.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass, field
+import json
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -36,10 +47,14 @@ import numpy as np
 import yaml
 
 from kartpilot.core.camera import CaptureSettings, PinholeCamera
-from kartpilot.core.errors import CalibrationError
-from kartpilot.core.geometry import Array
+from kartpilot.core.config import config_to_dict, merge_config
+from kartpilot.core.errors import CalibrationError, ConfigError
+from kartpilot.core.geometry import mount_pose
+from kartpilot.core.vehicle import SteeringCalibration
 
-__all__ = ["Rig", "load_rig", "mount_pose", "save_rig"]
+__all__ = ["ORGANISER_CAMERA_NAMES", "Rig", "apply_camera_maps", "load_rig", "save_rig"]
+
+ORGANISER_CAMERA_NAMES = {"front": "center", "left": "left", "right": "right"}
 
 CAMERA_KEYS = {"width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px", "distortion", "mount", "pose_body_cam",
                "capture"}
@@ -55,26 +70,13 @@ class Rig:
     cameras: dict[str, PinholeCamera]
     stereo_pair: tuple[str, str] | None = None
     capture: dict[str, CaptureSettings] = field(default_factory=dict)
+    steering: SteeringCalibration | None = None
+    camera_maps: tuple[str, ...] = ()
 
     def camera(self, name: str) -> PinholeCamera:
         if name not in self.cameras:
             raise CalibrationError(f"the rig has no camera {name!r} (it has {', '.join(self.cameras)})")
         return self.cameras[name]
-
-
-def mount_pose(x_m: float = 0.0, y_m: float = 0.0, z_m: float = 0.0, yaw_deg: float = 0.0,
-               pitch_down_deg: float = 0.0, roll_deg: float = 0.0) -> Array:
-    """The 4x4 pose on the body of an OpenCV camera looking forward, then yawed left, pitched down and
-    rolled (clockwise as seen from behind)."""
-    base = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # camera axes in body axes
-    yaw, pitch, roll = (math.radians(a) for a in (yaw_deg, pitch_down_deg, roll_deg))
-    rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
-    ry = np.array([[math.cos(pitch), 0, math.sin(pitch)], [0, 1, 0], [-math.sin(pitch), 0, math.cos(pitch)]])
-    rx = np.array([[1, 0, 0], [0, math.cos(roll), -math.sin(roll)], [0, math.sin(roll), math.cos(roll)]])
-    pose = np.eye(4)
-    pose[:3, :3] = rz @ ry @ rx @ base
-    pose[:3, 3] = (x_m, y_m, z_m)
-    return pose
 
 
 def _check_mapping(data: Any, where: str, known: set[str], required: frozenset[str] | set[str] = frozenset()
@@ -136,7 +138,7 @@ def load_rig(path: str | Path) -> Rig:
         raise CalibrationError(f"{path}: not valid YAML ({exc})") from exc
     if not isinstance(data, dict) or not isinstance(data.get("cameras"), dict) or not data["cameras"]:
         raise CalibrationError(f"{path}: a rig file needs a 'cameras' mapping with at least one camera")
-    _check_mapping(data, str(path), {"cameras", "stereo_pair"})
+    _check_mapping(data, str(path), {"cameras", "stereo_pair", "steering", "camera_maps"})
     cameras = {str(name): _camera_from_yaml(str(name), cam, path) for name, cam in data["cameras"].items()}
     pair = data.get("stereo_pair")
     if pair is not None:
@@ -147,7 +149,60 @@ def load_rig(path: str | Path) -> Rig:
             raise CalibrationError(f"{path}: the stereo pair's cameras differ in size")
     capture = {str(name): _capture_from_yaml(str(name), cam["capture"], path)
                for name, cam in data["cameras"].items() if isinstance(cam, dict) and "capture" in cam}
-    return Rig(cameras, (str(pair[0]), str(pair[1])) if pair else None, capture)
+    steering = None
+    if data.get("steering") is not None:
+        try:
+            steering = merge_config(SteeringCalibration(), data["steering"], "steering")
+        except ConfigError as exc:
+            raise CalibrationError(f"{path}: {exc}") from exc
+    maps = data.get("camera_maps") or []
+    if not isinstance(maps, list) or not all(isinstance(m, str) for m in maps):
+        raise CalibrationError(f"{path}: camera_maps must be a list of file names")
+    return Rig(cameras, (str(pair[0]), str(pair[1])) if pair else None, capture, steering,
+               tuple(str(path.parent / m) for m in maps))
+
+
+def _read_camera_map(path: Path) -> dict[str, str]:
+    """One organiser camera-mapping file: our camera name -> device path."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CalibrationError(f"camera map {path}: cannot read it as JSON ({exc})") from exc
+    if not isinstance(data, dict) or not data or not all(isinstance(v, str) for v in data.values()):
+        raise CalibrationError(f"camera map {path}: expected an object mapping front, left, right to device paths")
+    unknown = set(data) - set(ORGANISER_CAMERA_NAMES)
+    if unknown:
+        raise CalibrationError(f"camera map {path}: unknown camera(s) {', '.join(sorted(unknown))} "
+                               f"({', '.join(ORGANISER_CAMERA_NAMES)})")
+    return {ORGANISER_CAMERA_NAMES[k]: v for k, v in data.items()}
+
+
+def apply_camera_maps(rig: Rig, paths: Sequence[str | Path]) -> Rig:
+    """The rig with each camera's device from the first organiser camera map whose paths all exist.
+
+    Only the rig's own cameras are mapped (a camera needs its calibration); the capture settings the rig
+    gives (fps, exposure) are kept. When no file fits, the error names each file and its missing paths.
+    """
+    if not paths:
+        raise CalibrationError("no camera map given")
+    misses = []
+    for path in (Path(p) for p in paths):
+        if not path.is_file():
+            misses.append(f"{path}: no such file")
+            continue
+        mapping = {name: device for name, device in _read_camera_map(path).items() if name in rig.cameras}
+        if not mapping:
+            misses.append(f"{path}: maps none of the rig's cameras ({', '.join(rig.cameras)})")
+            continue
+        missing = [device for device in mapping.values() if not Path(device).exists()]
+        if missing:
+            misses.append(f"{path}: missing {', '.join(missing)}")
+            continue
+        capture = dict(rig.capture)
+        for name, device in mapping.items():
+            capture[name] = replace(capture[name], device=device) if name in capture else CaptureSettings(device)
+        return replace(rig, capture=capture)
+    raise CalibrationError("no camera map fits this kart: " + "; ".join(misses))
 
 
 def save_rig(rig: Rig, path: str | Path) -> Path:
@@ -168,5 +223,10 @@ def save_rig(rig: Rig, path: str | Path) -> Path:
     data: dict[str, Any] = {"cameras": cameras}
     if rig.stereo_pair:
         data["stereo_pair"] = list(rig.stereo_pair)
+    if rig.steering is not None:
+        data["steering"] = config_to_dict(rig.steering)
+    if rig.camera_maps:
+        data["camera_maps"] = [str(Path(m).relative_to(path.parent)) if Path(m).is_relative_to(path.parent) else m
+                               for m in rig.camera_maps]
     path.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
     return path

@@ -11,10 +11,10 @@ from typing import Any
 import numpy as np
 
 from kartpilot.calibration.board import BoardConfig, MonoCalibration, calibrate_mono, calibrate_stereo, read_views
-from kartpilot.calibration.rig import Rig, mount_pose, save_rig
+from kartpilot.calibration.rig import Rig, save_rig
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.geometry import invert_pose
+from kartpilot.core.geometry import invert_pose, mount_pose
 
 __all__ = ["calibrate"]
 

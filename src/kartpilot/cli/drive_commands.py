@@ -13,6 +13,7 @@ import numpy as np
 from kartpilot.calibration.rig import load_rig
 from kartpilot.control.path_follow import steer_bias_of_drive
 from kartpilot.core.errors import ConfigError, KartpilotError, RecordingError
+from kartpilot.core.vehicle import VehicleParams, get_vehicle
 from kartpilot.odometry.localizer import ground_poses
 from kartpilot.odometry.places import load_places
 from kartpilot.odometry.run import run_teach
@@ -31,7 +32,6 @@ from kartpilot.runtime.live_drive import LiveDriveSetup, run_live_drive
 from kartpilot.runtime.replay import replay_recording
 from kartpilot.runtime.simulate import run_supervised_drive
 from kartpilot.sim.simulator import SimConfig
-from kartpilot.sim.vehicle import VehicleParams, get_vehicle
 
 __all__ = ["drive", "experiment", "reference", "replay"]
 
@@ -135,7 +135,8 @@ def drive(args: argparse.Namespace) -> int:
             injections=[parse_injection(text) for text in args.inject or []], lane_config=stack.lane_policy,
             drive_config=drive_config, vo_config=stack.stereo_vo, reference=path, visual_map=visual_map,
             places=places, mono_config=stack.mono_vo,
-            can_config=stack.can, watchdog_config=stack.watchdogs, supervisor_config=stack.supervisor,
+            can_config=stack.can, limits=stack.limits, watchdog_config=stack.watchdogs,
+            supervisor_config=stack.supervisor,
             record_dir=args.record, result_path=args.result, video_path=args.video, drive_log=args.log,
             progress=not args.no_progress)
         print(drive_summary(run.payload))
@@ -147,7 +148,7 @@ def drive(args: argparse.Namespace) -> int:
         if path is None:
             raise ConfigError("drive --replay runs the stereo-vo pipeline; for lanes use kartpilot replay")
         replayed = replay_recording(args.replay, "stereo-vo", replace(stack, drive=drive_config), reference=path,
-                                    visual_map=visual_map, vehicle=vehicle.name, drive_log=args.log)
+                                    visual_map=visual_map, vehicle=args.vehicle, drive_log=args.log)
         summary = replayed.to_json()
         print(json.dumps(summary))
         if args.result:
@@ -160,8 +161,11 @@ def drive(args: argparse.Namespace) -> int:
             can = replace(can, interface=args.bus)
         if args.channel:
             can = replace(can, channel=args.channel)
-        setup = LiveDriveSetup(load_rig(args.live), args.pipeline, vehicle.wheelbase_m, path, visual_map,
-                               args.gamepad, args.web, args.record, args.duration)
+        rig = load_rig(args.live)
+        if args.cameras_json:
+            rig = replace(rig, camera_maps=tuple(args.cameras_json))
+        setup = LiveDriveSetup(rig, args.pipeline, vehicle, path, visual_map, args.gamepad, args.web, args.record,
+                               args.duration)
         summary = run_live_drive(setup, replace(stack, can=can))
         print(json.dumps({k: summary[k] for k in ("ended", "seconds", "final_state", "error")}))
         for transition in summary["transitions"]:
@@ -198,7 +202,7 @@ def replay(args: argparse.Namespace) -> int:
     stack = load_stack_config(args.config)
     path = load_reference_path(args.reference) if args.reference else None
     visual_map = _visual_map(args) if path is not None else None
-    if args.pipeline == "stereo-vo":
+    if args.pipeline == "stereo-vo" and args.vehicle:
         _stereo_vehicle(args.vehicle)
     result = replay_recording(args.recording, args.pipeline, stack, out=args.out, realtime=args.realtime,
                               reference=path, visual_map=visual_map, vehicle=args.vehicle,

@@ -121,6 +121,9 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--out", required=True, help="the recording folder to create")
     rec.add_argument("--duration", type=float, help="seconds to record (default: until Ctrl-C)")
     rec.add_argument("--cameras", help="comma-separated cameras (default: every camera with capture settings)")
+    rec.add_argument("--cameras-json", nargs="+", metavar="JSON",
+                     help="the organiser's camera-mapping files; the first whose paths all exist wins (default: the "
+                          "rig file's camera_maps)")
     rec.add_argument("--image-format", choices=("jpg", "png"), default="jpg",
                      help="jpg (quality 95) keeps up with three 960x540 cameras at 30 fps on two cores; png is "
                           "lossless and about 25x slower to encode")
@@ -175,12 +178,16 @@ def build_parser() -> argparse.ArgumentParser:
                        help="--sim: virtual (default: the simulated ECUs behind python-can's virtual bus) or none; "
                             "--live: socketcan or virtual (default: the config's can.interface)")
     drive.add_argument("--channel", help="--live: the CAN channel (can0; vcan0 for a bench test)")
+    drive.add_argument("--cameras-json", nargs="+", metavar="JSON",
+                       help="--live: the organiser's camera-mapping files (front, left, right to device paths); the "
+                            "first whose paths all exist wins (default: the rig file's camera_maps)")
     drive.add_argument("--gamepad", metavar="DEVICE", help="--live: the gamepad's joystick device (/dev/input/js0)")
     drive.add_argument("--web", metavar="PORT", type=int, help="--live: serve the kart's web page on this port")
     drive.add_argument("--duration", type=float, help="--sim, --live: seconds to drive at most")
     drive.add_argument("--inject", action="append", metavar="KIND@SECONDS",
                        help="--sim: inject a fault (camera-freeze, black-frame, vo-failure, can-bus-off, "
-                            "heartbeat-loss, gamepad-unplug, stage-exception); repeatable")
+                            "heartbeat-loss, ecu-error, steering-sensor-loss, steering-sensor-range, loop-stall, "
+                            "gamepad-unplug, stage-exception); repeatable")
     drive.add_argument("--map", help="the visual map (default: the reference's .map.npz, if there)")
     drive.add_argument("--no-map", action="store_true", help="localise with VO alone")
     drive.add_argument("--speed", type=float, help="stereo-vo: cap the path's speed profile, m/s")
@@ -206,7 +213,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--reference", help="stereo-vo: the path to follow (written by 'kartpilot reference')")
     rep.add_argument("--map", help="stereo-vo: the visual map (default: the reference's .map.npz, if there)")
     rep.add_argument("--no-map", action="store_true", help="stereo-vo: localise with VO alone")
-    rep.add_argument("--vehicle", default="rc-kart", help="stereo-vo: the kart (wheelbase, steering range)")
+    rep.add_argument("--vehicle", help="the kart (wheelbase, steering range; default: the one the recording was made "
+                                       "on)")
     rep.add_argument("--config", help="YAML file merged over the defaults")
     rep.set_defaults(handler=drive_commands.replay)
 

@@ -7,7 +7,7 @@ import json
 import math
 from dataclasses import asdict
 
-from kartpilot.calibration.rig import load_rig
+from kartpilot.calibration.rig import apply_camera_maps, load_rig
 from kartpilot.record.convert import export_recording, import_donkey_tub
 from kartpilot.record.info import recording_info
 from kartpilot.record.live import record_live
@@ -24,6 +24,9 @@ def record(args: argparse.Namespace) -> int:
     """Record the rig's live cameras until the duration is up or Ctrl-C."""
     stack = load_stack_config(args.config)
     rig = load_rig(args.rig)
+    maps = args.cameras_json or rig.camera_maps
+    if maps:
+        rig = apply_camera_maps(rig, maps)
     cameras = args.cameras.split(",") if args.cameras else None
     source = LiveFrameSource(rig, stack.live, cameras).start()
     names = list(source.threads)

@@ -7,6 +7,7 @@ KITTI's pose files. Camera frames are x right, y down, z forward.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -16,6 +17,7 @@ from scipy.spatial.transform import Rotation
 __all__ = [
     "Array",
     "invert_pose",
+    "mount_pose",
     "pose_from_quaternion",
     "pose_from_rotvec",
     "pose_from_rt",
@@ -85,3 +87,18 @@ def transform_points(pose: Array, points: Array) -> Array:
     """Apply a 4x4 pose to an (N, 3) array of points."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     return points @ pose[:3, :3].T + pose[:3, 3]
+
+
+def mount_pose(x_m: float = 0.0, y_m: float = 0.0, z_m: float = 0.0, yaw_deg: float = 0.0,
+               pitch_down_deg: float = 0.0, roll_deg: float = 0.0) -> Array:
+    """The 4x4 pose on the body of an OpenCV camera looking forward, then yawed left, pitched down and
+    rolled (clockwise as seen from behind)."""
+    base = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # camera axes in body axes
+    yaw, pitch, roll = (math.radians(a) for a in (yaw_deg, pitch_down_deg, roll_deg))
+    rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
+    ry = np.array([[math.cos(pitch), 0, math.sin(pitch)], [0, 1, 0], [-math.sin(pitch), 0, math.cos(pitch)]])
+    rx = np.array([[1, 0, 0], [0, math.cos(roll), -math.sin(roll)], [0, math.sin(roll), math.cos(roll)]])
+    pose = np.eye(4)
+    pose[:3, :3] = rz @ ry @ rx @ base
+    pose[:3, 3] = (x_m, y_m, z_m)
+    return pose

@@ -17,6 +17,7 @@ __all__ = [
     "Image",
     "OperatorInput",
     "StereoFrame",
+    "VehicleFeedback",
     "VehiclePose",
 ]
 
@@ -106,6 +107,21 @@ class VehiclePose:
     yaw_rate_radps: float
     status: Literal["ok", "bridged", "lost"]
     reason: str = ""
+
+
+@dataclass(frozen=True)
+class VehicleFeedback:
+    """What the kart itself measures, from its CAN bus (None where it says nothing, or nothing fresh).
+
+    Attributes:
+        stamp_ns: when this was read.
+        speed_mps: the measured speed (the RDW kart's 0x440), forward positive.
+        steer_rad: the measured road-wheel angle, positive left (the steering sensor through the calibration).
+    """
+
+    stamp_ns: int
+    speed_mps: float | None = None
+    steer_rad: float | None = None
 
 
 @dataclass(frozen=True)

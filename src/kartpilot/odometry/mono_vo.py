@@ -47,10 +47,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from kartpilot.calibration.rig import mount_pose
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.geometry import Array
+from kartpilot.core.geometry import Array, mount_pose
 from kartpilot.core.types import Image
 from kartpilot.perception.tracking import KltConfig, track_klt
 

@@ -19,9 +19,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from kartpilot.calibration.rig import mount_pose
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import DataError, RecordingError
+from kartpilot.core.geometry import mount_pose
 from kartpilot.core.types import ActuatorCommand
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 from kartpilot.sensors.donkeycar import DonkeyTub

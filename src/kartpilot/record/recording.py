@@ -338,6 +338,13 @@ class RecordingReader:
         pair = manifest.get("stereo_pair")
         self.stereo_pair: tuple[str, str] | None = (pair[0], pair[1]) if pair else None
 
+    @property
+    def vehicle(self) -> str | None:
+        """The kart the recording was made on, where it says (live drives and simulated runs do)."""
+        metadata = self.manifest.get("metadata") or {}
+        name = metadata.get("vehicle") or (metadata.get("sim") or {}).get("vehicle")
+        return str(name) if name else None
+
     def _frame_rows(self, camera: str) -> list[tuple[int, Path, int]]:
         if camera not in self.cameras:
             raise RecordingError(f"recording has no camera {camera!r} (has {', '.join(self.cameras)})")

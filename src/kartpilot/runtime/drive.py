@@ -3,7 +3,9 @@
 :class:`Watchdogs` gathers, every step, what the supervisor listens to: the cameras (a black, blank
 or frozen frame at once; no frame for ``camera_timeout_s``), the pipeline's own health (localisation
 lost, no lane boundary), a pipeline that keeps overrunning its period, and the CAN bus and ECUs.
-:class:`SupervisedDrive` is the policy the loop runs: pipeline, watchdogs, operator, supervisor. An
+:class:`SupervisedDrive` is the policy the loop runs: pipeline, watchdogs, operator, supervisor. A
+pipeline that can use the kart's own measurements (``observe_vehicle``) gets them before each step,
+and what the kart reported becomes the recording's ``kart`` topic (``outputs/kart.csv``). An
 exception inside the pipeline is caught there: it is a fault like any other, the stop goes out in
 the same step, and the error is kept so the run can end non-zero once the stop has been held.
 """
@@ -105,6 +107,9 @@ class SupervisedDrive:
         autonomous = ActuatorCommand.stop(frames.stamp_ns)
         if self.error is None:
             try:
+                observe = getattr(self.pipeline, "observe_vehicle", None)
+                if observe is not None and self.actuator is not None:
+                    observe(self.actuator.feedback())
                 autonomous = self.pipeline(frames)
                 fault_of = getattr(self.pipeline, "fault", None)
                 pipeline_fault = fault_of() if fault_of is not None else ""
@@ -130,4 +135,6 @@ class SupervisedDrive:
         result: dict[str, dict[str, Any]] = dict(pipeline_outputs()) if pipeline_outputs is not None else {}
         result["supervisor"] = {"state": self.supervisor.state, "faults": len(self.faults),
                                 "reason": self.supervisor.reason.replace(",", ";")}
+        if self.actuator is not None:
+            result["kart"] = self.actuator.outputs()
         return result

@@ -30,6 +30,7 @@ from kartpilot.control.path_follow import BiasConfig, PathFollowConfig, steer_bi
 from kartpilot.control.stanley import StanleyConfig
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array
+from kartpilot.core.vehicle import VehicleParams, get_vehicle
 from kartpilot.eval.plots import plot_path_following, plot_steering
 from kartpilot.odometry.localizer import ground_poses
 from kartpilot.odometry.run import run_teach
@@ -41,7 +42,6 @@ from kartpilot.runtime.path_policy import DriveConfig
 from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import DisturbanceConfig, SimConfig
-from kartpilot.sim.vehicle import VehicleParams, get_vehicle
 
 __all__ = ["ThesisVOConfig", "end_errors", "path_distance", "run_thesis_vo", "summary_line", "thesis_drive_config"]
 

@@ -6,7 +6,11 @@ Each kind breaks one thing the way it breaks on a kart, from its time on:
 * ``black-frame``: one set of black images (a covered lens, a sensor glitch);
 * ``vo-failure``: visual odometry fails on every frame (the localizer bridges, then reports lost);
 * ``can-bus-off``: the CAN controller goes bus-off: every send fails for ``BUS_OFF_S``, then it recovers;
-* ``heartbeat-loss``: the ECUs stop reporting their status;
+* ``heartbeat-loss``: the kart's ECUs and sensors stop reporting;
+* ``ecu-error``: an ECU reports an error (the RDW steering ECU's error byte; our DBC's fault code);
+* ``steering-sensor-loss``, ``steering-sensor-range``: the RDW kart's steering sensor goes silent, or
+  reports counts out of its valid range (its ECU goes to its failsafe);
+* ``loop-stall``: the loop hangs: its commands stop reaching the actuator, whose sender goes on;
 * ``gamepad-unplug``: the operator's gamepad is unplugged;
 * ``stage-exception``: a pipeline stage raises.
 """
@@ -26,8 +30,8 @@ from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource
 __all__ = ["BUS_OFF_S", "KINDS", "FaultyBus", "InjectedSource", "Injection", "RaisingPipeline", "failing_vo",
            "parse_injection"]
 
-KINDS = ("camera-freeze", "black-frame", "vo-failure", "can-bus-off", "heartbeat-loss", "gamepad-unplug",
-         "stage-exception")
+KINDS = ("camera-freeze", "black-frame", "vo-failure", "can-bus-off", "heartbeat-loss", "ecu-error",
+         "steering-sensor-loss", "steering-sensor-range", "loop-stall", "gamepad-unplug", "stage-exception")
 BUS_OFF_S = 0.5
 
 

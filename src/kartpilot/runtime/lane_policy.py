@@ -79,8 +79,11 @@ class LanePolicy:
     """Holds the follower's state from frame to frame; everything else is pure functions."""
 
     def __init__(self, cameras: dict[str, PinholeCamera], config: LanePolicyConfig | None = None,
-                 rate_hz: float = 30.0) -> None:
+                 rate_hz: float = 30.0, max_steer_rad: float | None = None) -> None:
+        """``max_steer_rad`` is the kart's steering range: the follower's S_max never exceeds it."""
         self.config = config or LanePolicyConfig()
+        if max_steer_rad is not None and max_steer_rad < self.config.follow.max_steer_rad:
+            self.config = replace(self.config, follow=replace(self.config.follow, max_steer_rad=max_steer_rad))
         if "center" not in cameras:
             raise CalibrationError("lane following needs a camera named 'center'")
         centre = cameras["center"]

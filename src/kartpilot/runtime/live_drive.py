@@ -2,7 +2,8 @@
 
 The same pieces as a simulated drive, with the live backends: :class:`LiveFrameSource` paces the
 loop (each step waits for the next camera set), :class:`CanActuator` sends on the kart's bus with
-its own sender thread (which stops the kart by itself if the loop hangs), and the person is a
+its own sender thread (which stops the kart by itself if the loop hangs), in the protocol the kart
+speaks (the RDW kart's own, or ours), and the person is a
 gamepad, the web page, or both (:class:`CombinedOperator`). Everything is recorded: frames
 (JPEG), commands, the pipeline's outputs, the supervisor's state and the CAN traffic. However the
 drive ends (duration, Ctrl-C, an error), the stop command goes out and the recording is closed.
@@ -18,12 +19,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from kartpilot.actuation.can_bus import CanActuator, open_bus
+from kartpilot.actuation.can_bus import CanActuator, make_protocol, open_bus
 from kartpilot.calibration.rectify import StereoSetup, stereo_setup
-from kartpilot.calibration.rig import Rig
+from kartpilot.calibration.rig import Rig, apply_camera_maps
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import ActuatorCommand, FrameSet, OperatorInput
+from kartpilot.core.vehicle import VehicleParams
 from kartpilot.odometry.visual_map import VisualMap
 from kartpilot.planning.reference_path import ReferencePath
 from kartpilot.record.recording import RecordingWriter
@@ -93,7 +95,7 @@ class LiveDriveSetup:
 
     rig: Rig
     pipeline: str
-    wheelbase_m: float
+    vehicle: VehicleParams
     reference: ReferencePath | None = None
     visual_map: VisualMap | None = None
     gamepad: str | None = None
@@ -104,13 +106,15 @@ class LiveDriveSetup:
 
 def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
     """Drive until the duration, the cameras' end, or Ctrl-C; return the summary (also in the recording)."""
-    rig = setup.rig
-    limits = stack.limits
+    rig = apply_camera_maps(setup.rig, setup.rig.camera_maps) if setup.rig.camera_maps else setup.rig
+    vehicle = setup.vehicle
+    limits = stack.limits.for_vehicle(vehicle)
     source = LiveFrameSource(rig, stack.live)
     period_s = 1.0 / rig.capture[source.reference].fps
     pipeline: Policy
     if setup.pipeline == "lanes":
-        pipeline = LanePolicy({n: rig.cameras[n] for n in source.threads}, stack.lane_policy, 1.0 / period_s)
+        pipeline = LanePolicy({n: rig.cameras[n] for n in source.threads}, stack.lane_policy, 1.0 / period_s,
+                               limits.max_steer_rad)
     elif setup.pipeline == "stereo-vo":
         if rig.stereo_pair is None or setup.reference is None:
             raise ConfigError("the stereo-vo pipeline needs a rig file with a stereo_pair and a --reference")
@@ -118,7 +122,7 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
         stereo = stereo_setup(rig.cameras[pair[0]], rig.cameras[pair[1]])
         path_policy: PathFollowPolicy = stereo_vo_policy(stereo.rig, stereo.pose_body_left, pair, setup.reference,
                                                          stack.drive, stack.stereo_vo, setup.visual_map,
-                                                         setup.wheelbase_m, limits.max_steer_rad, 1.0 / period_s)
+                                                         vehicle.wheelbase_m, limits.max_steer_rad, 1.0 / period_s)
         pipeline = _RectifiedPipeline(path_policy, stereo, pair)
     else:
         raise ConfigError(f"unknown pipeline {setup.pipeline!r} (lanes, stereo-vo)")
@@ -141,8 +145,9 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
                                      stereo_pair=rig.stereo_pair, queue_frames=RECORD_QUEUE_FRAMES,
                                      drop_when_full=True, image_format="jpg",
                                      metadata={"source": "kartpilot drive --live", "pipeline": setup.pipeline,
-                                               "can": config_to_dict(stack.can)})
-        actuator = CanActuator(open_bus(stack.can), stack.can, limits,
+                                               "vehicle": vehicle.name, "can": config_to_dict(stack.can)})
+        protocol = make_protocol(stack.can, vehicle, rig.steering, time.monotonic_ns())
+        actuator = CanActuator(open_bus(stack.can), protocol, stack.can, limits,
                                log_frame=writer.write_can if writer is not None else None).start()
         supervisor = Supervisor(stack.supervisor)
         drive = SupervisedDrive(pipeline, supervisor, Watchdogs(list(source.threads), period_s, stack.watchdogs,
@@ -172,8 +177,9 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
             "pipeline": setup.pipeline, "ended": how, "seconds": round(time.monotonic() - started, 2),
             "transitions": [t.to_json(0) for t in supervisor.transitions], "final_state": supervisor.state,
             "error": f"{type(drive.error).__name__}: {drive.error}" if drive.error else None,
-            "cameras": source.stats(), "can": {"frames_sent": actuator.frames_sent, "tx_errors": actuator.tx_errors,
-                                               "rx_errors": actuator.rx_errors},
+            "cameras": source.stats(), "can": {"protocol": protocol.name, "frames_sent": actuator.frames_sent,
+                                               "tx_errors": actuator.tx_errors, "rx_errors": actuator.rx_errors,
+                                               "quiet_stops": actuator.quiet_stops},
             "stage_ms": stats.stage_percentiles_ms() if stats is not None else {},
             "missed_deadlines": stats.missed_deadlines if stats is not None else None,
         }

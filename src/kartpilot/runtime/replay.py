@@ -23,6 +23,7 @@ import numpy as np
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource
+from kartpilot.core.vehicle import get_vehicle
 from kartpilot.odometry.visual_map import VisualMap
 from kartpilot.planning.reference_path import ReferencePath
 from kartpilot.record.recording import RecordingReader, RecordingWriter
@@ -31,7 +32,6 @@ from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.lane_policy import LanePolicy
 from kartpilot.runtime.loop import Outputs, Policy, Recorder, run_loop
 from kartpilot.runtime.path_policy import PathFollowPolicy, stereo_vo_policy, write_drive_log
-from kartpilot.sim.vehicle import get_vehicle
 
 __all__ = ["PIPELINES", "ReplayResult", "recorded_rate_hz", "replay_recording"]
 
@@ -114,11 +114,18 @@ def recorded_rate_hz(reader: RecordingReader, camera: str) -> float:
 
 def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, out: str | Path | None = None,
                      realtime: bool = False, reference: ReferencePath | None = None,
-                     visual_map: VisualMap | None = None, vehicle: str = "rc-kart", with_frames: bool = False,
+                     visual_map: VisualMap | None = None, vehicle: str | None = None, with_frames: bool = False,
                      drive_log: str | Path | None = None) -> ReplayResult:
-    """Push the recording at ``folder`` through ``pipeline``; write a new recording at ``out`` if given."""
+    """Push the recording at ``folder`` through ``pipeline``; write a new recording at ``out`` if given.
+    The kart is the one the recording was made on (``vehicle`` overrides it, and names it where the
+    recording does not say)."""
     if pipeline not in PIPELINES:
         raise ConfigError(f"unknown pipeline {pipeline!r} ({', '.join(PIPELINES)})")
+    recorded = RecordingReader(folder).vehicle
+    name = vehicle or recorded
+    if name is None:
+        raise ConfigError(f"{folder} does not say which kart it was recorded on: give --vehicle (rc-kart, sdc-kart)")
+    params = get_vehicle(name)
     cv2.setRNGSeed(RNG_SEED)
     source: StereoReplaySource | RecordingFrameSource
     policy: Policy
@@ -129,7 +136,6 @@ def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, out:
                               "writes one from a recorded drive)")
         source = StereoReplaySource(folder)
         reader = source.stereo.reader
-        params = get_vehicle(vehicle)
         rate = recorded_rate_hz(reader, source.left_name)
         path_policy = stereo_vo_policy(source.stereo.rig, source.stereo.pose_body_left,
                                        (source.left_name, source.right_name), reference, stack.drive, stack.stereo_vo,
@@ -138,7 +144,7 @@ def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, out:
     else:
         reader = RecordingReader(folder)
         rate = recorded_rate_hz(reader, "center" if "center" in reader.cameras else next(iter(reader.cameras)))
-        policy = LanePolicy(reader.cameras, stack.lane_policy, rate)
+        policy = LanePolicy(reader.cameras, stack.lane_policy, rate, params.max_steer_rad)
         source = RecordingFrameSource(folder, list(reader.cameras))
     writer: RecordingWriter | None = None
     recorders: list[Recorder] = []
@@ -147,7 +153,8 @@ def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, out:
         settings = {"lanes": {"lane_policy": stack_config["lane_policy"]},
                     "stereo-vo": {"stereo_vo": stack_config["stereo_vo"], "drive": stack_config["drive"]}}[pipeline]
         writer = RecordingWriter(out, reader.cameras, reader.stereo_pair, metadata={
-            "source": "kartpilot replay", "replay_of": str(reader.folder), "pipeline": pipeline, "config": settings})
+            "source": "kartpilot replay", "replay_of": str(reader.folder), "pipeline": pipeline, "vehicle": params.name,
+            "config": settings})
         recorders.append(writer if with_frames else _WithoutFrames(writer))
     sink = _CommandLog()
     try:

@@ -13,11 +13,12 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from kartpilot.actuation.can_bus import ActuatorLimits, CanActuator, CanConfig, open_bus
+from kartpilot.actuation.can_bus import ActuatorLimits, CanActuator, CanConfig, make_protocol, open_bus
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError, RecordingError
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource, Image
+from kartpilot.core.vehicle import SteeringCalibration
 from kartpilot.odometry.mono_vo import MonoVOConfig
 from kartpilot.odometry.places import PlaceDatabase
 from kartpilot.odometry.stereo_vo import StereoVOConfig
@@ -37,7 +38,7 @@ from kartpilot.runtime.path_policy import (
     write_drive_log,
 )
 from kartpilot.runtime.supervisor import Supervisor, SupervisorConfig
-from kartpilot.sim.can_ecu import AppliedCommand, SimEcus
+from kartpilot.sim.can_ecu import ECU_FAULTS, AppliedCommand, KartpilotEcus, RdwEcus, SimulatedEcus
 from kartpilot.sim.drivers import CenterlineDriver, CenterlineDriverConfig, CommandsDriver
 from kartpilot.sim.referee import RunResult
 from kartpilot.sim.simulator import SimConfig, Simulator
@@ -105,7 +106,7 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
         elif driver == "lanes":
             if not config.render_images:
                 raise ConfigError("the lanes driver needs rendered images")
-            policy = LanePolicy(sim.cameras, lane_config, config.camera_rate_hz)
+            policy = LanePolicy(sim.cameras, lane_config, config.camera_rate_hz, sim.vehicle.max_steer_rad)
         elif driver == "path":
             path_policy = _path_policy(sim, reference, drive_config or DriveConfig(), visual_map,
                                        vo_config or StereoVOConfig())
@@ -288,6 +289,7 @@ class _VideoSink:
 
 SUPERVISED_PIPELINES = ("lanes", "stereo-vo", "mono-vo")
 FAULT_HELD_S = 1.0  # a supervised run ends once the kart has been held in a fault this long
+BUS_STEP_S = 0.005  # the simulated bus's time step between two loop steps
 
 
 @dataclass(frozen=True)
@@ -312,21 +314,63 @@ class _DirectSink:
         self.sim.send(command)
 
 
-class _CanSink:
-    """Commands go onto the CAN bus; the simulated ECUs read them and drive the simulator."""
+class _BusClock:
+    """The simulated bus's own time, which runs on between two loop steps."""
 
-    def __init__(self, actuator: CanActuator, ecus: SimEcus, silence_at_s: float | None) -> None:
-        self.actuator, self.ecus, self.silence_at_s = actuator, ecus, silence_at_s
+    def __init__(self) -> None:
+        self.ns = 0
+
+    def __call__(self) -> int:
+        return self.ns
+
+
+class _CanSink:
+    """Commands go onto the CAN bus; the simulated ECUs read them and drive the simulator.
+
+    Between two loop steps the bus's clock runs in steps of at most ``BUS_STEP_S``: the actuator's
+    periodic sender, the ECUs' timers and their reports keep their own rates, and faults switch on at
+    their own time. The simulator is driven over the period with the mean of what the ECUs executed.
+    ``loop-stall`` keeps the loop's commands from the actuator from its time on (a hung loop)."""
+
+    def __init__(self, sim: Simulator, actuator: CanActuator, ecus: SimulatedEcus, clock: _BusClock,
+                 at: dict[str, float]) -> None:
+        self.sim, self.actuator, self.ecus, self.clock = sim, actuator, ecus, clock
+        self.pending = {kind: at_s for kind, at_s in at.items() if kind in ECU_FAULTS}
+        self.stall_at_s = at.get("loop-stall")
 
     @property
     def applied(self) -> list[AppliedCommand]:
         return self.ecus.applied
 
     def send(self, command: ActuatorCommand) -> None:
-        self.actuator.send(command)
-        if self.silence_at_s is not None and self.actuator.clock() * 1e-9 >= self.silence_at_s:
-            self.ecus.silent = True
-        self.ecus.step()
+        start_ns, period_ns = self.sim.time_ns, round(self.sim.dt_s * 1e9)
+        self.clock.ns = start_ns
+        if self.stall_at_s is None or start_ns * 1e-9 < self.stall_at_s:
+            self.actuator.send(command)
+        steps = max(1, math.ceil(self.sim.dt_s / BUS_STEP_S))
+        executed = np.zeros(3)
+        for k in range(1, steps + 1):
+            self.clock.ns = start_ns + round(k * period_ns / steps)
+            for kind, at_s in list(self.pending.items()):
+                if self.clock.ns * 1e-9 >= at_s:
+                    self.ecus.inject(kind)
+                    del self.pending[kind]
+            self.actuator.tick()
+            done = self.ecus.step()
+            executed += (done.steer_rad, done.throttle, done.brake)
+        steer, throttle, brake = executed / steps
+        self.sim.send(ActuatorCommand(start_ns, float(steer), float(throttle), float(brake)))
+
+
+def _simulated_ecus(sim: Simulator, protocol: str, config: CanConfig, clock: _BusClock) -> SimulatedEcus:
+    """The ECUs of the simulated kart, for the protocol its actuators speak."""
+    def measured() -> tuple[float, float]:
+        return sim.state.steer_rad, sim.state.vx_mps
+
+    bus = open_bus(config)
+    if protocol == "rdw":
+        return RdwEcus(bus, clock, sim.vehicle.steering, measured)
+    return KartpilotEcus(bus, clock, config.dbc, 0.1, config.ecus, measured)
 
 
 class _UntilSettled:
@@ -359,12 +403,15 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
                          drive_config: DriveConfig | None = None, vo_config: StereoVOConfig | None = None,
                          places: PlaceDatabase | None = None, mono_config: MonoVOConfig | None = None,
                          reference: ReferencePath | None = None, visual_map: VisualMap | None = None,
-                         can_config: CanConfig | None = None, watchdog_config: WatchdogConfig | None = None,
+                         can_config: CanConfig | None = None, limits: ActuatorLimits | None = None,
+                         steering: SteeringCalibration | None = None, watchdog_config: WatchdogConfig | None = None,
                          supervisor_config: SupervisorConfig | None = None, record_dir: str | Path | None = None,
                          result_path: str | Path | None = None, video_path: str | Path | None = None,
                          drive_log: str | Path | None = None, progress: bool = False) -> SupervisedRun:
-    """Drive ``pipeline`` in the simulator through the supervisor, on the CAN bus (``bus="virtual"``) or
-    straight to the simulator (``"none"``), with faults injected; write the result (and recording)."""
+    """Drive ``pipeline`` in the simulator through the supervisor, on the CAN bus (``bus="virtual"``, in the
+    protocol the vehicle speaks, its ECUs simulated) or straight to the simulator (``"none"``), with faults
+    injected; write the result (and recording). ``steering`` is the stack's steering calibration where it
+    differs from the simulated kart's own (a miscalibrated kart)."""
     if pipeline not in SUPERVISED_PIPELINES:
         raise ConfigError(f"unknown pipeline {pipeline!r} ({', '.join(SUPERVISED_PIPELINES)})")
     if bus not in ("virtual", "none"):
@@ -372,8 +419,9 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
     at = {i.kind: i.at_s for i in injections}
     if "vo-failure" in at and pipeline == "lanes":
         raise ConfigError("vo-failure needs the stereo-vo or mono-vo pipeline")
-    if bus == "none" and {"can-bus-off", "heartbeat-loss"} & set(at):
-        raise ConfigError("can-bus-off and heartbeat-loss need --bus virtual")
+    bus_only = {"can-bus-off", "loop-stall", *ECU_FAULTS} & set(at)
+    if bus == "none" and bus_only:
+        raise ConfigError(f"{', '.join(sorted(bus_only))} need(s) --bus virtual")
     if duration_s is not None:
         config = replace(config, max_time_s=duration_s)
     if pipeline != "lanes":
@@ -382,7 +430,7 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
         path_policy: PathFollowPolicy | None = None
         policy: Policy
         if pipeline == "lanes":
-            policy = LanePolicy(sim.cameras, lane_config, config.camera_rate_hz)
+            policy = LanePolicy(sim.cameras, lane_config, config.camera_rate_hz, sim.vehicle.max_steer_rad)
         else:
             path_policy = (_path_policy(sim, reference, drive_config or DriveConfig(), visual_map,
                                         vo_config or StereoVOConfig()) if pipeline == "stereo-vo" else
@@ -397,25 +445,25 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
         if record_dir is not None:
             writer = RecordingWriter(record_dir, sim.cameras, stereo_pair=_recorded_pair(sim),
                                      metadata={"source": "kartpilot drive --sim", "pipeline": pipeline, "bus": bus,
+                                               "vehicle": sim.vehicle.name,
                                                "sim": config_to_dict(config),
                                                "injections": [f"{i.kind}@{i.at_s:g}" for i in injections]},
                                      queue_frames=8, drop_when_full=False)
-
-        def clock() -> int:
-            return sim.time_ns
 
         actuator: CanActuator | None = None
         sink: _CanSink | _DirectSink
         if bus == "virtual":
             can_config = replace(can_config or CanConfig(), interface="virtual", channel=f"kartpilot-sim-{id(sim)}")
-            can_config = replace(can_config, status_timeout_s=max(can_config.status_timeout_s, 2.5 * sim.dt_s))
-            vehicle = sim.vehicle
-            limits = ActuatorLimits(vehicle.max_steer_rad, vehicle.steer_rate_radps)
-            actuator = CanActuator(FaultyBus(open_bus(can_config), clock, at.get("can-bus-off")), can_config, limits,
-                                   clock, writer.write_can if writer is not None else None)
-            ecus = SimEcus(open_bus(can_config), sim, clock, can_config.dbc, max(0.1, 2.5 * sim.dt_s),
-                           can_config.ecus, measured=lambda: (sim.state.steer_rad, sim.state.vx_mps))
-            sink = _CanSink(actuator, ecus, at.get("heartbeat-loss"))
+            clock = _BusClock()
+            protocol = make_protocol(can_config, sim.vehicle, steering)
+            if protocol.name != "rdw" and {"steering-sensor-loss", "steering-sensor-range"} & set(at):
+                raise ConfigError(f"the steering sensor's faults need the rdw protocol ({sim.vehicle.name} speaks "
+                                  f"{protocol.name})")
+            ecus = _simulated_ecus(sim, protocol.name, can_config, clock)
+            actuator = CanActuator(FaultyBus(open_bus(can_config), clock, at.get("can-bus-off")), protocol, can_config,
+                                   (limits or ActuatorLimits()).for_vehicle(sim.vehicle), clock,
+                                   writer.write_can if writer is not None else None)
+            sink = _CanSink(sim, actuator, ecus, clock, at)
         else:
             sink = _DirectSink(sim)
         supervisor = Supervisor(supervisor_config)
@@ -442,9 +490,9 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
                 path_policy.close()
                 if drive_log is not None:
                     write_drive_log(path_policy.samples, drive_log)
-            if actuator is not None:
-                actuator.close()
-                ecus.bus.shutdown()
+            if isinstance(sink, _CanSink):
+                sink.actuator.close()
+                sink.ecus.bus.shutdown()
             if writer is not None:
                 if drive.error_text:
                     (Path(record_dir) / "error.txt").write_text(drive.error_text)  # type: ignore[arg-type]
@@ -468,9 +516,16 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
             "missed_deadlines": stats.missed_deadlines,
             "stage_ms": stats.stage_percentiles_ms(),
         }
-        if actuator is not None:
-            payload["can"] = {"frames_sent": actuator.frames_sent, "tx_errors": actuator.tx_errors,
-                              "rx_errors": actuator.rx_errors, "frames_rejected_by_ecus": ecus.rejected_frames}
+        if isinstance(sink, _CanSink):
+            traffic: dict[str, object] = {
+                "protocol": sink.actuator.protocol.name, "frames_sent": sink.actuator.frames_sent,
+                "tx_errors": sink.actuator.tx_errors, "rx_errors": sink.actuator.rx_errors,
+                "quiet_stops": sink.actuator.quiet_stops, "frames_rejected_by_ecus": sink.ecus.rejected_frames}
+            if isinstance(sink.ecus, RdwEcus) and sink.ecus.speed_reports:
+                reports = np.array(sink.ecus.speed_reports)  # what 0x440 said against the simulator's speed
+                traffic.update(speed_reports=len(reports),
+                               speed_error_kmh_max=round(float(np.max(np.abs(reports[:, 2] - reports[:, 1] * 3.6))), 4))
+            payload["can"] = traffic
         if path_policy is not None:
             stages, summary = _path_policy_summary(path_policy, stats.steps)
             payload.update(summary, pipeline_stage_ms={k: round(v, 3) for k, v in stages.items()})

@@ -19,7 +19,7 @@ import math
 from dataclasses import dataclass, replace
 
 from kartpilot.core.types import ActuatorCommand
-from kartpilot.sim.vehicle import VehicleParams
+from kartpilot.core.vehicle import VehicleParams
 
 __all__ = ["Disturbances", "VehicleState", "actuate", "dynamic_derivatives", "kinematic_derivatives", "step_vehicle"]
 

@@ -16,9 +16,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from kartpilot.core.errors import ConfigError
+from kartpilot.core.vehicle import VehicleParams
 from kartpilot.sim.dynamics import VehicleState
 from kartpilot.sim.track import Track, project_onto
-from kartpilot.sim.vehicle import VehicleParams
 
 __all__ = ["Referee", "RefereeConfig", "RunResult"]
 

@@ -18,11 +18,11 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image
+from kartpilot.core.vehicle import VehicleParams, get_vehicle
 from kartpilot.sim.dynamics import GRAVITY_MPS2, Disturbances, VehicleState, step_vehicle
 from kartpilot.sim.referee import Referee, RefereeConfig, RunResult
 from kartpilot.sim.render import RenderConfig, Renderer
 from kartpilot.sim.track import Track, load_track, project_onto
-from kartpilot.sim.vehicle import VehicleParams, get_vehicle
 
 __all__ = ["CameraEffectsConfig", "DisturbanceConfig", "SimConfig", "Simulator", "body_pose"]
 

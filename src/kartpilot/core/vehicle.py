@@ -1,21 +1,94 @@
-"""The two karts as typed data: chassis, actuators and cameras.
+"""The kart's one description: chassis, steering, speed modes, the protocol its actuators speak, cameras.
+
+The simulator, the actuators, the command limits and replay all read the kart from here, so the
+steering range has one source. Two karts are built in: ``sdc-kart`` (the RDW Self Driving Challenge
+electric go-kart; its ECUs speak the organiser's ``rdw`` protocol) and ``rc-kart`` (the thesis's
+1:8 small-scale kart with its 14 cm stereo pair, 19 cm high; our own ``kartpilot`` protocol).
 
 Body frame: x forward, y left, z up, origin on the ground under the middle of
 the rear axle (the point pure pursuit steers). Cameras use OpenCV's frame
 (x right, y down, z forward) and carry their pose on the body.
+
+The steering calibration maps the stack's road-wheel angle (``steer_rad``, positive left) to the
+value the steering ECU takes and to the counts its sensor reports; ``kartpilot calibrate steering``
+measures it on the kart and writes it into the rig file, which then overrides the default here.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
-from kartpilot.calibration.rig import mount_pose
 from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.errors import ConfigError
+from kartpilot.core.geometry import mount_pose
 
-__all__ = ["VEHICLES", "VehicleParams", "camera_pose_on_body", "get_vehicle"]
+__all__ = ["PROTOCOLS", "VEHICLES", "SteeringCalibration", "VehicleParams", "camera_pose_on_body", "get_vehicle"]
+
+PROTOCOLS = ("rdw", "kartpilot")
+
+
+@dataclass(frozen=True)
+class SteeringCalibration:
+    """How a road-wheel angle becomes the steering ECU's value, and how its sensor's counts become an angle.
+
+    Linear maps, as the kart's actuator and potentiometer are: ``value = value_offset + value_sign *
+    steer_rad / rad_per_value`` and ``counts = count_offset + counts_per_value * value``.
+
+    Attributes:
+        value_sign: the sign of the ECU's value for a steer to the left (-1 on the RDW kart, whose
+            positive value steers right).
+        rad_per_value: road-wheel radians per unit of the ECU's value.
+        value_offset: the value that holds the wheels straight (a trim).
+        max_value: the ECU's accepted range, symmetric (1.25 on the RDW kart).
+        counts_per_value, count_offset: the steering sensor's counts for a value (its slope may be negative).
+    """
+
+    value_sign: int = -1
+    rad_per_value: float = 0.32
+    value_offset: float = 0.0
+    max_value: float = 1.25
+    counts_per_value: float = 512.0
+    count_offset: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.value_sign not in (-1, 1):
+            raise ConfigError(f"steering.value_sign must be -1 or 1, got {self.value_sign}")
+        for name in ("rad_per_value", "max_value"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"steering.{name} must be a positive number, got {value}")
+        for name in ("value_offset", "counts_per_value", "count_offset"):
+            if not math.isfinite(getattr(self, name)):
+                raise ConfigError(f"steering.{name} must be finite, got {getattr(self, name)}")
+        if self.counts_per_value == 0:
+            raise ConfigError("steering.counts_per_value must not be 0")
+
+    def value_of(self, steer_rad: float) -> float:
+        """The ECU's value for a road-wheel angle (positive left), clamped to the accepted range."""
+        value = self.value_offset + self.value_sign * steer_rad / self.rad_per_value
+        return min(max(value, -self.max_value), self.max_value)
+
+    def steer_of_value(self, value: float) -> float:
+        """The road-wheel angle (positive left) a value asks for."""
+        return self.value_sign * (value - self.value_offset) * self.rad_per_value
+
+    def counts_of(self, steer_rad: float) -> float:
+        """The sensor's counts at a road-wheel angle (unclamped: the wheels may be off the ECU's range)."""
+        value = self.value_offset + self.value_sign * steer_rad / self.rad_per_value
+        return self.count_offset + self.counts_per_value * value
+
+    def steer_of_counts(self, counts: float) -> float:
+        """The road-wheel angle (positive left) the sensor's counts stand for."""
+        return self.steer_of_value((counts - self.count_offset) / self.counts_per_value)
+
+    @property
+    def max_steer_rad(self) -> float:
+        """The largest angle to either side the ECU's range allows around the trim."""
+        return (self.max_value - abs(self.value_offset)) * self.rad_per_value
 
 
 @dataclass(frozen=True)
@@ -34,6 +107,8 @@ class VehicleParams:
             above the second, the dynamic one with tyre slip; blended in between.
         speed_modes_mps: the speed modes the kart offers (the SDC kart's 5/15/30/60 km/h).
         cameras: (name, camera) pairs; ``stereo_pair`` names the left and right camera when there is one.
+        protocol: what its actuators speak on CAN: ``rdw`` (the RDW kart's ECUs) or ``kartpilot`` (our DBC).
+        steering: the steering calibration (``rdw``); a rig file's ``steering`` section overrides it.
     """
 
     name: str
@@ -61,6 +136,16 @@ class VehicleParams:
     speed_modes_mps: tuple[float, ...]
     cameras: tuple[tuple[str, PinholeCamera], ...]
     stereo_pair: tuple[str, str] | None = None
+    protocol: Literal["rdw", "kartpilot"] = "kartpilot"
+    steering: SteeringCalibration = field(default_factory=SteeringCalibration)
+
+    def __post_init__(self) -> None:
+        if self.protocol not in PROTOCOLS:
+            raise ConfigError(f"vehicle {self.name!r}: protocol must be one of {', '.join(PROTOCOLS)}")
+        if self.protocol == "rdw" and self.steering.max_steer_rad < self.max_steer_rad - 1e-9:
+            reach = self.steering.max_steer_rad
+            raise ConfigError(f"vehicle {self.name!r}: its steering calibration reaches {reach:.3f} rad, less than its "
+                              f"{self.max_steer_rad:.3f} rad range")
 
     @property
     def cg_to_front_m(self) -> float:
@@ -136,6 +221,10 @@ SDC_KART = VehicleParams(
         ("right", _camera(400.0, 640, 480,
                           camera_pose_on_body(0.90, -0.55, 0.60, yaw_deg=-70.0, pitch_down_deg=40.0))),
     ),
+    protocol="rdw",
+    # until calibrated on the kart: the ECU's full range (1.25) reaches the steering's 0.40 rad, and the
+    # sensor's valid range (+-800 counts) spans the ECU's range with a margin
+    steering=SteeringCalibration(value_sign=-1, rad_per_value=0.32, counts_per_value=-600.0),
 )
 
 VEHICLES: dict[str, VehicleParams] = {v.name: v for v in (RC_KART, SDC_KART)}
