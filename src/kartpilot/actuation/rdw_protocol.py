@@ -227,6 +227,10 @@ class RdwProtocol:
             found.append("the motor ECU is idle (it saw no motor command for 200 ms)")
         return found
 
+    def sensor_counts(self, now_ns: int) -> float | None:
+        """The steering sensor's latest counts, where fresh (the steering calibration's raw reading)."""
+        return self._fresh("steering_sensor", "SteeringCounts", now_ns)
+
     def feedback(self, now_ns: int) -> VehicleFeedback:
         speed_kmh = self._fresh("speed", "Speed", now_ns)
         counts = self._fresh("steering_sensor", "SteeringCounts", now_ns)

@@ -38,6 +38,7 @@ opened (:func:`apply_camera_maps`), not when the file is read, so a rig file wri
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -228,5 +229,7 @@ def save_rig(rig: Rig, path: str | Path) -> Path:
     if rig.camera_maps:
         data["camera_maps"] = [str(Path(m).relative_to(path.parent)) if Path(m).is_relative_to(path.parent) else m
                                for m in rig.camera_maps]
-    path.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+    temporary = path.with_name(path.name + ".tmp")
+    temporary.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+    os.replace(temporary, path)  # atomic: a rig file is never half written, even when it is rewritten
     return path

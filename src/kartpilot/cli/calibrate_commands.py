@@ -1,22 +1,28 @@
-"""``kartpilot calibrate mono|stereo``: a rig file from images of a calibration board."""
+"""``kartpilot calibrate mono|stereo``: a rig file from images of a calibration board; ``calibrate steering``:
+the kart's steering calibration into its rig file."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from kartpilot.actuation.can_bus import open_bus
+from kartpilot.actuation.steering_calibration import calibrate_steering, steer_of_turning_circle, sweep_values
 from kartpilot.calibration.board import BoardConfig, MonoCalibration, calibrate_mono, calibrate_stereo, read_views
-from kartpilot.calibration.rig import Rig, save_rig
+from kartpilot.calibration.rig import Rig, load_rig, save_rig
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import invert_pose, mount_pose
+from kartpilot.core.vehicle import get_vehicle
+from kartpilot.runtime.config import load_stack_config
 
-__all__ = ["calibrate"]
+__all__ = ["calibrate", "calibrate_steering_command"]
 
 
 def _board(args: argparse.Namespace) -> BoardConfig:
@@ -96,4 +102,40 @@ def calibrate(args: argparse.Namespace) -> int:
         for line in summary["skipped"]:
             print(f"skipped {line}")
         print(f"rig written to {Path(args.out)}")
+    return 0
+
+
+def calibrate_steering_command(args: argparse.Namespace) -> int:
+    """Sweep the RDW kart's steering, fit the calibration, write it into the rig file."""
+    stack = load_stack_config(args.config)
+    rig = load_rig(args.rig)  # checked before anything moves
+    vehicle = get_vehicle(args.vehicle)
+    for name, value, ok, what in (("--max-value", args.max_value, 0 < args.max_value <= 1.25, "in (0, 1.25]"),
+                                  ("--settle", args.settle, 0 < args.settle <= 60, "in (0, 60] seconds"),
+                                  ("--at-value", args.at_value, 0 < abs(args.at_value) <= 1.25,
+                                   "in [-1.25, 1.25], not 0"),
+                                  ("--rad-per-value", args.rad_per_value, args.rad_per_value is None or
+                                   0 < args.rad_per_value < 2, "in (0, 2)")):
+        if not ok or (value is not None and not math.isfinite(value)):
+            raise ConfigError(f"{name} {value}: must be {what}")
+    if args.rad_per_value is not None:
+        rad_per_value = args.rad_per_value
+    elif args.turning_circle is not None:
+        rad_per_value = steer_of_turning_circle(args.turning_circle, vehicle.wheelbase_m) / abs(args.at_value)
+    else:
+        raise ConfigError("give the road-wheel angle's scale: --turning-circle DIAMETER_M (measured at full lock, "
+                          "--at-value) or --rad-per-value")
+    can = replace(stack.can, protocol="rdw", interface=args.bus or stack.can.interface,
+                  channel=args.channel or stack.can.channel)
+    values = sweep_values(args.max_value, args.steps)
+    print(f"sweeping the steering over {len(values)} values from -{args.max_value} to {args.max_value} on "
+          f"{can.interface} {can.channel}, {args.settle:g} s each: the kart must be on stands or rolling slowly")
+    calibration, r_squared, points = calibrate_steering(open_bus(can), can, rad_per_value, values, args.settle,
+                                                        -1 if args.positive_steers == "right" else 1)
+    for value, counts in points:
+        print(f"  value {value:+.3f}: sensor {counts:+.0f} counts")
+    save_rig(replace(rig, steering=calibration), args.rig)
+    print(f"steering: {calibration.counts_per_value:+.1f} counts per unit of value, straight at "
+          f"{calibration.count_offset:+.1f} counts (R² {r_squared:.4f}); {calibration.rad_per_value:.4f} rad per unit "
+          f"of value, {calibration.max_steer_rad:.3f} rad at the ECU's limit; written to {args.rig}")
     return 0

@@ -97,7 +97,8 @@ def build_parser() -> argparse.ArgumentParser:
     lanes.add_argument("--config", help="YAML file merged over the defaults (sections lane_detection, lane_policy)")
     lanes.set_defaults(handler=commands.lanes)
 
-    calibrate = sub.add_parser("calibrate", help="camera intrinsics (mono) or a stereo pair, from board images")
+    calibrate = sub.add_parser("calibrate", help="camera intrinsics (mono) or a stereo pair from board images, or "
+                                                 "the kart's steering")
     cal_sub = calibrate.add_subparsers(dest="mode", required=True, metavar="MODE")
     mono = cal_sub.add_parser("mono", help="one camera")
     mono.add_argument("images", nargs="+")
@@ -115,6 +116,25 @@ def build_parser() -> argparse.ArgumentParser:
         cal.add_argument("--out", required=True, help="the rig file to write (YAML)")
         cal.add_argument("--json", action="store_true", help="print a machine-readable summary")
         cal.set_defaults(handler=calibrate_commands.calibrate)
+
+    steering = cal_sub.add_parser("steering", help="the RDW kart's steering: sweep it, fit value to sensor to "
+                                                   "road-wheel angle, write it into the rig file")
+    steering.add_argument("--rig", required=True, help="the kart's rig file (its steering section is rewritten)")
+    steering.add_argument("--vehicle", default="sdc-kart", help="the kart (its wheelbase, for --turning-circle)")
+    steering.add_argument("--bus", choices=("socketcan", "virtual"), help="default: the config's can.interface")
+    steering.add_argument("--channel", help="the CAN channel (can0)")
+    scale = steering.add_mutually_exclusive_group()
+    scale.add_argument("--turning-circle", type=float, metavar="DIAMETER_M",
+                       help="the rear axle's turning circle at full lock (--at-value), measured driving slowly")
+    scale.add_argument("--rad-per-value", type=float, help="road-wheel radians per unit of the ECU's value, by hand")
+    steering.add_argument("--at-value", type=float, default=1.25, help="the value the turning circle was driven at")
+    steering.add_argument("--positive-steers", choices=("right", "left"), default="right",
+                          help="which way a positive value turns the wheels (right on the RDW kart)")
+    steering.add_argument("--max-value", type=float, default=1.0, help="sweep from -this to this (at most 1.25)")
+    steering.add_argument("--steps", type=int, default=9)
+    steering.add_argument("--settle", type=float, default=1.0, help="seconds for the wheels to settle at each step")
+    steering.add_argument("--config", help="YAML file merged over the defaults (section can)")
+    steering.set_defaults(handler=calibrate_commands.calibrate_steering_command)
 
     rec = sub.add_parser("record", help="record the live cameras of a rig file")
     rec.add_argument("--rig", required=True, help="rig file: each camera's calibration and capture settings")

@@ -23,7 +23,7 @@ import numpy as np
 from kartpilot.control.path_follow import PathFollowConfig, PathFollowState, path_follow_step
 from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.geometry import Array, invert_pose, transform_points
-from kartpilot.core.types import ActuatorCommand, FrameSet, Image, VehiclePose
+from kartpilot.core.types import ActuatorCommand, FrameSet, Image, VehicleFeedback, VehiclePose
 from kartpilot.odometry.localizer import LocalizerConfig, StereoVOLocalizer
 from kartpilot.odometry.mono_localizer import MonoLocalizer, MonoLocalizerConfig, place_ground_poses
 from kartpilot.odometry.mono_vo import MonoVOConfig
@@ -107,6 +107,12 @@ class PathFollowPolicy:
         self.stage_s: dict[str, float] = {"localize": 0.0, "control": 0.0}
         self._last_stamp_ns: int | None = None
         self.odometer_m = 0.0
+        self.measured_speed_mps: float | None = None  # the kart's own, where it reports one (the RDW kart's 0x440)
+
+    def observe_vehicle(self, feedback: VehicleFeedback) -> None:
+        """The kart's measurements before a step: a fresh measured speed drives the speed control and the
+        Stanley gains instead of odometry's estimate (closed-loop speed on the kart's own sensor)."""
+        self.measured_speed_mps = feedback.speed_mps
 
     @property
     def stopped(self) -> bool:
@@ -123,7 +129,8 @@ class PathFollowPolicy:
         dt = self.period_s if self._last_stamp_ns is None else max((frames.stamp_ns - self._last_stamp_ns) * 1e-9,
                                                                     1e-3)
         self._last_stamp_ns = frames.stamp_ns
-        out, self.state = path_follow_step(self.config, self.state, self.path, pose, dt, self.wheelbase_m,
+        control_pose = pose if self.measured_speed_mps is None else replace(pose, speed_mps=self.measured_speed_mps)
+        out, self.state = path_follow_step(self.config, self.state, self.path, control_pose, dt, self.wheelbase_m,
                                            self.max_steer_rad)
         self.odometer_m += abs(pose.speed_mps) * dt
         overrun = self.odometer_m > OVERRUN_FACTOR * self.path.length_m + OVERRUN_M
