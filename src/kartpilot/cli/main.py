@@ -12,7 +12,14 @@ import sys
 from collections.abc import Sequence
 
 from kartpilot import __version__
-from kartpilot.cli import calibrate_commands, commands, drive_commands, places_commands, record_commands
+from kartpilot.cli import (
+    calibrate_commands,
+    can_commands,
+    commands,
+    drive_commands,
+    places_commands,
+    record_commands,
+)
 from kartpilot.core.errors import KartpilotError
 
 __all__ = ["build_parser", "main"]
@@ -273,6 +280,21 @@ def build_parser() -> argparse.ArgumentParser:
     query.add_argument("--out", help="write each frame's fix here (CSV)")
     query.add_argument("--json", help="write the recall figures here")
     query.set_defaults(handler=places_commands.places_query)
+
+    can_parser = sub.add_parser("can", help="the kart's CAN bus: decoded traffic, live or from a recording")
+    can_sub = can_parser.add_subparsers(dest="action", required=True, metavar="ACTION")
+    monitor = can_sub.add_parser("monitor", help="one line per message id: rate, longest gap, last values, faults")
+    where_from = monitor.add_mutually_exclusive_group()
+    where_from.add_argument("--recording", help="a recording's can.csv instead of a live bus")
+    where_from.add_argument("--bus", choices=("socketcan", "virtual"), help="live: default the config's can.interface")
+    monitor.add_argument("--channel", help="live: the CAN channel (can0)")
+    monitor.add_argument("--protocol", choices=("rdw", "kartpilot"),
+                         help="how to decode (default: the recording's kart's, live rdw)")
+    monitor.add_argument("--duration", type=float, help="live: seconds to listen (default: until Ctrl-C)")
+    monitor.add_argument("--every", type=float, default=1.0, help="live: print the table this often, s")
+    monitor.add_argument("--json", help="write the last table here (JSON)")
+    monitor.add_argument("--config", help="YAML file merged over the defaults (section can)")
+    monitor.set_defaults(handler=can_commands.can_monitor)
 
     demo = sub.add_parser("demo", help="the main job on an embedded default (see README)")
     demo.add_argument("--out", default="demo_out")
