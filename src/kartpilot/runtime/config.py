@@ -13,7 +13,7 @@ Example ``stack.yaml``::
       follow: {controller: pure_pursuit, bias: {gain_rad_per_m_s: 0.0}}
       localizer: {reloc: {gain: 0.5}}
     live: {sync_tolerance_ms: 10, health: {timeout_s: 0.5}}
-    can: {interface: socketcan, channel: can0, send_rate_hz: 50, status_timeout_s: 0.1}
+    can: {interface: socketcan, channel: can0, send_rate_hz: 25, rdw: {sensor_timeout_s: 0.2}}
     limits: {max_steer_rad: 0.4, max_steer_rate_radps: 3.0, max_throttle: 0.6}   # the real kart
     watchdogs: {overrun_factor: 2.0, overrun_steps: 3}
     supervisor: {require_hold: true}
