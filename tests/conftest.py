@@ -34,6 +34,19 @@ def road_view(texture: np.ndarray, body_pose: np.ndarray, metres_per_px: float) 
     return cv2.warpPerspective(texture, ground_to_image @ texture_to_ground, (640, 480), flags=cv2.INTER_LINEAR)
 
 
+class SteppedClock:
+    """A monotonic clock in nanoseconds that moves only when a test advances it."""
+
+    def __init__(self) -> None:
+        self.ns = 0
+
+    def __call__(self) -> int:
+        return self.ns
+
+    def advance(self, seconds: float) -> None:
+        self.ns += round(seconds * 1e9)
+
+
 def data_path(*parts: str) -> Path:
     """A path under ../shared/data, or skip the test with the reason."""
     path = DATA.joinpath(*parts)

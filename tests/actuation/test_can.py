@@ -6,6 +6,7 @@ import time
 
 import can
 import pytest
+from tests.conftest import SteppedClock
 
 from kartpilot.actuation.can_bus import ActuatorLimits, CanActuator, CanConfig, limit_command, open_bus
 from kartpilot.actuation.kartpilot_protocol import KartpilotProtocol, command_frames, decode, load_dbc
@@ -21,17 +22,6 @@ def _pair():
     channel = f"test-{next(_channels)}"
     config = CanConfig(channel=channel)
     return open_bus(config), open_bus(config), config
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.ns = 0
-
-    def __call__(self) -> int:
-        return self.ns
-
-    def advance(self, seconds: float) -> None:
-        self.ns += round(seconds * 1e9)
 
 
 def _actuator(bus, config, clock, **kwargs):
@@ -89,7 +79,7 @@ def test_commands_are_clamped_rate_limited_and_braking_drops_the_throttle():
 
 def test_the_simulated_ecus_apply_what_the_actuator_sends_and_report_back():
     kart_bus, ecu_bus, config = _pair()
-    clock = Clock()
+    clock = SteppedClock()
     actuator = _actuator(kart_bus, config, clock)
     ecus = KartpilotEcus(ecu_bus, clock, measured=lambda: (0.05, 1.5))
     actuator.state = "autonomous"
@@ -110,7 +100,7 @@ def test_the_simulated_ecus_apply_what_the_actuator_sends_and_report_back():
 
 def test_commands_go_out_on_a_fixed_schedule_but_a_stop_goes_out_at_once():
     kart_bus, ecu_bus, config = _pair()
-    clock = Clock()
+    clock = SteppedClock()
     actuator = _actuator(kart_bus, CanConfig(channel=config.channel, send_rate_hz=25.0), clock)
     actuator.send(ActuatorCommand(0, 0.0, 0.2, 0.0))  # the first command starts the schedule
     assert actuator.frames_sent == 4
@@ -132,7 +122,7 @@ def test_commands_go_out_on_a_fixed_schedule_but_a_stop_goes_out_at_once():
 
 def test_missing_ecu_status_an_ecu_fault_and_a_bus_off_are_reported():
     kart_bus, ecu_bus, config = _pair()
-    clock = Clock()
+    clock = SteppedClock()
     actuator = _actuator(kart_bus, config, clock)
     ecus = KartpilotEcus(ecu_bus, clock)
     actuator.send(ActuatorCommand(0, 0.0, 0.2, 0.0))

@@ -5,6 +5,7 @@ import itertools
 
 import can
 import pytest
+from tests.conftest import SteppedClock
 
 from kartpilot.actuation.can_bus import ActuatorLimits, CanActuator, CanConfig, make_protocol, open_bus
 from kartpilot.actuation.rdw_protocol import RdwConfig, RdwProtocol, decode_rdw, load_rdw_dbc, rdw_command_frames
@@ -16,17 +17,6 @@ from kartpilot.sim.can_ecu import RdwEcus
 DB = load_rdw_dbc()
 SDC = get_vehicle("sdc-kart")
 _channels = itertools.count()
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.ns = 0
-
-    def __call__(self) -> int:
-        return self.ns
-
-    def advance(self, seconds: float) -> None:
-        self.ns += round(seconds * 1e9)
 
 
 def _frame(frame_id: int, hex_bytes: str) -> can.Message:
@@ -122,7 +112,7 @@ class _Kart:
 
     def __init__(self, steering: SteeringCalibration | None = None) -> None:
         self.config = CanConfig(channel=f"rdw-{next(_channels)}")
-        self.clock = Clock()
+        self.clock = SteppedClock()
         self.steer_rad, self.speed_mps = 0.0, 0.0
         self.ecus = RdwEcus(open_bus(self.config), self.clock, steering or SDC.steering,
                             lambda: (self.steer_rad, self.speed_mps))

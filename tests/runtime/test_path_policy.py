@@ -50,3 +50,28 @@ def test_a_kart_that_drives_past_the_whole_reference_is_stopped_whatever_its_pos
     stop_at = next(i for i, c in enumerate(commands) if c.brake == 1.0)
     assert 125 <= stop_at <= 132  # 1.1 x 10 m + 2 m at 1 m/s, 10 Hz
     assert policy.stop_reason.startswith("drove 13.")
+
+
+def test_the_kart_s_measured_speed_drives_the_speed_control_when_it_reports_one():
+    from kartpilot.core.types import VehicleFeedback, VehiclePose
+
+    class SlowOdometry:  # odometry says the kart crawls
+        def update(self, frames: FrameSet) -> VehiclePose:
+            return VehiclePose(frames.stamp_ns, 1.0 + frames.index * 0.01, 0.0, 0.0, 0.1, 0.0, "ok")
+
+        def close(self) -> None:
+            pass
+
+    path = build_reference_path(np.column_stack([np.linspace(0, 30, 301), np.zeros(301)]),
+                                PathConfig(cruise_speed_mps=1.0))
+    by_odometry = PathFollowPolicy(SlowOdometry(), path, PathFollowConfig(), 0.35, 0.45, 10.0)  # type: ignore[arg-type]
+    by_sensor = PathFollowPolicy(SlowOdometry(), path, PathFollowConfig(), 0.35, 0.45, 10.0)  # type: ignore[arg-type]
+    for i in range(5):
+        frames = FrameSet(i, i * 100_000_000, {})
+        throttle = by_odometry(frames).throttle
+        by_sensor.observe_vehicle(VehicleFeedback(frames.stamp_ns, speed_mps=3.0))  # the kart's 0x440: too fast
+        braking = by_sensor(frames)
+    assert throttle > 0.0  # odometry alone: speed up
+    assert braking.throttle == 0.0 and braking.brake > 0.0  # the measured speed: brake
+    by_sensor.observe_vehicle(VehicleFeedback(0, speed_mps=None))  # stale or none: odometry again
+    assert by_sensor(FrameSet(5, 500_000_000, {})).throttle > 0.0
