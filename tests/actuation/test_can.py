@@ -26,7 +26,7 @@ def _pair():
 
 def _actuator(bus, config, clock, **kwargs):
     return CanActuator(bus, KartpilotProtocol(config.dbc, config.ecus, config.status_timeout_s, clock()), config,
-                       clock=clock, **kwargs)
+                       ActuatorLimits().for_vehicle(get_vehicle("rc-kart")), clock=clock, **kwargs)
 
 
 def test_frames_round_trip_through_the_dbc_and_a_corrupted_byte_is_refused():

@@ -27,7 +27,7 @@ from typing import Any, Literal, Protocol
 
 import can
 
-from kartpilot.actuation.kartpilot_protocol import STATUS_MESSAGES, KartpilotProtocol
+from kartpilot.actuation.kartpilot_protocol import KartpilotProtocol, check_ecus
 from kartpilot.actuation.rdw_protocol import RdwConfig, RdwProtocol
 from kartpilot.core.errors import ActuationError, ConfigError
 from kartpilot.core.types import ActuatorCommand, VehicleFeedback
@@ -38,6 +38,7 @@ __all__ = [
     "CanActuator",
     "CanConfig",
     "KartProtocol",
+    "PeriodicSchedule",
     "limit_command",
     "make_protocol",
     "open_bus",
@@ -93,9 +94,7 @@ class CanConfig:
     rdw: RdwConfig = field(default_factory=RdwConfig)
 
     def __post_init__(self) -> None:
-        unknown = set(self.ecus) - set(STATUS_MESSAGES)
-        if unknown:
-            raise ConfigError(f"can.ecus: unknown ECU(s) {', '.join(sorted(unknown))} ({', '.join(STATUS_MESSAGES)})")
+        check_ecus(self.ecus)
         for name in ("send_rate_hz", "status_timeout_s", "command_timeout_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -170,6 +169,28 @@ def open_bus(config: CanConfig) -> can.BusABC:
         raise ActuationError(f"cannot open CAN interface {config.interface} channel {config.channel}: {exc}") from exc
 
 
+@dataclass
+class PeriodicSchedule:
+    """A fixed grid of times one period apart: :meth:`due` says yes once per period, catches up by one
+    period after a late call and starts anew after a whole period missed; :meth:`restart` puts the next
+    time one period from now. The actuator's sends and the simulated ECUs' reports keep their rates by it."""
+
+    period_ns: int
+    next_ns: int | None = None
+
+    def due(self, now_ns: int) -> bool:
+        if self.next_ns is None or now_ns - self.next_ns >= self.period_ns:
+            self.restart(now_ns)
+            return True
+        if now_ns >= self.next_ns:
+            self.next_ns += self.period_ns
+            return True
+        return False
+
+    def restart(self, now_ns: int) -> None:
+        self.next_ns = now_ns + self.period_ns
+
+
 class CanActuator:
     """The command sink on the kart's bus.
 
@@ -179,13 +200,13 @@ class CanActuator:
     thread (live). ``poll`` reads the kart's frames; ``faults`` and ``feedback`` say what they mean.
     """
 
-    def __init__(self, bus: can.BusABC, protocol: KartProtocol, config: CanConfig | None = None,
-                 limits: ActuatorLimits | None = None, clock: Callable[[], int] = time.monotonic_ns,
-                 log_frame: FrameLog | None = None) -> None:
+    def __init__(self, bus: can.BusABC, protocol: KartProtocol, config: CanConfig, limits: ActuatorLimits,
+                 clock: Callable[[], int] = time.monotonic_ns, log_frame: FrameLog | None = None) -> None:
+        """``limits`` must be resolved for the kart (:meth:`ActuatorLimits.for_vehicle`)."""
         self.bus = bus
         self.protocol = protocol
-        self.config = config or CanConfig()
-        self.limits = limits or ActuatorLimits(max_steer_rad=0.4, max_steer_rate_radps=3.0)
+        self.config = config
+        self.limits = limits
         self.clock = clock
         self.log_frame = log_frame
         self.state = "disarmed"  # the supervisor's state (the kartpilot protocol's heartbeat sends it)
@@ -195,10 +216,8 @@ class CanActuator:
         self.rx_errors = 0
         self.quiet_stops = 0
         self._tx_fault = ""
-        self._period_ns = round(1e9 / self.config.send_rate_hz)
-        self._next_due_ns: int | None = None
+        self._schedule = PeriodicSchedule(round(1e9 / config.send_rate_hz))
         self._last_loop_ns: int | None = None
-        self._last_command_ns: int | None = None
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -208,12 +227,12 @@ class CanActuator:
         """Take the loop's command; a stop (or any harder brake) is transmitted at once."""
         now = self.clock()
         with self._lock:
-            self._last_loop_ns = now
             previous = self.last_command
-            dt = (now - self._last_command_ns) * 1e-9 if self._last_command_ns is not None else 0.0
-            self._last_command_ns = now
+            dt = (now - self._last_loop_ns) * 1e-9 if self._last_loop_ns is not None else 0.0
+            self._last_loop_ns = now
             self.last_command = limit_command(previous, command, self.limits, dt)
             if previous is None or self.last_command.brake > previous.brake:
+                self._schedule.restart(now)
                 self._transmit(now)
 
     def tick(self) -> None:
@@ -222,26 +241,21 @@ class CanActuator:
         with self._lock:
             if self.last_command is not None:
                 quiet_s = (now - self._last_loop_ns) * 1e-9 if self._last_loop_ns is not None else 0.0
-                stopped = self.last_command.brake >= 1.0 and self.last_command.throttle == 0.0
-                if quiet_s > self.config.command_timeout_s and not stopped:
+                if quiet_s > self.config.command_timeout_s and not self.last_command.is_stop:
                     log.error("no command from the loop for %.2f s: sending the stop command", quiet_s)
                     self.quiet_stops += 1
                     self.last_command = ActuatorCommand.stop(now)
+                    self._schedule.restart(now)
                     self._transmit(now)
-                elif self._next_due_ns is not None and now >= self._next_due_ns:
-                    self._transmit(now, periodic=True)
+                elif self._schedule.due(now):
+                    self._transmit(now)
         self.poll()
 
-    def _transmit(self, now: int, periodic: bool = False) -> None:
-        """Send the latest command's frames now. A periodic send keeps the schedule's grid (catching up
-        after a late one); any other send starts the grid anew, one period later."""
+    def _transmit(self, now: int) -> None:
+        """Send the latest command's frames now (a send out of turn restarts the schedule first)."""
         command = self.last_command
         if command is None:
             return
-        if periodic and self._next_due_ns is not None and now - self._next_due_ns < self._period_ns:
-            self._next_due_ns += self._period_ns
-        else:
-            self._next_due_ns = now + self._period_ns
         ok = True
         for frame in self.protocol.command_frames(command, self.state):
             try:

@@ -27,6 +27,7 @@ __all__ = [
     "DBC_PATH",
     "STATUS_MESSAGES",
     "KartpilotProtocol",
+    "check_ecus",
     "checksum",
     "command_frames",
     "decode",
@@ -38,6 +39,13 @@ DBC_PATH = Path(__file__).with_name("kart.dbc")
 COMMAND_MESSAGES = ("SteerCommand", "ThrottleCommand", "BrakeCommand")
 STATUS_MESSAGES = {"steer": "SteerStatus", "drive": "DriveStatus", "brake": "BrakeStatus"}
 STATE_CODES = {"disarmed": 0, "manual": 1, "autonomous": 2, "paused": 3, "fault": 4}
+
+
+def check_ecus(ecus: tuple[str, ...]) -> None:
+    """The ECUs named must be ones whose status the DBC defines (``can.ecus``)."""
+    unknown = set(ecus) - set(STATUS_MESSAGES)
+    if unknown:
+        raise ConfigError(f"can.ecus: unknown ECU(s) {', '.join(sorted(unknown))} ({', '.join(STATUS_MESSAGES)})")
 
 
 def load_dbc(path: str | Path | None = None) -> cantools.database.can.Database:
@@ -101,7 +109,7 @@ def decode(db: cantools.database.can.Database, frame: can.Message) -> tuple[str,
 def command_frames(db: cantools.database.can.Database, command: ActuatorCommand, state: str,
                    counter: int) -> list[can.Message]:
     """The steer, throttle and brake commands and the heartbeat, for one send."""
-    enable = 0 if command.brake >= 1.0 and command.throttle == 0.0 else 1
+    enable = 0 if command.is_stop else 1
     return [
         encode(db, "SteerCommand", {"SteerAngle": command.steer_rad, "Enable": enable}, counter),
         encode(db, "ThrottleCommand", {"Throttle": command.throttle, "Enable": enable}, counter),
@@ -132,9 +140,7 @@ class KartpilotProtocol:
 
     def __init__(self, dbc: str = "", ecus: tuple[str, ...] = ("steer", "drive", "brake"),
                  status_timeout_s: float = 0.1, start_ns: int = 0) -> None:
-        unknown = set(ecus) - set(STATUS_MESSAGES)
-        if unknown:
-            raise ConfigError(f"can.ecus: unknown ECU(s) {', '.join(sorted(unknown))} ({', '.join(STATUS_MESSAGES)})")
+        check_ecus(ecus)
         self.db = load_dbc(dbc or None)
         self.status_timeout_s = status_timeout_s
         self._counter = 0

@@ -9,12 +9,11 @@ steering sensor out of range, an ECU's error flag, the motor ECU idle, a gear it
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
 import can
-import cantools
 
 from kartpilot.actuation.kartpilot_protocol import decode, load_dbc
 from kartpilot.actuation.rdw_protocol import SENSOR_RANGE, decode_rdw, load_rdw_dbc
@@ -46,13 +45,13 @@ class TrafficRow:
             self.last_ns > self.first_ns else math.nan
 
 
-def _decoder(protocol: str) -> tuple[cantools.database.can.Database, Any]:
+def _decoder(protocol: str) -> Callable[[can.Message], tuple[str, dict[str, Any]] | None]:
     if protocol == "rdw":
-        db = load_rdw_dbc()
-        return db, lambda frame: decode_rdw(db, frame)
+        rdw = load_rdw_dbc()
+        return lambda frame: decode_rdw(rdw, frame)
     if protocol == "kartpilot":
-        db = load_dbc()
-        return db, lambda frame: decode(db, frame)
+        ours = load_dbc()
+        return lambda frame: decode(ours, frame)
     raise ConfigError(f"unknown protocol {protocol!r} (rdw, kartpilot)")
 
 
@@ -75,7 +74,7 @@ def _problems(name: str, values: dict[str, Any]) -> list[str]:
 
 def summarise_traffic(frames: Iterable[Frame], protocol: str) -> list[TrafficRow]:
     """One row per (id, direction), in id order, from frames in time order."""
-    _, decode_frame = _decoder(protocol)
+    decode_frame = _decoder(protocol)
     rows: dict[tuple[int, str], TrafficRow] = {}
     for stamp_ns, direction, frame_id, data in frames:
         row = rows.get((frame_id, direction))

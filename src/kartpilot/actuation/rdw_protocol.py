@@ -168,6 +168,9 @@ class RdwProtocol:
         self._start_ns = start_ns
         self._seen: dict[str, tuple[int, dict[str, Any]]] = {}
         self._by_message = {message: key for key, (message, _) in FEEDBACK.items()}
+        self._frame_ids = {key: self.db.get_message_by_name(message).frame_id for key, (message, _) in FEEDBACK.items()}
+        self._timeout_s = {key: self.config.sensor_timeout_s if key == "steering_sensor" else
+                           self.config.feedback_timeout_s for key in FEEDBACK}
         self.raw: dict[str, str] = {}
 
     def gear(self) -> str:
@@ -201,20 +204,16 @@ class RdwProtocol:
         seen = self._seen.get(key)
         if seen is None:
             return None
-        timeout = self.config.sensor_timeout_s if key == "steering_sensor" else self.config.feedback_timeout_s
-        if now_ns is not None and (now_ns - seen[0]) * 1e-9 > timeout:
+        if now_ns is not None and (now_ns - seen[0]) * 1e-9 > self._timeout_s[key]:
             return None
         return float(seen[1][signal])
 
     def faults(self, now_ns: int, state: str) -> list[str]:
         found = []
         for key in self.config.expect:
-            message, label = FEEDBACK[key]
-            frame_id = self.db.get_message_by_name(message).frame_id
             since = self._seen[key][0] if key in self._seen else self._start_ns
-            timeout = self.config.sensor_timeout_s if key == "steering_sensor" else self.config.feedback_timeout_s
-            if (now_ns - since) * 1e-9 > timeout:
-                found.append(f"no {label} ({frame_id:#x}) for {(now_ns - since) * 1e-9:.2f} s")
+            if (now_ns - since) * 1e-9 > self._timeout_s[key]:
+                found.append(f"no {FEEDBACK[key][1]} ({self._frame_ids[key]:#x}) for {(now_ns - since) * 1e-9:.2f} s")
         counts = self._fresh("steering_sensor", "SteeringCounts", None)
         if counts is not None and abs(counts) > SENSOR_RANGE:
             found.append(f"steering sensor out of range ({counts:.0f} counts, valid -{SENSOR_RANGE} to {SENSOR_RANGE})")

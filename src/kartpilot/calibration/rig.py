@@ -178,14 +178,16 @@ def _read_camera_map(path: Path) -> dict[str, str]:
     return {ORGANISER_CAMERA_NAMES[k]: v for k, v in data.items()}
 
 
-def apply_camera_maps(rig: Rig, paths: Sequence[str | Path]) -> Rig:
-    """The rig with each camera's device from the first organiser camera map whose paths all exist.
+def apply_camera_maps(rig: Rig, paths: Sequence[str | Path] = ()) -> Rig:
+    """The rig with each camera's device from the first organiser camera map whose paths all exist
+    (``paths``, or else the rig file's ``camera_maps``; with neither, the rig as it is).
 
     Only the rig's own cameras are mapped (a camera needs its calibration); the capture settings the rig
     gives (fps, exposure) are kept. When no file fits, the error names each file and its missing paths.
     """
+    paths = paths or rig.camera_maps
     if not paths:
-        raise CalibrationError("no camera map given")
+        return rig
     misses = []
     for path in (Path(p) for p in paths):
         if not path.is_file():

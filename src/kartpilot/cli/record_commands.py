@@ -23,10 +23,7 @@ RECORD_QUEUE_FRAMES = 16  # per camera: half a second at 30 fps before frames ar
 def record(args: argparse.Namespace) -> int:
     """Record the rig's live cameras until the duration is up or Ctrl-C."""
     stack = load_stack_config(args.config)
-    rig = load_rig(args.rig)
-    maps = args.cameras_json or rig.camera_maps
-    if maps:
-        rig = apply_camera_maps(rig, maps)
+    rig = apply_camera_maps(load_rig(args.rig), args.cameras_json or ())
     cameras = args.cameras.split(",") if args.cameras else None
     source = LiveFrameSource(rig, stack.live, cameras).start()
     names = list(source.threads)

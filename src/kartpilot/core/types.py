@@ -84,6 +84,11 @@ class ActuatorCommand:
         """The safe command: straight wheels, no throttle, full brake."""
         return cls(stamp_ns, 0.0, 0.0, 1.0)
 
+    @property
+    def is_stop(self) -> bool:
+        """Full brake and no throttle (wherever the wheels point)."""
+        return self.brake >= 1.0 and self.throttle == 0.0
+
 
 @dataclass(frozen=True)
 class VehiclePose:

@@ -67,10 +67,12 @@ class SteeringCalibration:
         if self.counts_per_value == 0:
             raise ConfigError("steering.counts_per_value must not be 0")
 
+    def _value_unclamped(self, steer_rad: float) -> float:
+        return self.value_offset + self.value_sign * steer_rad / self.rad_per_value
+
     def value_of(self, steer_rad: float) -> float:
         """The ECU's value for a road-wheel angle (positive left), clamped to the accepted range."""
-        value = self.value_offset + self.value_sign * steer_rad / self.rad_per_value
-        return min(max(value, -self.max_value), self.max_value)
+        return min(max(self._value_unclamped(steer_rad), -self.max_value), self.max_value)
 
     def steer_of_value(self, value: float) -> float:
         """The road-wheel angle (positive left) a value asks for."""
@@ -78,8 +80,7 @@ class SteeringCalibration:
 
     def counts_of(self, steer_rad: float) -> float:
         """The sensor's counts at a road-wheel angle (unclamped: the wheels may be off the ECU's range)."""
-        value = self.value_offset + self.value_sign * steer_rad / self.rad_per_value
-        return self.count_offset + self.counts_per_value * value
+        return self.count_offset + self.counts_per_value * self._value_unclamped(steer_rad)
 
     def steer_of_counts(self, counts: float) -> float:
         """The road-wheel angle (positive left) the sensor's counts stand for."""

@@ -106,7 +106,7 @@ class LiveDriveSetup:
 
 def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
     """Drive until the duration, the cameras' end, or Ctrl-C; return the summary (also in the recording)."""
-    rig = apply_camera_maps(setup.rig, setup.rig.camera_maps) if setup.rig.camera_maps else setup.rig
+    rig = apply_camera_maps(setup.rig)
     vehicle = setup.vehicle
     limits = stack.limits.for_vehicle(vehicle)
     source = LiveFrameSource(rig, stack.live)

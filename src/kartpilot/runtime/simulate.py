@@ -18,7 +18,6 @@ from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError, RecordingError
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource, Image
-from kartpilot.core.vehicle import SteeringCalibration
 from kartpilot.odometry.mono_vo import MonoVOConfig
 from kartpilot.odometry.places import PlaceDatabase
 from kartpilot.odometry.stereo_vo import StereoVOConfig
@@ -404,14 +403,13 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
                          places: PlaceDatabase | None = None, mono_config: MonoVOConfig | None = None,
                          reference: ReferencePath | None = None, visual_map: VisualMap | None = None,
                          can_config: CanConfig | None = None, limits: ActuatorLimits | None = None,
-                         steering: SteeringCalibration | None = None, watchdog_config: WatchdogConfig | None = None,
+                         watchdog_config: WatchdogConfig | None = None,
                          supervisor_config: SupervisorConfig | None = None, record_dir: str | Path | None = None,
                          result_path: str | Path | None = None, video_path: str | Path | None = None,
                          drive_log: str | Path | None = None, progress: bool = False) -> SupervisedRun:
     """Drive ``pipeline`` in the simulator through the supervisor, on the CAN bus (``bus="virtual"``, in the
     protocol the vehicle speaks, its ECUs simulated) or straight to the simulator (``"none"``), with faults
-    injected; write the result (and recording). ``steering`` is the stack's steering calibration where it
-    differs from the simulated kart's own (a miscalibrated kart)."""
+    injected; write the result (and recording)."""
     if pipeline not in SUPERVISED_PIPELINES:
         raise ConfigError(f"unknown pipeline {pipeline!r} ({', '.join(SUPERVISED_PIPELINES)})")
     if bus not in ("virtual", "none"):
@@ -455,11 +453,13 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
         if bus == "virtual":
             can_config = replace(can_config or CanConfig(), interface="virtual", channel=f"kartpilot-sim-{id(sim)}")
             clock = _BusClock()
-            protocol = make_protocol(can_config, sim.vehicle, steering)
-            if protocol.name != "rdw" and {"steering-sensor-loss", "steering-sensor-range"} & set(at):
-                raise ConfigError(f"the steering sensor's faults need the rdw protocol ({sim.vehicle.name} speaks "
-                                  f"{protocol.name})")
+            protocol = make_protocol(can_config, sim.vehicle)
             ecus = _simulated_ecus(sim, protocol.name, can_config, clock)
+            unsupported = sorted(set(at) & set(ECU_FAULTS) - ecus.FAULTS)
+            if unsupported:
+                ecus.bus.shutdown()
+                raise ConfigError(f"{', '.join(unsupported)}: the {protocol.name} protocol's simulated ECUs cannot "
+                                  f"show it ({sim.vehicle.name}; the rdw protocol's can)")
             actuator = CanActuator(FaultyBus(open_bus(can_config), clock, at.get("can-bus-off")), protocol, can_config,
                                    (limits or ActuatorLimits()).for_vehicle(sim.vehicle), clock,
                                    writer.write_can if writer is not None else None)
@@ -502,7 +502,7 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
         result = sim.result(time.perf_counter() - start)
         first_fault = min(at.values()) if at else None
         stop = next((a for a in sink.applied if first_fault is not None and a.stamp_ns * 1e-9 >= first_fault
-                     and a.command.brake >= 1.0 and a.command.throttle == 0.0), None)
+                     and a.command.is_stop), None)
         payload: dict[str, object] = {
             **result.to_json(), "track": sim.track.name, "vehicle": sim.vehicle.name, "seed": config.seed,
             "pipeline": pipeline, "bus": bus, "steps": stats.steps, "ended": source.ended,

@@ -24,6 +24,7 @@ from typing import Any
 
 import can
 
+from kartpilot.actuation.can_bus import PeriodicSchedule
 from kartpilot.actuation.kartpilot_protocol import STATUS_MESSAGES, decode, encode, load_dbc
 from kartpilot.actuation.rdw_protocol import SENSOR_RANGE, decode_rdw, load_rdw_dbc
 from kartpilot.core.errors import ActuationError, ConfigError
@@ -49,7 +50,10 @@ class AppliedCommand:
 
 
 class SimulatedEcus:
-    """What both simulations share: the clock, the kept commands, the faults a test can switch on."""
+    """What both simulations share: the clock, the kept commands, the faults a test can switch on
+    (``FAULTS``: the kinds of :data:`ECU_FAULTS` these ECUs can simulate)."""
+
+    FAULTS: frozenset[str] = frozenset({"heartbeat-loss"})
 
     def __init__(self, bus: can.BusABC, clock: Callable[[], int], measured: Measured | None) -> None:
         self.bus, self.clock = bus, clock
@@ -70,23 +74,10 @@ class SimulatedEcus:
         raise NotImplementedError
 
 
-@dataclass
-class _Periodic:
-    period_ns: int
-    next_ns: int | None = None
-
-    def due(self, now: int) -> bool:
-        if self.next_ns is None or now - self.next_ns >= self.period_ns:
-            self.next_ns = now + self.period_ns
-            return True
-        if now >= self.next_ns:
-            self.next_ns += self.period_ns
-            return True
-        return False
-
-
 class KartpilotEcus(SimulatedEcus):
     """Our own DBC's steer, drive and brake ECUs (see the module's docstring)."""
+
+    FAULTS = frozenset({"heartbeat-loss", "ecu-error"})
 
     def __init__(self, bus: can.BusABC, clock: Callable[[], int], dbc: str = "", heartbeat_timeout_s: float = 0.1,
                  ecus: tuple[str, ...] = ("steer", "drive", "brake"), measured: Measured | None = None,
@@ -101,7 +92,7 @@ class KartpilotEcus(SimulatedEcus):
         self._heartbeat_ns: int | None = None
         self._start_ns = clock()
         self._status_counter = 0
-        self._status_timer = _Periodic(round(1e9 / status_rate_hz))
+        self._status_timer = PeriodicSchedule(round(1e9 / status_rate_hz))
 
     def inject(self, kind: str) -> None:
         if kind == "ecu-error":
@@ -202,6 +193,8 @@ class RdwEcus(SimulatedEcus):
         measured: the simulated kart's (steer_rad, speed_mps).
     """
 
+    FAULTS = frozenset(ECU_FAULTS)
+
     def __init__(self, bus: can.BusABC, clock: Callable[[], int], steering: SteeringCalibration,
                  measured: Measured | None = None, config: RdwEcuConfig | None = None) -> None:
         super().__init__(bus, clock, measured)
@@ -214,7 +207,7 @@ class RdwEcus(SimulatedEcus):
         self.steering_error = 0
         self.speed_reports: list[tuple[int, float, float]] = []  # (stamp_ns, true m/s, km/h sent in 0x440)
         self._last_ns: int | None = None
-        self._timers = {name: _Periodic(round(1e9 / rate)) for name, rate in (
+        self._timers = {name: PeriodicSchedule(round(1e9 / rate)) for name, rate in (
             ("speed", self.config.speed_rate_hz), ("sensor", self.config.sensor_rate_hz),
             ("feedback", self.config.feedback_rate_hz))}
 
