@@ -5,8 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import time
 from dataclasses import asdict, replace
+from pathlib import Path
 
 from kartpilot.actuation.can_bus import open_bus
 from kartpilot.actuation.monitor import TrafficRow, format_traffic, summarise_traffic
@@ -25,8 +27,12 @@ def _rows_json(rows: list[TrafficRow]) -> list[dict[str, object]]:
 
 def can_monitor(args: argparse.Namespace) -> int:
     """One line per message id: rate, longest gap, last decoded values and faults."""
-    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
-        raise ConfigError(f"--duration {args.duration}: must be a positive number of seconds")
+    for name, value in (("--duration", args.duration), ("--every", args.every)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"{name} {value}: must be a positive number of seconds")
+    out = Path(args.json) if args.json else None
+    if out is not None and (out.is_dir() or not out.parent.is_dir()):
+        raise ConfigError(f"--json {out}: {'is a folder' if out.is_dir() else 'its folder does not exist'}")
     if args.recording:
         reader = RecordingReader(args.recording)
         frames = reader.can_frames()
@@ -63,7 +69,8 @@ def can_monitor(args: argparse.Namespace) -> int:
         rows = summarise_traffic(heard, protocol)
         print(f"--- {len(heard)} frames in {time.monotonic() - start:.1f} s on {config.interface} {config.channel}")
         print(format_traffic(rows))
-    if args.json:
-        with open(args.json, "w") as file:
-            json.dump(_rows_json(rows), file, indent=2)
+    if out is not None:
+        temporary = out.with_name(out.name + ".tmp")
+        temporary.write_text(json.dumps(_rows_json(rows), indent=2))
+        os.replace(temporary, out)  # never a half-written file
     return 0
