@@ -44,6 +44,24 @@ def test_the_operator_side_without_a_browser():
         web.on_request("launch")
 
 
+def test_requests_clicked_within_one_loop_step_all_reach_the_supervisor():
+    # a re-arm and a manual clicked quickly used to share one slot: the manual overwrote the re-arm, and the
+    # supervisor, still in fault, ignored it (seen in CI's browser test)
+    web = WebOperator(WebConfig(link_timeout_s=0.5), clock=lambda: 0)
+    supervisor = Supervisor()
+    web.on_request("manual")
+    supervisor.step(1, [], web(1), ActuatorCommand(1, 0.0, 0.5, 0.0))
+    web.on_estop()
+    supervisor.step(2, [], web(2), ActuatorCommand(2, 0.0, 0.5, 0.0))
+    assert supervisor.state == "fault"
+    web.on_request("rearm")
+    web.on_request("manual")
+    for k in (3, 4):
+        supervisor.step(k, [], web(k), ActuatorCommand(k, 0.0, 0.5, 0.0))
+    assert supervisor.state == "manual"
+    assert web(5).request == ""
+
+
 @pytest.fixture
 def served():
     web = WebOperator(WebConfig(host="127.0.0.1", port=0, link_timeout_s=0.5))

@@ -16,6 +16,7 @@ import json
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from http import HTTPStatus
@@ -67,7 +68,7 @@ class WebOperator:
         self._lock = threading.Lock()
         self._last_post_ns: int | None = None
         self._controls = {"steer": 0.0, "throttle": 0.0, "brake": 0.0, "hold": False}
-        self._request = ""
+        self._requests: deque[str] = deque(maxlen=8)  # one per loop step, in the order they were clicked
         self._estop = False
         self._view: dict[str, Any] = {"state": "disarmed", "reason": "", "transitions": []}
         self._jpeg: bytes | None = None
@@ -88,7 +89,7 @@ class WebOperator:
             raise ValueError(f"unknown request {request!r}")
         with self._lock:
             self._last_post_ns = self.clock()
-            self._request = request
+            self._requests.append(request)
             if request == "rearm":
                 self._estop = False  # the person has seen the kart is safe
         log.info("web page: %s requested", request)
@@ -104,7 +105,7 @@ class WebOperator:
             now = self.clock()
             connected = self._last_post_ns is not None and (now - self._last_post_ns) * 1e-9 <= \
                 self.config.link_timeout_s
-            request, self._request = self._request, ""
+            request = self._requests.popleft() if self._requests else ""
             c = self._controls if connected else {"steer": 0.0, "throttle": 0.0, "brake": 1.0, "hold": False}
             manual = ActuatorCommand(stamp_ns, float(c["steer"]) * self.config.max_steer_rad,
                                      float(c["throttle"]) * self.config.throttle, float(c["brake"]) * self.config.brake)
