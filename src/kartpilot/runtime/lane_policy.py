@@ -4,6 +4,10 @@ Centre camera: :func:`detect_lanes`; side cameras: :func:`detect_side_boundary` 
 computed from each camera's calibration (the ground between ``near_m`` and ``far_m`` beside the kart,
 where a boundary appears only when the kart is close to it); then :func:`lane_follow_step`. The same
 policy drives the simulator, a replay or the real kart.
+
+The follower's throttle is open loop, as in the thesis, unless ``speed_mps`` is set and the kart reports
+its own speed (the RDW kart's 0x440): then the follower's throttle is a fraction of ``speed_mps`` (the
+slower one in turns), held by a PI controller on the measured speed.
 """
 
 from __future__ import annotations
@@ -14,10 +18,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from kartpilot.control.lane_follow import LaneDecision, LaneFollowConfig, LaneFollowState, lane_follow_step
+from kartpilot.control.longitudinal import SpeedPIConfig, SpeedPIState, speed_pi
 from kartpilot.core.camera import PinholeCamera
-from kartpilot.core.errors import CalibrationError
+from kartpilot.core.errors import CalibrationError, ConfigError
 from kartpilot.core.geometry import invert_pose, transform_points
-from kartpilot.core.types import ActuatorCommand, FrameSet, Image
+from kartpilot.core.types import ActuatorCommand, FrameSet, Image, VehicleFeedback
 from kartpilot.perception.lanes import (
     LaneConfig,
     LaneObservation,
@@ -37,6 +42,9 @@ class LanePolicyConfig:
         kart_half_width_m: half the kart's width (where "beside the kart" starts).
         roi_far_m: the centre camera's region of interest starts at the row where the ground this far
             ahead appears (from the calibration; overrides ``lanes.roi_top``).
+        speed_mps: with the kart's measured speed, the speed the follower's full throttle stands for
+            (0: open-loop throttle, the thesis's).
+        speed_pi: the speed controller's gains.
     """
 
     # a kart's camera sees a wide road from close to the ground: the boundaries run out to the image's
@@ -48,6 +56,12 @@ class LanePolicyConfig:
     far_m: float = 0.9
     kart_half_width_m: float = 0.6
     roi_far_m: float = 25.0
+    speed_mps: float = 0.0
+    speed_pi: SpeedPIConfig = field(default_factory=SpeedPIConfig)
+
+    def __post_init__(self) -> None:
+        if not self.speed_mps >= 0:
+            raise ConfigError("lane_policy.speed_mps must be 0 (open loop) or positive")
 
 
 def side_search_band(camera: PinholeCamera, side: str, near_m: float, far_m: float, half_width_m: float
@@ -99,6 +113,13 @@ class LanePolicy:
         self.dt_s = 1.0 / rate_hz
         self.last_observation: LaneObservation | None = None
         self.last_decision: LaneDecision | None = None
+        self.last_command: ActuatorCommand | None = None
+        self.measured_speed_mps: float | None = None
+        self.speed_state = SpeedPIState()
+
+    def observe_vehicle(self, feedback: VehicleFeedback) -> None:
+        """The kart's own measurements before a step; a fresh speed closes the speed loop (``speed_mps``)."""
+        self.measured_speed_mps = feedback.speed_mps
 
     def __call__(self, frames: FrameSet) -> ActuatorCommand:
         centre_image = frames.images.get("center")
@@ -110,7 +131,13 @@ class LanePolicy:
         decision, self.state = lane_follow_step(self.config.follow, self.state, observation, away.get("left", 0.0),
                                                 away.get("right", 0.0), self.dt_s)
         self.last_observation, self.last_decision = observation, decision
-        return ActuatorCommand(frames.stamp_ns, decision.steer_rad, decision.throttle, decision.brake)
+        throttle, brake = decision.throttle, decision.brake
+        if self.config.speed_mps > 0 and self.measured_speed_mps is not None and decision.reason != "halt":
+            throttle, brake, self.speed_state = speed_pi(self.config.speed_pi, self.speed_state,
+                                                         self.config.speed_mps * decision.throttle,
+                                                         self.measured_speed_mps, self.dt_s)
+        self.last_command = ActuatorCommand(frames.stamp_ns, decision.steer_rad, throttle, brake)
+        return self.last_command
 
     def fault(self) -> str:
         """What is wrong with the pipeline, for the supervisor: no boundary seen for longer than it may hold."""
@@ -121,8 +148,8 @@ class LanePolicy:
     def outputs(self) -> dict[str, dict[str, float | int | str]]:
         """The last step as the recording's ``lanes`` topic (pixels of the centre image; NaN where a
         boundary was not detected)."""
-        observation, decision = self.last_observation, self.last_decision
-        if decision is None:
+        observation, decision, command = self.last_observation, self.last_decision, self.last_command
+        if decision is None or command is None:
             return {}
         values: dict[str, float | int | str] = {}
         for side in ("left", "right"):
@@ -134,7 +161,7 @@ class LanePolicy:
         meet = observation.intersection_px if observation is not None else None
         values["intersection_x_px"], values["intersection_y_px"] = meet if meet is not None else (math.nan, math.nan)
         values["confidence"] = observation.confidence if observation is not None else 0.0
-        values.update(steer_rad=decision.steer_rad, throttle=decision.throttle, brake=decision.brake,
+        values.update(steer_rad=command.steer_rad, throttle=command.throttle, brake=command.brake,
                       rule=decision.reason)
         return {"lanes": values}
 
