@@ -24,7 +24,7 @@ from kartpilot.runtime.loop import run_loop
 from kartpilot.sim.simulator import SimConfig, Simulator
 
 THESIS = LaneFollowConfig(heading_gain=1.0, offset_gain=0.0, smoothing=0.0, max_steer_rate_radps=100.0,
-                          missing_side="extreme", both_sides="thesis")
+                          missing_side="extreme", both_sides="left_first")
 
 
 def drive(follow: LaneFollowConfig, seconds: float, rate_hz: float, mode_kmh: float) -> dict[str, float | str | bool]:

@@ -1,7 +1,7 @@
-"""Steering of two `kartpilot experiment thesis-vo` runs, one over the other (the README's figure).
+"""Steering of two `kartpilot experiment teach-repeat` runs, one over the other (the README's figure).
 
-    kartpilot experiment thesis-vo --track straight20 --controller thesis --out exp-thesis
-    kartpilot experiment thesis-vo --track straight20 --out exp-kartpilot
+    kartpilot experiment teach-repeat --track straight20 --controller plain_stanley --out exp-thesis
+    kartpilot experiment teach-repeat --track straight20 --out exp-kartpilot
     python docs/figures/compare_steering.py exp-thesis exp-kartpilot docs/figures/straight20-steering.png
 """
 

@@ -67,7 +67,7 @@ def test_side_cameras_override_and_the_nearer_boundary_wins():
     assert left_only.reason == "side-left" and left_only.steer_rad == pytest.approx(-0.5 * config.max_steer_rad)
     both, _ = lane_follow_step(config, state, observation(100, 860), away_from_left=0.2, away_from_right=0.7)
     assert both.reason == "side-right" and both.steer_rad > 0
-    thesis = LaneFollowConfig(max_steer_rate_radps=100.0, both_sides="thesis")
+    thesis = LaneFollowConfig(max_steer_rate_radps=100.0, both_sides="left_first")
     assert lane_follow_step(thesis, state, None, 0.2, 0.7)[0].reason == "side-left"
 
 

@@ -27,7 +27,7 @@ from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
 from kartpilot.runtime.config import load_stack_config
-from kartpilot.runtime.experiment import ThesisVOConfig, run_thesis_vo, summary_line
+from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
 from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.donkeycar import DonkeyTub
@@ -286,7 +286,7 @@ def demo(args: argparse.Namespace) -> int:
     _print_result(run.result, run)
     print(f"2/2 waypoint following: the rc-kart is taught a lap of utrack at {args.vo_speed} m/s, builds its "
           "reference with stereo VO, then drives it on VO and the taught map ...")
-    result = run_thesis_vo(ThesisVOConfig(track="utrack", speed_mps=args.vo_speed, seed=1), out / "utrack-vo",
+    result = run_teach_repeat(TeachRepeatConfig(track="utrack", speed_mps=args.vo_speed, seed=1), out / "utrack-vo",
                            progress=True)
     print(summary_line(result))
     print(f"wrote {out / 'sdc-assen-lanes.mp4'}, {out / 'utrack-vo' / 'repeat.mp4'} and their result JSON and plots")

@@ -26,7 +26,7 @@ from kartpilot.planning.reference_path import (
 )
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.runtime.config import load_stack_config
-from kartpilot.runtime.experiment import ThesisVOConfig, run_thesis_vo, summary_line
+from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
 from kartpilot.runtime.faults import parse_injection
 from kartpilot.runtime.live_drive import LiveDriveSetup, run_live_drive
 from kartpilot.runtime.replay import replay_recording
@@ -220,13 +220,13 @@ def replay(args: argparse.Namespace) -> int:
 
 
 def experiment(args: argparse.Namespace) -> int:
-    """``thesis-vo``: teach, build the reference with VO, repeat, score."""
+    """``teach-repeat``: teach, build the reference with VO, repeat, score."""
     stack = load_stack_config(args.config)
-    config = ThesisVOConfig(track=args.track, speed_mps=args.speed, seed=args.seed, camera_rate_hz=args.rate,
+    config = TeachRepeatConfig(track=args.track, speed_mps=args.speed, seed=args.seed, camera_rate_hz=args.rate,
                             steer_bias_rad=args.steer_bias, use_map=not args.no_map, controller=args.controller,
                             drive=stack.drive,
                             vo=stack.stereo_vo)
-    result = run_thesis_vo(config, args.out, progress=not args.no_progress, video=not args.no_video)
+    result = run_teach_repeat(config, args.out, progress=not args.no_progress, video=not args.no_video)
     print(summary_line(result))
     print(f"wrote {Path(args.out) / 'result.json'}, path.png, steering.png")
     return 0

@@ -246,16 +246,16 @@ def build_parser() -> argparse.ArgumentParser:
     rep.set_defaults(handler=drive_commands.replay)
 
     experiment = sub.add_parser("experiment", help="reproduce an experiment of the thesis in the simulator")
-    experiment.add_argument("name", choices=("thesis-vo",),
-                            help="thesis-vo: teach, build the reference with stereo VO, repeat, score")
+    experiment.add_argument("name", choices=("teach-repeat",),
+                            help="teach-repeat: teach, build the reference with stereo VO, repeat, score")
     experiment.add_argument("--track", default="straight20")
     experiment.add_argument("--speed", type=float, default=0.62, help="m/s")
     experiment.add_argument("--seed", type=int, default=1)
     experiment.add_argument("--rate", type=float, default=15.0, help="camera and control rate, Hz")
     experiment.add_argument("--steer-bias", type=float, default=0.03, help="the kart's drag to one side, rad")
     experiment.add_argument("--no-map", action="store_true", help="localise with VO alone, as the thesis did")
-    experiment.add_argument("--controller", choices=("kartpilot", "thesis"), default="kartpilot",
-                            help="thesis: the thesis's pipeline as it ran, for comparison")
+    experiment.add_argument("--controller", choices=("tuned", "plain_stanley"), default="tuned",
+                            help="plain_stanley: the pipeline as the thesis ran it, for comparison")
     experiment.add_argument("--no-video", action="store_true")
     experiment.add_argument("--out", required=True)
     experiment.add_argument("--config", help="YAML file merged over the defaults (sections stereo_vo, drive)")

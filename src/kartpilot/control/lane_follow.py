@@ -35,7 +35,7 @@ class LaneFollowConfig:
         split_preference: which side's boundary to follow when the lane suddenly widens (a split).
         split_width_ratio: how much wider than usual the lane must look to count as a split.
         both_sides: with both side cameras steering, ``nearer`` steers away from the nearer boundary;
-            ``thesis`` always takes the left camera's steer to the right.
+            ``left_first`` always takes the left camera's steer to the right (the thesis's rule).
         missing_side: with one boundary seen, put the other a remembered lane width away (``lane_width``)
             or use the image's extreme column as the thesis did (``extreme``).
     """
@@ -51,7 +51,7 @@ class LaneFollowConfig:
     turn_threshold_rad: float = 0.12
     split_preference: Literal["right", "left"] = "right"
     split_width_ratio: float = 1.45
-    both_sides: Literal["nearer", "thesis"] = "nearer"
+    both_sides: Literal["nearer", "left_first"] = "nearer"
     missing_side: Literal["lane_width", "extreme"] = "lane_width"
 
 
@@ -90,7 +90,7 @@ def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: L
 
     if away_from_left > 0 or away_from_right > 0:
         if away_from_left > 0 and away_from_right > 0:
-            use_left = config.both_sides == "thesis" or away_from_left >= away_from_right
+            use_left = config.both_sides == "left_first" or away_from_left >= away_from_right
         else:
             use_left = away_from_left > 0
         steer = -away_from_left * config.max_steer_rad if use_left else away_from_right * config.max_steer_rad

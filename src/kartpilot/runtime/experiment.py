@@ -43,7 +43,8 @@ from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import DisturbanceConfig, SimConfig
 
-__all__ = ["ThesisVOConfig", "end_errors", "path_distance", "run_thesis_vo", "summary_line", "thesis_drive_config"]
+__all__ = ["TeachRepeatConfig", "end_errors", "path_distance", "plain_stanley_drive_config", "run_teach_repeat",
+           "summary_line"]
 
 log = logging.getLogger(__name__)
 
@@ -51,14 +52,14 @@ THESIS_END_ERROR_M = 1.5
 
 
 @dataclass(frozen=True)
-class ThesisVOConfig:
+class TeachRepeatConfig:
     """Attributes:
         track, speed_mps, seed: the experiment (the thesis: a 20 m straight at 0.62 m/s).
         camera_rate_hz: the pipeline's frame rate (the thesis ran at 12 to 13 FPS).
         steer_bias_rad: the kart's drag to one side (positive pulls left).
         use_map: relocalise against the taught drive's visual map (False: VO alone, as the thesis).
-        controller: ``kartpilot`` (``drive``'s settings) or ``thesis``: the thesis's pipeline as it ran,
-            for comparison (unsmoothed reference, Stanley with the heading at the nearest waypoint, no
+        controller: ``tuned`` (``drive``'s settings) or ``plain_stanley``: the pipeline as the thesis ran
+            it, for comparison (unsmoothed reference, Stanley with the heading at the nearest waypoint, no
             feed-forward, bias compensation or rate limit, a constant throttle and a hand-set speed,
             VO alone).
         drive: the pipeline's settings; its path's cruise speed is set to ``speed_mps``.
@@ -71,19 +72,20 @@ class ThesisVOConfig:
     camera_rate_hz: float = 15.0
     steer_bias_rad: float = 0.03
     use_map: bool = True
-    controller: Literal["kartpilot", "thesis"] = "kartpilot"
+    controller: Literal["tuned", "plain_stanley"] = "tuned"
     drive: DriveConfig = field(default_factory=DriveConfig)
     vo: StereoVOConfig = field(default_factory=StereoVOConfig)
 
     def __post_init__(self) -> None:
         if self.speed_mps <= 0 or self.camera_rate_hz <= 0:
             raise ConfigError("the experiment's speed and camera rate must be positive")
-        if self.controller not in ("kartpilot", "thesis"):
-            raise ConfigError(f"unknown controller {self.controller!r} (kartpilot or thesis)")
+        if self.controller not in ("tuned", "plain_stanley"):
+            raise ConfigError(f"unknown controller {self.controller!r} (tuned or plain_stanley)")
 
 
-def thesis_drive_config(speed_mps: float, vehicle: VehicleParams) -> DriveConfig:
-    """The thesis's autonomous mode: every fix of issue 5 switched off, throttle set by hand for ``speed_mps``."""
+def plain_stanley_drive_config(speed_mps: float, vehicle: VehicleParams) -> DriveConfig:
+    """The thesis's autonomous mode (plain Stanley): every later fix switched off, throttle set by hand for
+    ``speed_mps``."""
     drag = vehicle.rolling_decel_mps2 / (vehicle.max_accel_mps2 * (1.0 - speed_mps / vehicle.top_speed_mps))
     follow = PathFollowConfig(
         stanley=StanleyConfig(k_heading=0.5, k_cross_track=1.2, heading_lookahead_m=0.0, heading_lookahead_time_s=0.0,
@@ -113,7 +115,7 @@ def path_distance(reference_xy: Array, run_xy: Array, spacing_m: float = 0.02) -
     return np.asarray(distance)
 
 
-def run_thesis_vo(config: ThesisVOConfig, out: str | Path, progress: bool = False, video: bool = True
+def run_teach_repeat(config: TeachRepeatConfig, out: str | Path, progress: bool = False, video: bool = True
                   ) -> dict[str, object]:
     """Teach, build the reference, repeat, score; write ``out/result.json`` and the plots. Returns the result."""
     out = Path(out)
@@ -134,8 +136,8 @@ def run_thesis_vo(config: ThesisVOConfig, out: str | Path, progress: bool = Fals
     if teach.ground_truth is None or teach.result.disqualified:
         raise ConfigError(f"the teach drive failed: {teach.result.reason}")
 
-    drive = config.drive if config.controller == "kartpilot" else thesis_drive_config(config.speed_mps, vehicle)
-    use_map = config.use_map and config.controller == "kartpilot"
+    drive = config.drive if config.controller == "tuned" else plain_stanley_drive_config(config.speed_mps, vehicle)
+    use_map = config.use_map and config.controller == "tuned"
     print("2/3 reference: stereo VO over the recording" + (", keeping a visual map" if use_map else ""))
     vo_run, visual_map = run_teach(RecordingStereoSource(teach_dir), body_cam, config.vo,
                                    config.drive.map)
@@ -146,7 +148,7 @@ def run_thesis_vo(config: ThesisVOConfig, out: str | Path, progress: bool = Fals
     visual_map.save(map_path_for(out / "reference.csv"))
 
     drive = replace(drive, path=path_config)
-    if config.controller == "kartpilot":
+    if config.controller == "tuned":
         commands = RecordingReader(teach_dir).commands()
         bias = steer_bias_of_drive(reference, vo_ground, np.array([e.stamp_ns for e in vo_run.estimates]),
                                    np.array([c.stamp_ns for c in commands]), np.array([c.steer_rad for c in commands]),
@@ -170,7 +172,7 @@ def summary_line(result: dict[str, object]) -> str:
             f"{result['max_center_offset_m']:.3f} m")
 
 
-def score(config: ThesisVOConfig, out: Path, teach: SimRun, repeat: SimRun, reference: ReferencePath,
+def score(config: TeachRepeatConfig, out: Path, teach: SimRun, repeat: SimRun, reference: ReferencePath,
           body_cam: Array, vo_summary: str) -> dict[str, object]:
     """The result JSON and the plots of one experiment."""
     assert teach.ground_truth is not None and repeat.ground_truth is not None

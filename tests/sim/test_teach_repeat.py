@@ -5,12 +5,12 @@ import json
 
 import pytest
 
-from kartpilot.runtime.experiment import THESIS_END_ERROR_M, ThesisVOConfig, run_thesis_vo
+from kartpilot.runtime.experiment import THESIS_END_ERROR_M, TeachRepeatConfig, run_teach_repeat
 
 
 @pytest.mark.slow
-def test_thesis_vo_on_straight20_ends_where_the_teach_drive_ended(tmp_path):
-    result = run_thesis_vo(ThesisVOConfig(track="straight20", speed_mps=0.62, seed=1), tmp_path, video=False)
+def test_teach_repeat_on_straight20_ends_where_the_teach_drive_ended(tmp_path):
+    result = run_teach_repeat(TeachRepeatConfig(track="straight20", speed_mps=0.62, seed=1), tmp_path, video=False)
     print(f"straight20 at 0.62 m/s: end point {result['end_error_along_m']:+.3f} m along, "
           f"{result['end_error_across_m']:+.3f} m across (thesis {THESIS_END_ERROR_M} m); "
           f"max {result['max_distance_from_taught_path_m']:.3f} m from the taught path; "
