@@ -70,6 +70,24 @@ def test_the_localizer_tracks_bridges_a_gap_and_reports_lost(source: SyntheticSt
         localizer.close()
 
 
+def test_a_bridged_pose_moves_at_the_kart_s_measured_speed(source: SyntheticStereoSource) -> None:
+    """The kart brakes during a camera gap: its own speed sensor says 0.5 m/s, and the bridged pose follows
+    it instead of the 2 m/s the last frames showed; a stale measurement is not used."""
+    localizer = StereoVOLocalizer(source.rig, BODY_CAM, config=LocalizerConfig(max_bridge_s=0.25))
+    try:
+        last = [localizer.update(frames_of(source, i)) for i in range(6)][-1]
+        localizer.observe_speed(last.stamp_ns, 0.5)
+        bridged = localizer.update(frames_of(source, 6, drop=True))
+        assert bridged.status == "bridged" and bridged.speed_mps == 0.5
+        assert math.hypot(bridged.x_m - last.x_m, bridged.y_m - last.y_m) == pytest.approx(0.05, abs=1e-3)
+        stale = localizer.update(frames_of(source, 9, drop=True))  # 0.3 s after the measurement
+        assert stale.speed_mps == 0.5  # the bridge's last speed carries on, not a fresh measurement
+        localizer.observe_speed(stale.stamp_ns, math.nan)  # a NaN from the bus is ignored
+        assert localizer.update(frames_of(source, 10, drop=True)).speed_mps == 0.5
+    finally:
+        localizer.close()
+
+
 def test_a_taught_map_relocalises_its_own_frames_and_survives_a_round_trip(source, tmp_path) -> None:
     run, visual_map = run_teach(source, BODY_CAM)
     assert len(visual_map) >= 8  # 5.8 m driven, a keyframe every 0.5 m

@@ -67,3 +67,20 @@ def test_a_wild_heading_is_dropped_and_the_position_still_used():
     assert fusion.correct(np.array([1.5, 0.0, 1.0]), _noise(0.3, 0.05))
     assert fusion.state[0] > 1.1  # pulled toward the fix's position
     assert abs(fusion.state[2]) < 0.01  # the heading one radian off was not believed
+
+
+def test_the_wheels_measured_distance_teaches_the_scale_between_fixes():
+    """VO says 0.8 m where the wheels measured 1 m (with 0.05 m noise): without any fix after the first,
+    the scale factor converges to 1.25 and the position follows the wheels, not VO."""
+    rng = np.random.default_rng(1)
+    fusion = FixFilter(MonoLocalizerConfig())
+    fusion.place(np.zeros(3), _noise(0.1, 0.02))
+    for _ in range(60):
+        fusion.predict((0.8, 0.0, 0.0))
+        fusion.correct_distance(0.8, 1.0 + rng.normal(0, 0.05), 0.05)
+    print(f"scale learnt from the wheels: {fusion.scale:.3f} (truth 1.25)")
+    assert fusion.scale == pytest.approx(1.25, rel=0.02)
+    assert fusion.state[0] > 0.9 * 60  # without the wheels, 0.8 * 60 = 48 m
+    standing = fusion.state.copy()
+    fusion.correct_distance(0.0, 0.0, 0.05)  # standing still says nothing about the scale
+    assert np.array_equal(fusion.state, standing)

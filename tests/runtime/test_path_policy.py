@@ -56,8 +56,14 @@ def test_the_kart_s_measured_speed_drives_the_speed_control_when_it_reports_one(
     from kartpilot.core.types import VehicleFeedback, VehiclePose
 
     class SlowOdometry:  # odometry says the kart crawls
+        def __init__(self) -> None:
+            self.heard: list[float] = []
+
         def update(self, frames: FrameSet) -> VehiclePose:
             return VehiclePose(frames.stamp_ns, 1.0 + frames.index * 0.01, 0.0, 0.0, 0.1, 0.0, "ok")
+
+        def observe_speed(self, stamp_ns: int, speed_mps: float) -> None:
+            self.heard.append(speed_mps)
 
         def close(self) -> None:
             pass
@@ -73,5 +79,7 @@ def test_the_kart_s_measured_speed_drives_the_speed_control_when_it_reports_one(
         braking = by_sensor(frames)
     assert throttle > 0.0  # odometry alone: speed up
     assert braking.throttle == 0.0 and braking.brake > 0.0  # the measured speed: brake
+    assert by_sensor.localizer.heard == [3.0] * 5  # and the localiser hears it (bridging, one camera's scale)
     by_sensor.observe_vehicle(VehicleFeedback(0, speed_mps=None))  # stale or none: odometry again
     assert by_sensor(FrameSet(5, 500_000_000, {})).throttle > 0.0
+    assert len(by_sensor.localizer.heard) == 5

@@ -109,6 +109,18 @@ class PoseTracker:
         self.speed_time_constant_s = speed_time_constant_s
         self._last: VehiclePose | None = None
         self._last_ok_ns: int | None = None
+        self._wheel: tuple[int, float] | None = None  # (stamp_ns, speed_mps) the kart itself last measured
+
+    def observe_speed(self, stamp_ns: int, speed_mps: float) -> None:
+        """The kart's own measured speed (the RDW kart's 0x440): a bridged pose moves at it instead of at
+        the last estimate, while it is younger than ``max_bridge_s``."""
+        if math.isfinite(speed_mps):
+            self._wheel = (stamp_ns, speed_mps)
+
+    def _measured_speed(self, stamp_ns: int) -> float | None:
+        if self._wheel is None or abs(stamp_ns - self._wheel[0]) * 1e-9 > self.max_bridge_s:
+            return None
+        return self._wheel[1]
 
     def _with_motion(self, stamp_ns: int, pose: Pose2D, step: Pose2D, dt: float, status: str,
                      reason: str) -> VehiclePose:
@@ -131,9 +143,11 @@ class PoseTracker:
             dt = max((stamp_ns - last.stamp_ns) * 1e-9, 0.0)
             yaw = last.yaw_rad + last.yaw_rate_radps * dt
             heading = 0.5 * (yaw + last.yaw_rad)
-            pose = VehiclePose(stamp_ns, last.x_m + last.speed_mps * dt * math.cos(heading),
-                               last.y_m + last.speed_mps * dt * math.sin(heading), yaw,
-                               last.speed_mps, last.yaw_rate_radps, "bridged", reason)
+            wheel = self._measured_speed(stamp_ns)
+            speed = last.speed_mps if wheel is None else wheel
+            pose = VehiclePose(stamp_ns, last.x_m + speed * dt * math.cos(heading),
+                               last.y_m + speed * dt * math.sin(heading), yaw,
+                               speed, last.yaw_rate_radps, "bridged", reason)
         log.info("pose at %d ns bridged: %s", stamp_ns, reason)
         return self._check_lost(pose)
 

@@ -15,6 +15,9 @@ Kalman filter on the rear axle's planar pose ``x, y, yaw`` and VO's scale error 
 - ``k`` starts at 1 with ``scale_sigma`` (the ground plane's scale is biased where the road's texture
   is weak) and is learnt from the fixes: when VO keeps falling short of them, ``k`` grows, so a
   biased scale does not keep pulling the estimate off between fixes.
+- where the kart measures its own speed (the RDW kart's 0x440, :meth:`PoseTracker.observe_speed`), each
+  VO step's length is compared with the distance the wheels drove in the same time, which teaches
+  ``k`` between fixes too (``wheel_sigma_mps``; a kart standing still teaches nothing).
 
 The frame is the reference's: the rear axle at the database's first place, x forward, y left
 (:func:`place_ground_poses`), so a reference path built from the same drive lines up. The first
@@ -60,6 +63,7 @@ class MonoLocalizerConfig:
         vo_sigma_per_m: VO's position error per metre driven (standard deviation); ``vo_yaw_sigma_per_m`` likewise.
         scale_sigma: the initial standard deviation of VO's scale error (relative).
         scale_sigma_per_m: how fast the scale error may change, per metre driven.
+        wheel_sigma_mps: the measured speed's standard deviation (resolution, wheel slip), for the scale.
     """
 
     camera: str = "center"
@@ -72,12 +76,15 @@ class MonoLocalizerConfig:
     vo_yaw_sigma_per_m: float = 0.02
     scale_sigma: float = 0.3
     scale_sigma_per_m: float = 0.01
+    wheel_sigma_mps: float = 0.15
 
     def __post_init__(self) -> None:
         if self.place_every_m <= 0 or self.cross_track_sigma_m <= 0:
             raise ConfigError("mono_localizer.place_every_m and cross_track_sigma_m must be positive")
-        if min(self.vo_sigma_per_m, self.vo_yaw_sigma_per_m, self.scale_sigma, self.scale_sigma_per_m) <= 0:
-            raise ConfigError("mono_localizer.vo_sigma_per_m, vo_yaw_sigma_per_m, scale_sigma and scale_sigma_per_m "
+        if min(self.vo_sigma_per_m, self.vo_yaw_sigma_per_m, self.scale_sigma, self.scale_sigma_per_m,
+               self.wheel_sigma_mps) <= 0:
+            raise ConfigError("mono_localizer.vo_sigma_per_m, vo_yaw_sigma_per_m, scale_sigma, scale_sigma_per_m and "
+                              "wheel_sigma_mps "
                               "must be positive")
 
 
@@ -156,6 +163,20 @@ class FixFilter:
         self.covariance = self.covariance - gain @ self.covariance[:3, :]
         return True
 
+    def correct_distance(self, vo_length: float, driven_m: float, sigma_m: float) -> None:
+        """Fold in the distance the wheels measured for VO's last step (``vo_length`` in VO's units): it
+        observes the scale factor, ``driven_m = k * vo_length``."""
+        assert self.state is not None
+        if vo_length <= 0 or sigma_m <= 0:
+            return
+        h = np.zeros(4)
+        h[3] = vo_length
+        variance = float(h @ self.covariance @ h) + sigma_m ** 2
+        gain = self.covariance @ h / variance
+        self.state = self.state + gain * (driven_m - self.state[3] * vo_length)
+        self.state[3] = float(np.clip(self.state[3], 0.5, 2.0))
+        self.covariance = self.covariance - np.outer(gain, h @ self.covariance)
+
 
 class MonoLocalizer(PoseTracker):
     """Holds the VO, the filter's state and covariance, and the recent fixes for the scale."""
@@ -231,6 +252,12 @@ class MonoLocalizer(PoseTracker):
         self._since_query_m += distance
         if self.filter.state is not None:
             self.filter.predict(vo_step)
+            wheel = self._measured_speed(frames.stamp_ns)
+            if wheel is not None and estimate.status != "bridged" and dt > 0:
+                vo_length = math.hypot(vo_step[0], vo_step[1])
+                # the comparison is as uncertain as the wheels' distance and VO's step length together
+                sigma = math.hypot(self.config.wheel_sigma_mps * dt, self.config.vo_sigma_per_m * vo_length * scale)
+                self.filter.correct_distance(vo_length, abs(wheel) * dt, sigma)
         fixed = False
         if self._since_query_m >= self.config.place_every_m or self.filter.state is None:
             fixed = self._fix(self.places.locate(gray, frames.stamp_ns))

@@ -86,6 +86,8 @@ class Localizer(Protocol):
 
     def update(self, frames: FrameSet) -> VehiclePose: ...
 
+    def observe_speed(self, stamp_ns: int, speed_mps: float) -> None: ...
+
     def close(self) -> None: ...
 
 
@@ -111,8 +113,11 @@ class PathFollowPolicy:
 
     def observe_vehicle(self, feedback: VehicleFeedback) -> None:
         """The kart's measurements before a step: a fresh measured speed drives the speed control and the
-        Stanley gains instead of odometry's estimate (closed-loop speed on the kart's own sensor)."""
+        Stanley gains instead of odometry's estimate (closed-loop speed on the kart's own sensor), and the
+        localiser's bridging and, for one camera, VO's scale."""
         self.measured_speed_mps = feedback.speed_mps
+        if feedback.speed_mps is not None:
+            self.localizer.observe_speed(feedback.stamp_ns, feedback.speed_mps)
 
     @property
     def stopped(self) -> bool:
