@@ -28,6 +28,7 @@ from kartpilot.odometry.run import run_teach
 from kartpilot.planning.reference_path import PathConfig, build_reference_path
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.runtime.path_policy import PathFollowPolicy
+from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import SimConfig
@@ -45,7 +46,8 @@ def main() -> None:
         teach = Path(folder) / "teach"
         config = SimConfig(track="utrack", vehicle="rc-kart", cameras=("left", "right"), camera_rate_hz=15.0,
                            max_time_s=args.seconds, seed=1)
-        run_simulation(config, "centerline", CenterlineDriverConfig(speed_mps=2.0), record_dir=teach)
+        run_simulation(config, "centerline", CenterlineDriverConfig(speed_mps=2.0),
+                       outputs=SessionOutputs(record_dir=teach))
         source = RecordingStereoSource(teach)
         vo_run, visual_map = run_teach(source, body_cam)
         path = build_reference_path(ground_poses(vo_run.trajectory.poses, body_cam)[:, :2], PathConfig())

@@ -30,8 +30,11 @@ from kartpilot.odometry.mono_localizer import place_ground_poses
 from kartpilot.odometry.places import PlaceDatabase, build_places
 from kartpilot.planning.reference_path import PathConfig
 from kartpilot.record.recording import RecordingReader
+from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.drive import WatchdogConfig
 from kartpilot.runtime.path_policy import DriveConfig
+from kartpilot.runtime.pipelines import Route
+from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation, run_supervised_drive
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.render import RenderConfig
@@ -42,13 +45,14 @@ SIM = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), came
 
 
 def localisation_errors(log: Path, recording: Path, database: PlaceDatabase) -> dict[str, float]:
-    """The fused pose of every step against the simulator's truth: across the true heading and in heading."""
+    """The fused pose of every step against the simulator's truth: along and across the true heading, and in
+    heading."""
     reader = RecordingReader(recording)
     truth = reader.groundtruth()
     assert truth is not None, "a simulated drive has ground truth"
     camera = reader.cameras["center"]
     true = place_ground_poses(truth.poses, camera.pose_body_cam_array, database.poses_world_cam[0])
-    across, heading = [], []
+    along, across, heading = [], [], []
     with log.open() as handle:
         for row in csv.DictReader(handle):
             if row["pose_status"] != "ok":
@@ -56,10 +60,12 @@ def localisation_errors(log: Path, recording: Path, database: PlaceDatabase) -> 
             i = int(np.argmin(np.abs(truth.stamps_s - int(row["stamp_ns"]) * 1e-9)))
             x, y, yaw = true[i]
             dx, dy = float(row["x_m"]) - x, float(row["y_m"]) - y
+            along.append(abs(math.cos(yaw) * dx + math.sin(yaw) * dy))
             across.append(abs(-math.sin(yaw) * dx + math.cos(yaw) * dy))
             heading.append(abs(math.degrees(math.remainder(float(row["yaw_rad"]) - yaw, math.tau))))
-    a, h = np.array(across), np.array(heading)
-    return {"cross_track_p50_m": float(np.median(a)), "cross_track_p90_m": float(np.percentile(a, 90)),
+    a, h, g = np.array(across), np.array(heading), np.array(along)
+    return {"along_track_p50_m": float(np.median(g)), "along_track_p90_m": float(np.percentile(g, 90)),
+            "cross_track_p50_m": float(np.median(a)), "cross_track_p90_m": float(np.percentile(a, 90)),
             "cross_track_max_m": float(a.max()), "heading_p50_deg": float(np.median(h)),
             "heading_p90_deg": float(np.percentile(h, 90))}
 
@@ -73,7 +79,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         run_simulation(replace(SIM, max_time_s=args.seconds, seed=1), "centerline",
-                       driver_config=CenterlineDriverConfig(speed_mps=5.0), record_dir=Path(tmp) / "teach")
+                       driver_config=CenterlineDriverConfig(speed_mps=5.0),
+                       outputs=SessionOutputs(record_dir=Path(tmp) / "teach"))
         teach = RecordingReader(Path(tmp) / "teach")
         taught = teach.camera_poses("center")
         assert taught is not None, "a simulated drive has ground truth"
@@ -86,10 +93,10 @@ def main() -> None:
             sim = replace(SIM, seed=seed, max_time_s=args.seconds + 25.0,
                           render=replace(SIM.render, time_of_day_h=hour))
             start = time.perf_counter()
-            run = run_supervised_drive(sim, "mono-vo", bus="virtual", places=database,
-                                       drive_config=DriveConfig(path=path),
-                                       watchdog_config=WatchdogConfig(overrun_factor=4.0), record_dir=folder / "rec",
-                                       drive_log=folder / "drive_log.csv")
+            stack = StackConfig(drive=DriveConfig(path=path), watchdogs=WatchdogConfig(overrun_factor=4.0))
+            run = run_supervised_drive(sim, "mono-vo", stack, bus="virtual", route=Route(places=database),
+                                       outputs=SessionOutputs(record_dir=folder / "rec",
+                                                              drive_log=folder / "drive_log.csv"))
             wall_s = time.perf_counter() - start
             p = run.payload
             stages = cast(dict[str, float], p.get("pipeline_stage_ms") or {})
@@ -103,6 +110,8 @@ def main() -> None:
                        "fps": 1e3 / step_ms, "wall_s": wall_s}
             ended = f"disqualified: {p['reason']}" if p["disqualified"] else f"{p['reason']} ({summary['stop_reason']})"
             print(f"\n{name}: {p['distance_m']:.0f} m, {ended}; centre offset max {p['max_center_offset_m']:.2f} m")
+            print(f"  localisation vs truth: along the track median {errors['along_track_p50_m']:.3f} m, 90 % "
+                  f"{errors['along_track_p90_m']:.3f} m")
             print(f"  localisation vs truth: across the track median {errors['cross_track_p50_m']:.3f} m, 90 % "
                   f"{errors['cross_track_p90_m']:.3f} m; heading median {errors['heading_p50_deg']:.2f} deg, 90 % "
                   f"{errors['heading_p90_deg']:.2f} deg")

@@ -23,6 +23,7 @@ from kartpilot.core.types import Image
 from kartpilot.eval.places import evaluate_places
 from kartpilot.odometry.places import build_places
 from kartpilot.record.recording import RecordingReader
+from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.render import RenderConfig
@@ -36,7 +37,7 @@ def drive(folder: Path, seconds: float, seed: int, speed_mps: float, time_of_day
                        render=RenderConfig(time_of_day_h=time_of_day_h, scenery_spacing_m=15.0))
     run_simulation(config, "centerline", driver_config=CenterlineDriverConfig(speed_mps=speed_mps,
                                                                               edge_offset_m=offset_m),
-                   record_dir=folder)
+                   outputs=SessionOutputs(record_dir=folder))
     return RecordingReader(folder)
 
 

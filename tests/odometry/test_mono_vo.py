@@ -22,6 +22,7 @@ from kartpilot.odometry.mono_vo import (
     ground_region,
     relative_pose,
 )
+from kartpilot.runtime.session import SessionOutputs
 
 CAMERA = PinholeCamera(700.0, 700.0, 480.0, 270.0, 960, 540)
 LEVEL = PinholeCamera(300.0, 300.0, 159.5, 119.5, 320, 240)  # no mount: level, the ground starts below row 120
@@ -159,7 +160,7 @@ def test_on_a_simulated_kart_drive_the_ground_plane_gives_metres(tmp_path):
     config = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=15.0,
                        max_time_s=12.0, seed=1)
     run_simulation(config, "centerline", driver_config=CenterlineDriverConfig(speed_mps=5.0),
-                   record_dir=tmp_path / "drive")
+                   outputs=SessionOutputs(record_dir=tmp_path / "drive"))
     reader = RecordingReader(tmp_path / "drive")
     camera = reader.cameras["center"]
     vo = MonoVO(camera, MonoVOConfig(ground=GroundConfig(camera_height_m=float(camera.pose_body_cam_array[2, 3]))))

@@ -13,6 +13,7 @@ from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import DataError, PerceptionError
 from kartpilot.odometry.places import FORMAT_VERSION, PlacesConfig, build_places, load_places
 from kartpilot.perception.vlad import VladConfig
+from kartpilot.runtime.session import SessionOutputs
 
 CAMERA = PinholeCamera(300.0, 300.0, 159.5, 119.5, 320, 240)  # level: the ground starts below row 120
 CONFIG = PlacesConfig(vlad=VladConfig(words=16))
@@ -150,7 +151,7 @@ def _sim_drive(folder, seed: int, speed_mps: float, time_of_day_h: float = 13.0,
                        render=RenderConfig(time_of_day_h=time_of_day_h, scenery_spacing_m=15.0))
     run_simulation(config, "centerline", driver_config=CenterlineDriverConfig(speed_mps=speed_mps,
                                                                               edge_offset_m=offset_m),
-                   record_dir=folder)
+                   outputs=SessionOutputs(record_dir=folder))
     return RecordingReader(folder)
 
 

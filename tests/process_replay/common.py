@@ -21,7 +21,9 @@ from kartpilot.odometry.localizer import ground_poses
 from kartpilot.planning.reference_path import PathConfig, build_reference_path
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
 from kartpilot.runtime.config import StackConfig
+from kartpilot.runtime.pipelines import Route
 from kartpilot.runtime.replay import ReplayResult, replay_recording
+from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import SimConfig
@@ -60,7 +62,7 @@ def record_drive(pipeline: str, folder: Path) -> Path:
 
 def _record(pipeline: str, folder: Path) -> None:
     sim, driver = DRIVES[pipeline]
-    run_simulation(sim, "centerline", driver_config=driver, record_dir=folder)
+    run_simulation(sim, "centerline", driver_config=driver, outputs=SessionOutputs(record_dir=folder))
 
 
 def replay(pipeline: str, recording: Path, out: Path) -> ReplayResult:
@@ -71,7 +73,8 @@ def replay(pipeline: str, recording: Path, out: Path) -> ReplayResult:
         assert truth is not None
         reference = build_reference_path(ground_poses(truth.poses, source.pose_body_left)[:, :2],
                                          PathConfig(cruise_speed_mps=0.8))
-    return replay_recording(recording, pipeline, StackConfig(), out=out, reference=reference)
+    return replay_recording(recording, pipeline, StackConfig(), Route(reference),
+                            outputs=SessionOutputs(record_dir=out))
 
 
 def result_rows(recording: Path) -> list[dict[str, object]]:

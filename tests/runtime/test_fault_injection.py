@@ -15,7 +15,10 @@ from kartpilot.actuation.rdw_protocol import decode_rdw, load_rdw_dbc
 from kartpilot.cli.main import main
 from kartpilot.planning.reference_path import PathConfig, build_reference_path
 from kartpilot.record.recording import RecordingReader
+from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.faults import BUS_OFF_S, parse_injection
+from kartpilot.runtime.pipelines import Route
+from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import BUS_STEP_S, run_supervised_drive
 from kartpilot.sim.simulator import SimConfig
 
@@ -63,8 +66,9 @@ def _check_recording(folder, run) -> RecordingReader:
 @pytest.mark.parametrize(("protocol", "kind"), list(EXPECTED))
 def test_a_fault_stops_the_kart_in_time_with_its_reason_and_the_recording_intact(protocol, kind, tmp_path):
     limit_s, reason = EXPECTED[protocol, kind]
-    run = run_supervised_drive(LANES, "lanes", bus="virtual", duration_s=3.0, can_config=CanConfig(protocol=protocol),
-                               injections=[parse_injection(f"{kind}@{FAULT_AT}")], record_dir=tmp_path / "rec")
+    run = run_supervised_drive(LANES, "lanes", StackConfig(can=CanConfig(protocol=protocol)), bus="virtual",
+                               duration_s=3.0, injections=[parse_injection(f"{kind}@{FAULT_AT}")],
+                               outputs=SessionOutputs(record_dir=tmp_path / "rec"))
     payload = run.payload
     print(protocol, kind, payload["transitions"][-1], f"fault to stop {payload['fault_to_stop_s']} s by "
           f"{payload['stop_by']}")
@@ -95,7 +99,8 @@ def test_a_fault_stops_the_kart_in_time_with_its_reason_and_the_recording_intact
 
 def test_a_silent_loop_is_stopped_by_the_actuator_before_the_motor_ecu_idles(tmp_path):
     run = run_supervised_drive(LANES, "lanes", bus="virtual", duration_s=2.0,
-                               injections=[parse_injection(f"loop-stall@{FAULT_AT}")], record_dir=tmp_path / "rec")
+                               injections=[parse_injection(f"loop-stall@{FAULT_AT}")],
+                               outputs=SessionOutputs(record_dir=tmp_path / "rec"))
     payload = run.payload
     print(f"fault to stop {payload['fault_to_stop_s']} s by {payload['stop_by']}")
     assert payload["can"]["quiet_stops"] == 1 and payload["stop_by"] == "command"  # ours, not the motor ECU's idle
@@ -106,8 +111,9 @@ def test_a_vo_failure_stops_the_kart_once_the_localizer_gives_up(tmp_path):
     line = np.column_stack([np.linspace(0.0, 18.0, 181), np.zeros(181)])
     reference = build_reference_path(line, PathConfig(cruise_speed_mps=0.8))
     config = SimConfig(track="straight20", vehicle="rc-kart", cameras=("left", "right"), camera_rate_hz=10.0, seed=1)
-    run = run_supervised_drive(config, "stereo-vo", bus="virtual", duration_s=4.0, reference=reference,
-                               injections=[parse_injection(f"vo-failure@{FAULT_AT}")], record_dir=tmp_path / "rec")
+    run = run_supervised_drive(config, "stereo-vo", bus="virtual", duration_s=4.0, route=Route(reference),
+                               injections=[parse_injection(f"vo-failure@{FAULT_AT}")],
+                               outputs=SessionOutputs(record_dir=tmp_path / "rec"))
     payload = run.payload
     print(payload["transitions"][-1], f"fault to stop {payload['fault_to_stop_s']} s")
     assert payload["final_state"] == "fault" and "localisation lost" in payload["transitions"][-1]["reason"]

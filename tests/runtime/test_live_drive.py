@@ -22,9 +22,12 @@ from kartpilot.core.camera import CaptureSettings
 from kartpilot.core.errors import CalibrationError
 from kartpilot.core.types import ActuatorCommand
 from kartpilot.core.vehicle import get_vehicle
+from kartpilot.odometry.places import build_places
 from kartpilot.record.recording import RecordingReader
 from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.live_drive import LiveDriveSetup, run_live_drive
+from kartpilot.runtime.pipelines import Route
+from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.can_ecu import KartpilotEcus, RdwEcus
 from kartpilot.sim.simulator import SimConfig
@@ -45,7 +48,7 @@ def _camera_video(tmp_path):
     """A short rendered drive of the SDC kart's centre camera as a video file, and its calibration."""
     sim_config = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=15.0,
                            max_time_s=4.0, seed=1)
-    run_simulation(sim_config, "centerline", record_dir=tmp_path / "teach")
+    run_simulation(sim_config, "centerline", outputs=SessionOutputs(record_dir=tmp_path / "teach"))
     frames = RecordingReader(tmp_path / "teach").frames("center")
     first = cv2.imread(str(frames[0][1]))
     video = cv2.VideoWriter(str(tmp_path / "center.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 15.0,
@@ -72,9 +75,14 @@ def _organiser_camera_maps(tmp_path, video):
     return [str(tmp_path / f"kart{k}.json") for k in (1, 2)]
 
 
-@pytest.mark.parametrize("protocol", ["rdw", "kartpilot"])
-def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(protocol, tmp_path):
+@pytest.mark.parametrize(("protocol", "pipeline"), [("rdw", "lanes"), ("kartpilot", "lanes"), ("rdw", "mono-vo")])
+def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(protocol, pipeline, tmp_path):
     video, camera = _camera_video(tmp_path)
+    route = Route()
+    if pipeline == "mono-vo":  # the one-camera kart: places from the same drive the video shows
+        teach = RecordingReader(tmp_path / "teach")
+        route = Route(places=build_places(teach.posed_frames("center", teach.camera_poses("center")), camera,
+                                          "center"))
     if protocol == "rdw":  # the real kart: its cameras from the organiser's camera-mapping files
         rig = Rig({"center": camera}, None, {"center": CaptureSettings("unset", fps=15.0)},
                   camera_maps=tuple(_organiser_camera_maps(tmp_path, video)))
@@ -118,7 +126,7 @@ def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(p
     # the watchdogs' timing is tested with a simulated clock; here threads share two cores with a video decoder
     can_config = CanConfig(channel=channel, protocol=protocol, status_timeout_s=0.3,
                            rdw=RdwConfig(sensor_timeout_s=0.5, feedback_timeout_s=0.5))
-    setup = LiveDriveSetup(rig, "lanes", sdc, web_port=port, record_dir=tmp_path / "live", duration_s=3.0)
+    setup = LiveDriveSetup(rig, pipeline, sdc, route, web_port=port, record_dir=tmp_path / "live", duration_s=3.0)
     try:
         summary = run_live_drive(setup, replace(StackConfig(), can=can_config))
     finally:
@@ -127,6 +135,11 @@ def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(p
     print(summary["ended"], states, summary["cameras"]["skew_ms"], summary["stage_ms"].get("policy"))
     assert summary["can"]["protocol"] == protocol
     assert states[0] == ("autonomous", "autonomous requested by the operator (web)")
+    assert executed[-1].throttle == 0.0 and ecus.applied[-1].command.brake == 1.0  # however it ended: stopped
+    if pipeline == "mono-vo":  # placed on the reference by the video's frames
+        poses = RecordingReader(tmp_path / "live").outputs("pose")
+        assert poses and any(row["status"] == "ok" for row in poses) and poses[-1]["relocalisations"] > 0
+        return
     assert states[-1] == ("fault", "operator link lost (web)")
     assert any(c.throttle > 0 for c in executed)  # it drove while the person held
     assert executed[-1].throttle == 0.0 and ecus.applied[-1].command.brake == 1.0  # and stopped

@@ -9,8 +9,11 @@ from kartpilot.cli.main import main
 from kartpilot.odometry.places import build_places
 from kartpilot.planning.reference_path import PathConfig
 from kartpilot.record.recording import RecordingReader
+from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.drive import WatchdogConfig
 from kartpilot.runtime.path_policy import DriveConfig
+from kartpilot.runtime.pipelines import Route
+from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation, run_supervised_drive
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.render import RenderConfig
@@ -27,13 +30,15 @@ def test_one_camera_follows_the_taught_drive_through_the_bends_on_place_fixes(tm
     overrun watchdog is relaxed: a shared CI runner may be slower than the 38 ms a step takes here. The whole
     lap is measured by benchmarks/mono_drive.py."""
     run_simulation(replace(SIM, max_time_s=55.0, seed=1), "centerline",
-                   driver_config=CenterlineDriverConfig(speed_mps=5.0), record_dir=tmp_path / "teach")
+                   driver_config=CenterlineDriverConfig(speed_mps=5.0),
+                   outputs=SessionOutputs(record_dir=tmp_path / "teach"))
     teach = RecordingReader(tmp_path / "teach")
     places = build_places(teach.posed_frames("center", teach.camera_poses("center")), teach.cameras["center"],
                           "center")
     drive = DriveConfig(path=PathConfig(cruise_speed_mps=5.0, max_lateral_accel_mps2=2.0))
-    run = run_supervised_drive(replace(SIM, seed=2), "mono-vo", bus="virtual", duration_s=50.0, places=places,
-                               drive_config=drive, watchdog_config=WatchdogConfig(overrun_factor=10.0))
+    stack = StackConfig(drive=drive, watchdogs=WatchdogConfig(overrun_factor=10.0))
+    run = run_supervised_drive(replace(SIM, seed=2), "mono-vo", stack, bus="virtual", duration_s=50.0,
+                               route=Route(places=places))
     payload = run.payload
     print(f"\nmono-vo: {payload['distance_m']:.1f} m, centre offset max {payload['max_center_offset_m']:.2f} m, "
           f"{payload['relocalised_frames']} place fixes used, {payload['bridged_frames']} bridged")

@@ -8,6 +8,7 @@ import pytest
 
 from kartpilot.core.types import ActuatorCommand
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
+from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import CameraEffectsConfig, SimConfig, Simulator
@@ -29,9 +30,10 @@ def without_wall_time(result: dict) -> dict:
 
 def test_same_seed_same_images_and_same_result(tmp_path):
     driver = CenterlineDriverConfig(speed_mps=1.0, weave_amplitude_m=0.1)
-    runs = [run_simulation(SHORT, driver_config=driver, record_dir=tmp_path / f"run{k}") for k in range(2)]
+    runs = [run_simulation(SHORT, driver_config=driver, outputs=SessionOutputs(record_dir=tmp_path / f"run{k}"))
+            for k in range(2)]
     other = run_simulation(SHORT.__class__(**{**SHORT.__dict__, "seed": 2}), driver_config=driver,
-                           record_dir=tmp_path / "other")
+                           outputs=SessionOutputs(record_dir=tmp_path / "other"))
     digests = [folder_digest(tmp_path / f"run{k}") for k in range(2)]
     results = [json.loads((tmp_path / f"run{k}" / "result.json").read_text()) for k in range(2)]
     assert digests[0] == digests[1]
@@ -41,7 +43,7 @@ def test_same_seed_same_images_and_same_result(tmp_path):
 
 
 def test_a_recorded_run_holds_frames_commands_ground_truth_and_the_result(tmp_path):
-    run_simulation(SHORT, record_dir=tmp_path / "rec", video_path=tmp_path / "view.mp4")
+    run_simulation(SHORT, outputs=SessionOutputs(record_dir=tmp_path / "rec", video_path=tmp_path / "view.mp4"))
     reader = RecordingReader(tmp_path / "rec")
     assert reader.closed and reader.stereo_pair == ("left", "right")
     assert len(reader.frames("left")) == len(reader.frames("right")) == 10

@@ -6,6 +6,7 @@ import pytest
 from kartpilot.eval.trajectory_metrics import evaluate_trajectory
 from kartpilot.odometry.run import run_stereo_vo
 from kartpilot.record.recording import RecordingStereoSource
+from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import SimConfig
@@ -23,7 +24,8 @@ def test_stereo_vo_on_a_recorded_straight20_drive(tmp_path):
         config = SimConfig(track="straight20", vehicle="rc-kart", cameras=("left", "right"), camera_rate_hz=10.0,
                            show_cones=cones, seed=1)
         folder = tmp_path / ("cones" if cones else "bare")
-        drive = run_simulation(config, driver_config=CenterlineDriverConfig(speed_mps=1.0), record_dir=folder)
+        drive = run_simulation(config, driver_config=CenterlineDriverConfig(speed_mps=1.0),
+                               outputs=SessionOutputs(record_dir=folder))
         assert drive.result.finished and not drive.result.disqualified
         source = RecordingStereoSource(folder)
         results[cones] = (source, run_stereo_vo(source))

@@ -28,6 +28,7 @@ from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
+from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.donkeycar import DonkeyTub
@@ -188,8 +189,8 @@ def simulate(args: argparse.Namespace) -> int:
     driver = replace(driver, **{k: v for k, v in driver_overrides.items() if v is not None})
     if args.speed_mode is not None:
         config = replace(config, speed_mode_mps=args.speed_mode / 3.6)
-    run = run_simulation(config, args.driver, driver, args.commands, args.record, args.video, args.result,
-                         progress=not args.no_progress, lane_config=stack.lane_policy)
+    run = run_simulation(config, args.driver, driver, args.commands, stack, outputs=SessionOutputs(
+        args.record, args.result, args.video, progress=not args.no_progress))
     _print_result(run.result, run)
     for label, path in (("recording", args.record), ("video", args.video), ("result", args.result)):
         if path:
@@ -281,8 +282,8 @@ def demo(args: argparse.Namespace) -> int:
     print("1/2 lane following: the sdc-kart drives a lap of sdc-assen on its three cameras (15 km/h mode) ...")
     lanes_config = SimConfig(track="sdc-assen", vehicle="sdc-kart", speed_mode_mps=15 / 3.6, camera_rate_hz=30.0,
                              seed=1)
-    run = run_simulation(lanes_config, "lanes", video_path=out / "sdc-assen-lanes.mp4",
-                         result_path=out / "sdc-assen-lanes.json", progress=True)
+    run = run_simulation(lanes_config, "lanes", outputs=SessionOutputs(
+        video_path=out / "sdc-assen-lanes.mp4", result_path=out / "sdc-assen-lanes.json", progress=True))
     _print_result(run.result, run)
     print(f"2/2 waypoint following: the rc-kart is taught a lap of utrack at {args.vo_speed} m/s, builds its "
           "reference with stereo VO, then drives it on VO and the taught map ...")

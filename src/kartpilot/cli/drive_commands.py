@@ -29,7 +29,9 @@ from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
 from kartpilot.runtime.faults import parse_injection
 from kartpilot.runtime.live_drive import LiveDriveSetup, run_live_drive
+from kartpilot.runtime.pipelines import Route
 from kartpilot.runtime.replay import replay_recording
+from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_supervised_drive
 from kartpilot.sim.simulator import SimConfig
 
@@ -106,9 +108,7 @@ def drive(args: argparse.Namespace) -> int:
     path: ReferencePath | None = None
     visual_map = None
     places = None
-    if args.pipeline == "mono-vo":  # without --places, the simulated drive says what is missing
-        if not args.sim:
-            raise ConfigError("the mono-vo pipeline runs in the simulator so far (--sim TRACK)")
+    if args.pipeline == "mono-vo":  # without --places, the pipeline's factory says what is missing
         places = load_places(args.places) if args.places else None
         path = load_reference_path(args.reference) if args.reference else None
     if args.pipeline == "stereo-vo":
@@ -117,6 +117,7 @@ def drive(args: argparse.Namespace) -> int:
                               "writes one from a recorded drive)")
         path = load_reference_path(args.reference)
         visual_map = _visual_map(args)
+    route = Route(path, visual_map, places)
     follow = stack.drive.follow if args.speed is None else replace(stack.drive.follow, max_speed_mps=args.speed)
     drive_config = replace(stack.drive, follow=follow)
     if args.sim:
@@ -131,24 +132,17 @@ def drive(args: argparse.Namespace) -> int:
         if args.bus == "socketcan":
             raise ConfigError("the simulator sits behind the virtual bus (or none), not socketcan")
         run = run_supervised_drive(
-            sim, args.pipeline, bus=args.bus or "virtual", duration_s=args.duration,
-            injections=[parse_injection(text) for text in args.inject or []], lane_config=stack.lane_policy,
-            drive_config=drive_config, vo_config=stack.stereo_vo, reference=path, visual_map=visual_map,
-            places=places, mono_config=stack.mono_vo,
-            can_config=stack.can, limits=stack.limits, watchdog_config=stack.watchdogs,
-            supervisor_config=stack.supervisor,
-            record_dir=args.record, result_path=args.result, video_path=args.video, drive_log=args.log,
-            progress=not args.no_progress)
+            sim, args.pipeline, replace(stack, drive=drive_config), args.bus or "virtual", args.duration,
+            [parse_injection(text) for text in args.inject or []], route,
+            SessionOutputs(args.record, args.result, args.video, args.log, progress=not args.no_progress))
         print(drive_summary(run.payload))
         if run.error is not None:
             where = f"; its traceback is in {Path(args.record) / 'error.txt'}" if args.record else ""
             raise KartpilotError(f"the pipeline failed ({run.payload['error']}); the kart was stopped{where}")
         return 0
     if args.replay:
-        if path is None:
-            raise ConfigError("drive --replay runs the stereo-vo pipeline; for lanes use kartpilot replay")
-        replayed = replay_recording(args.replay, "stereo-vo", replace(stack, drive=drive_config), reference=path,
-                                    visual_map=visual_map, vehicle=args.vehicle, drive_log=args.log)
+        replayed = replay_recording(args.replay, args.pipeline, replace(stack, drive=drive_config), route,
+                                    args.vehicle, SessionOutputs(drive_log=args.log))
         summary = replayed.to_json()
         print(json.dumps(summary))
         if args.result:
@@ -164,7 +158,7 @@ def drive(args: argparse.Namespace) -> int:
         rig = load_rig(args.live)
         if args.cameras_json:
             rig = replace(rig, camera_maps=tuple(args.cameras_json))
-        setup = LiveDriveSetup(rig, args.pipeline, vehicle, path, visual_map, args.gamepad, args.web, args.record,
+        setup = LiveDriveSetup(rig, args.pipeline, vehicle, route, args.gamepad, args.web, args.record,
                                args.duration)
         summary = run_live_drive(setup, replace(stack, can=can))
         print(json.dumps({k: summary[k] for k in ("ended", "seconds", "final_state", "error")}))
@@ -201,11 +195,12 @@ def replay(args: argparse.Namespace) -> int:
     """A recording through a pipeline; its commands and outputs written as a new recording."""
     stack = load_stack_config(args.config)
     path = load_reference_path(args.reference) if args.reference else None
-    visual_map = _visual_map(args) if path is not None else None
+    visual_map = _visual_map(args) if path is not None and args.pipeline == "stereo-vo" else None
+    places = load_places(args.places) if args.places and args.pipeline == "mono-vo" else None
     if args.pipeline == "stereo-vo" and args.vehicle:
         _stereo_vehicle(args.vehicle)
-    result = replay_recording(args.recording, args.pipeline, stack, out=args.out, realtime=args.realtime,
-                              reference=path, visual_map=visual_map, vehicle=args.vehicle,
+    result = replay_recording(args.recording, args.pipeline, stack, Route(path, visual_map, places), args.vehicle,
+                              SessionOutputs(record_dir=args.out, drive_log=args.log), realtime=args.realtime,
                               with_frames=args.with_frames)
     steer = np.array([c.steer_rad for c in result.commands])
     braking = np.mean([c.brake > 0 for c in result.commands]) if result.commands else 0.0

@@ -21,6 +21,7 @@ from kartpilot.cli import (
     record_commands,
 )
 from kartpilot.core.errors import KartpilotError
+from kartpilot.runtime.pipelines import PIPELINES
 
 __all__ = ["build_parser", "main"]
 
@@ -189,16 +190,17 @@ def build_parser() -> argparse.ArgumentParser:
     ref.add_argument("--config", help="YAML file merged over the defaults (sections stereo_vo, drive)")
     ref.set_defaults(handler=drive_commands.reference)
 
-    drive = sub.add_parser("drive", help="a supervised drive: lanes or stereo-VO, simulated or replayed")
+    drive = sub.add_parser("drive", help="a supervised drive of any pipeline: simulated, replayed or live")
     drive.add_argument("--vehicle", help="rc-kart or sdc-kart (default: sdc-kart for lanes, rc-kart for stereo-vo)")
-    drive.add_argument("--pipeline", choices=("lanes", "stereo-vo", "mono-vo"), default="stereo-vo",
-                       help="mono-vo: one camera, monocular VO fused with place fixes (--places; --sim only so far)")
+    drive.add_argument("--pipeline", choices=tuple(PIPELINES), default="stereo-vo",
+                       help="lanes; stereo-vo (--reference); mono-vo: one camera, monocular VO fused with place fixes "
+                            "(--places)")
     drive.add_argument("--places", help="mono-vo: the place database of the reference drive (kartpilot places "
                                         "build); its drive is the reference unless --reference is given")
     drive.add_argument("--reference", help="stereo-vo: a path written by 'kartpilot reference'")
     where = drive.add_mutually_exclusive_group()
     where.add_argument("--sim", metavar="TRACK", help="drive in the simulator on this track")
-    where.add_argument("--replay", metavar="RECORDING", help="run the stereo-vo pipeline on a recording (open loop)")
+    where.add_argument("--replay", metavar="RECORDING", help="run the pipeline on a recording (open loop)")
     where.add_argument("--live", metavar="RIG", help="drive the real kart: the rig file's cameras, the CAN bus of "
                                                      "the config's can section (or --bus, --channel)")
     drive.add_argument("--bus", choices=("virtual", "socketcan", "none"),
@@ -225,7 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
     drive.add_argument("--record", help="record the drive here (frames, commands, outputs, CAN)")
     drive.add_argument("--video", help="write the camera view with the referee's state here (MP4)")
     drive.add_argument("--result", help="write the result JSON here (transitions, fault_to_stop_s, timing)")
-    drive.add_argument("--log", help="stereo-vo: write the pipeline's per-step log here (CSV)")
+    drive.add_argument("--log", help="stereo-vo, mono-vo: write the pipeline's per-step log here (CSV)")
     drive.add_argument("--config", help="YAML file merged over the defaults (sections sim, lane_policy, stereo_vo, "
                                         "drive, can, watchdogs, supervisor)")
     drive.add_argument("--no-progress", action="store_true")
@@ -233,11 +235,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     rep = sub.add_parser("replay", help="push a recording through a pipeline; write its outputs as a recording")
     rep.add_argument("recording")
-    rep.add_argument("--pipeline", choices=("lanes", "stereo-vo"), required=True)
+    rep.add_argument("--pipeline", choices=tuple(PIPELINES), required=True)
     rep.add_argument("--out", help="the new recording: commands, the pipeline's outputs, replay.json")
     rep.add_argument("--realtime", action="store_true", help="at the recorded pace (default: as fast as possible)")
     rep.add_argument("--with-frames", action="store_true", help="copy the frames into the new recording too")
-    rep.add_argument("--reference", help="stereo-vo: the path to follow (written by 'kartpilot reference')")
+    rep.add_argument("--reference", help="stereo-vo, mono-vo: the path to follow (written by 'kartpilot reference'; "
+                                         "mono-vo: default the place database's drive)")
+    rep.add_argument("--places", help="mono-vo: the place database of the reference drive (kartpilot places build)")
+    rep.add_argument("--log", help="stereo-vo, mono-vo: write the pipeline's per-step log here (CSV)")
     rep.add_argument("--map", help="stereo-vo: the visual map (default: the reference's .map.npz, if there)")
     rep.add_argument("--no-map", action="store_true", help="stereo-vo: localise with VO alone")
     rep.add_argument("--vehicle", help="the kart (wheelbase, steering range; default: the one the recording was made "

@@ -38,7 +38,10 @@ from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.odometry.visual_map import map_path_for
 from kartpilot.planning.reference_path import PathConfig, ReferencePath, build_reference_path, save_reference_path
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
+from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.path_policy import DriveConfig
+from kartpilot.runtime.pipelines import Route
+from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import DisturbanceConfig, SimConfig
@@ -132,7 +135,8 @@ def run_teach_repeat(config: TeachRepeatConfig, out: str | Path, progress: bool 
         shutil.rmtree(teach_dir)
     print(f"1/3 teach: the centerline driver drives {config.track} at {config.speed_mps} m/s, recording")
     teach = run_simulation(replace(sim, referee=replace(sim.referee, run_on_m=0.5)), "centerline",
-                           CenterlineDriverConfig(speed_mps=config.speed_mps), record_dir=teach_dir, progress=progress)
+                           CenterlineDriverConfig(speed_mps=config.speed_mps),
+                           outputs=SessionOutputs(record_dir=teach_dir, progress=progress))
     if teach.ground_truth is None or teach.result.disqualified:
         raise ConfigError(f"the teach drive failed: {teach.result.reason}")
 
@@ -156,10 +160,11 @@ def run_teach_repeat(config: TeachRepeatConfig, out: str | Path, progress: bool 
         print(f"   the teach drive shows a steering bias of {bias:+.3f} rad: the follower starts from it")
         drive = replace(drive, follow=replace(drive.follow, bias=replace(drive.follow.bias, initial_rad=bias)))
     print("3/3 repeat: the stereo-VO pipeline follows the reference")
-    repeat = run_simulation(sim, "path", record_dir=None, video_path=(out / "repeat.mp4") if video else None,
-                            progress=progress, reference=reference, drive_config=drive,
-                            drive_log=out / "drive_log.csv", result_path=out / "repeat_result.json",
-                            visual_map=visual_map if use_map else None, vo_config=config.vo)
+    repeat = run_simulation(sim, "path", stack=StackConfig(drive=drive, stereo_vo=config.vo),
+                            route=Route(reference, visual_map if use_map else None),
+                            outputs=SessionOutputs(video_path=(out / "repeat.mp4") if video else None,
+                                                   drive_log=out / "drive_log.csv",
+                                                   result_path=out / "repeat_result.json", progress=progress))
     return score(config, out, teach, repeat, reference, body_cam, vo_run.summary())
 
 

@@ -15,25 +15,22 @@ import json
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from kartpilot.actuation.can_bus import CanActuator, make_protocol, open_bus
-from kartpilot.calibration.rectify import StereoSetup, stereo_setup
+from kartpilot.calibration.rectify import stereo_setup
 from kartpilot.calibration.rig import Rig, apply_camera_maps
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import ActuatorCommand, FrameSet, OperatorInput
 from kartpilot.core.vehicle import VehicleParams
-from kartpilot.odometry.visual_map import VisualMap
-from kartpilot.planning.reference_path import ReferencePath
 from kartpilot.record.recording import RecordingWriter
 from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.drive import SupervisedDrive, Watchdogs
-from kartpilot.runtime.lane_policy import LanePolicy
-from kartpilot.runtime.loop import Policy, Recorder, run_loop
-from kartpilot.runtime.path_policy import PathFollowPolicy, stereo_vo_policy
+from kartpilot.runtime.loop import Recorder, run_loop
+from kartpilot.runtime.pipelines import PipelineContext, Route, StereoInput, build_pipeline
 from kartpilot.runtime.supervisor import Supervisor
 from kartpilot.runtime.webui import WebConfig, WebOperator, WebServer
 from kartpilot.sensors.capture import LiveFrameSource
@@ -68,27 +65,6 @@ class CombinedOperator:
                              source=", ".join(lost or estops or [i.source for i in inputs]))
 
 
-class _RectifiedPipeline:
-    """The stereo pipeline on the live pair, rectified first (the raw frames are what gets recorded)."""
-
-    def __init__(self, policy: PathFollowPolicy, setup: StereoSetup, pair: tuple[str, str]) -> None:
-        self.policy, self.setup, self.pair = policy, setup, pair
-
-    def __call__(self, frames: FrameSet) -> ActuatorCommand:
-        left, right = (frames.images.get(n) for n in self.pair)
-        if left is not None and right is not None:
-            left, right = self.setup.rectify(left, right)
-            frames = FrameSet(frames.index, frames.stamp_ns, {**frames.images, self.pair[0]: left,
-                                                              self.pair[1]: right}, frames.capture_ns)
-        return self.policy(frames)
-
-    def fault(self) -> str:
-        return self.policy.fault()
-
-    def outputs(self) -> dict[str, dict[str, float | int | str]]:
-        return self.policy.outputs()
-
-
 @dataclass(frozen=True)
 class LiveDriveSetup:
     """What a live drive runs with, besides the stack's configuration."""
@@ -96,8 +72,7 @@ class LiveDriveSetup:
     rig: Rig
     pipeline: str
     vehicle: VehicleParams
-    reference: ReferencePath | None = None
-    visual_map: VisualMap | None = None
+    route: Route = field(default_factory=Route)
     gamepad: str | None = None
     web_port: int | None = None
     record_dir: str | Path | None = None
@@ -111,21 +86,16 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
     limits = stack.limits.for_vehicle(vehicle)
     source = LiveFrameSource(rig, stack.live)
     period_s = 1.0 / rig.capture[source.reference].fps
-    pipeline: Policy
-    if setup.pipeline == "lanes":
-        pipeline = LanePolicy({n: rig.cameras[n] for n in source.threads}, stack.lane_policy, 1.0 / period_s,
-                               limits.max_steer_rad)
-    elif setup.pipeline == "stereo-vo":
-        if rig.stereo_pair is None or setup.reference is None:
-            raise ConfigError("the stereo-vo pipeline needs a rig file with a stereo_pair and a --reference")
-        pair = rig.stereo_pair
-        stereo = stereo_setup(rig.cameras[pair[0]], rig.cameras[pair[1]])
-        path_policy: PathFollowPolicy = stereo_vo_policy(stereo.rig, stereo.pose_body_left, pair, setup.reference,
-                                                         stack.drive, stack.stereo_vo, setup.visual_map,
-                                                         vehicle.wheelbase_m, limits.max_steer_rad, 1.0 / period_s)
-        pipeline = _RectifiedPipeline(path_policy, stereo, pair)
-    else:
-        raise ConfigError(f"unknown pipeline {setup.pipeline!r} (lanes, stereo-vo)")
+    cameras = {n: rig.cameras[n] for n in source.threads}
+    pair = rig.stereo_pair
+    stereo = (StereoInput(pair, stereo_setup(rig.cameras[pair[0]], rig.cameras[pair[1]]))
+              if pair is not None and setup.pipeline == "stereo-vo" else None)
+    try:
+        pipeline = build_pipeline(setup.pipeline, PipelineContext(vehicle, cameras, 1.0 / period_s, stack, stereo,
+                                                                  setup.route))
+    except Exception:
+        source.close()  # the cameras were opened for their calibration and rate; nothing has started yet
+        raise
     operators: list[Callable[[int], OperatorInput]] = []
     gamepad = Gamepad(setup.gamepad, stack.gamepad).start() if setup.gamepad else None
     if gamepad is not None:

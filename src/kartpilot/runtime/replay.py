@@ -1,8 +1,8 @@
 """A recording through the same pipeline code as live driving, its outputs written as a new recording.
 
-``lanes`` replays the recording's cameras into :class:`~kartpilot.runtime.lane_policy.LanePolicy`;
-``stereo-vo`` replays its rectified stereo pair into the waypoint follower
-(:func:`~kartpilot.runtime.path_policy.stereo_vo_policy`), which needs a reference path. Nothing
+Any pipeline of :mod:`kartpilot.runtime.pipelines`: ``lanes`` gets the recording's cameras, ``stereo-vo``
+its rectified stereo pair (with a reference path to follow), ``mono-vo`` its centre camera (with a place
+database, following the database's drive or a given reference). Nothing
 moves: the commands go to a log and to the new recording, with the pipeline's outputs
 (``outputs/<topic>.csv``) and, on request, the frames. The replay runs as fast as it can or, with
 ``realtime``, at the recorded pace. OpenCV's random generator (RANSAC) is seeded first, so two
@@ -20,22 +20,21 @@ from typing import Any
 import cv2
 import numpy as np
 
+from kartpilot.calibration.rectify import StereoSetup
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource
 from kartpilot.core.vehicle import get_vehicle
-from kartpilot.odometry.visual_map import VisualMap
-from kartpilot.planning.reference_path import ReferencePath
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 from kartpilot.record.replay import RecordingFrameSource, StereoReplaySource
 from kartpilot.runtime.config import StackConfig
-from kartpilot.runtime.lane_policy import LanePolicy
-from kartpilot.runtime.loop import Outputs, Policy, Recorder, run_loop
-from kartpilot.runtime.path_policy import PathFollowPolicy, stereo_vo_policy, write_drive_log
+from kartpilot.runtime.loop import Outputs, Recorder, run_loop
+from kartpilot.runtime.path_policy import write_drive_log
+from kartpilot.runtime.pipelines import PIPELINES, PipelineContext, Route, StereoInput, build_pipeline, path_policy_of
+from kartpilot.runtime.session import SessionOutputs
 
-__all__ = ["PIPELINES", "ReplayResult", "recorded_rate_hz", "replay_recording"]
+__all__ = ["ReplayResult", "recorded_rate_hz", "replay_recording"]
 
-PIPELINES = ("lanes", "stereo-vo")
 RNG_SEED = 0
 
 
@@ -112,46 +111,48 @@ def recorded_rate_hz(reader: RecordingReader, camera: str) -> float:
     return float(1e9 / np.median(np.diff(stamps)))
 
 
-def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, out: str | Path | None = None,
-                     realtime: bool = False, reference: ReferencePath | None = None,
-                     visual_map: VisualMap | None = None, vehicle: str | None = None, with_frames: bool = False,
-                     drive_log: str | Path | None = None) -> ReplayResult:
-    """Push the recording at ``folder`` through ``pipeline``; write a new recording at ``out`` if given.
-    The kart is the one the recording was made on (``vehicle`` overrides it, and names it where the
-    recording does not say)."""
+def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, route: Route | None = None,
+                     vehicle: str | None = None, outputs: SessionOutputs | None = None, realtime: bool = False,
+                     with_frames: bool = False) -> ReplayResult:
+    """Push the recording at ``folder`` through ``pipeline``; write a new recording at ``outputs.record_dir``
+    if given (with the frames too, ``with_frames``). The kart is the one the recording was made on
+    (``vehicle`` overrides it, and names it where the recording does not say)."""
     if pipeline not in PIPELINES:
         raise ConfigError(f"unknown pipeline {pipeline!r} ({', '.join(PIPELINES)})")
-    recorded = RecordingReader(folder).vehicle
-    name = vehicle or recorded
+    outputs = outputs or SessionOutputs()
+    out, drive_log = outputs.record_dir, outputs.drive_log
+    reader = RecordingReader(folder)
+    name = vehicle or reader.vehicle
     if name is None:
         raise ConfigError(f"{folder} does not say which kart it was recorded on: give --vehicle (rc-kart, sdc-kart)")
     params = get_vehicle(name)
     cv2.setRNGSeed(RNG_SEED)
     source: StereoReplaySource | RecordingFrameSource
-    policy: Policy
-    path_policy: PathFollowPolicy | None = None
+    stereo: StereoInput | None = None
     if pipeline == "stereo-vo":
-        if reference is None:
-            raise ConfigError("the stereo-vo pipeline follows a reference: give --reference (kartpilot reference "
-                              "writes one from a recorded drive)")
+        if reader.stereo_pair is None:
+            raise ConfigError(f"{folder} has no stereo pair: the stereo-vo pipeline needs one")
         source = StereoReplaySource(folder)
-        reader = source.stereo.reader
+        stereo = StereoInput((source.left_name, source.right_name),
+                             StereoSetup(source.stereo.rig, None, source.stereo.pose_body_left))
         rate = recorded_rate_hz(reader, source.left_name)
-        path_policy = stereo_vo_policy(source.stereo.rig, source.stereo.pose_body_left,
-                                       (source.left_name, source.right_name), reference, stack.drive, stack.stereo_vo,
-                                       visual_map, params.wheelbase_m, params.max_steer_rad, rate)
-        policy = path_policy
     else:
-        reader = RecordingReader(folder)
-        rate = recorded_rate_hz(reader, "center" if "center" in reader.cameras else next(iter(reader.cameras)))
-        policy = LanePolicy(reader.cameras, stack.lane_policy, rate, params.max_steer_rad)
-        source = RecordingFrameSource(folder, list(reader.cameras))
+        names = [stack.drive.mono.camera] if pipeline == "mono-vo" else list(reader.cameras)
+        missing = [n for n in names if n not in reader.cameras]
+        if missing:
+            raise ConfigError(f"{folder} has no {', '.join(missing)} camera (it has {', '.join(reader.cameras)})")
+        rate = recorded_rate_hz(reader, "center" if "center" in names else names[0])
+        source = RecordingFrameSource(folder, names)
+    context = PipelineContext(params, reader.cameras, rate, stack, stereo, route or Route())
+    policy = build_pipeline(pipeline, context)
+    path_policy = path_policy_of(policy)
     writer: RecordingWriter | None = None
     recorders: list[Recorder] = []
     if out is not None:
         stack_config = config_to_dict(stack)
         settings = {"lanes": {"lane_policy": stack_config["lane_policy"]},
-                    "stereo-vo": {"stereo_vo": stack_config["stereo_vo"], "drive": stack_config["drive"]}}[pipeline]
+                    "stereo-vo": {"stereo_vo": stack_config["stereo_vo"], "drive": stack_config["drive"]},
+                    "mono-vo": {"mono_vo": stack_config["mono_vo"], "drive": stack_config["drive"]}}[pipeline]
         writer = RecordingWriter(out, reader.cameras, reader.stereo_pair, metadata={
             "source": "kartpilot replay", "replay_of": str(reader.folder), "pipeline": pipeline, "vehicle": params.name,
             "config": settings})

@@ -13,36 +13,35 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from kartpilot.actuation.can_bus import ActuatorLimits, CanActuator, CanConfig, make_protocol, open_bus
+from kartpilot.actuation.can_bus import CanActuator, CanConfig, make_protocol, open_bus
+from kartpilot.calibration.rectify import StereoSetup
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError, RecordingError
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource, Image
-from kartpilot.odometry.mono_vo import MonoVOConfig
-from kartpilot.odometry.places import PlaceDatabase
-from kartpilot.odometry.stereo_vo import StereoVOConfig
-from kartpilot.odometry.visual_map import VisualMap
-from kartpilot.planning.reference_path import ReferencePath
 from kartpilot.record.recording import RecordingReader, RecordingWriter
-from kartpilot.runtime.drive import ScriptedOperator, SupervisedDrive, WatchdogConfig, Watchdogs
+from kartpilot.runtime.config import StackConfig
+from kartpilot.runtime.drive import ScriptedOperator, SupervisedDrive, Watchdogs
 from kartpilot.runtime.faults import FaultyBus, InjectedSource, Injection, RaisingPipeline, failing_vo
-from kartpilot.runtime.lane_policy import LanePolicy, LanePolicyConfig
 from kartpilot.runtime.loop import Policy, Recorder, run_loop
-from kartpilot.runtime.path_policy import (
-    DriveConfig,
-    DriveSample,
-    PathFollowPolicy,
-    mono_vo_policy,
-    stereo_vo_policy,
-    write_drive_log,
+from kartpilot.runtime.path_policy import DriveSample, PathFollowPolicy, write_drive_log
+from kartpilot.runtime.pipelines import (
+    PIPELINES,
+    PipelineContext,
+    Route,
+    StereoInput,
+    build_pipeline,
+    path_policy_of,
 )
-from kartpilot.runtime.supervisor import Supervisor, SupervisorConfig
+from kartpilot.runtime.session import SessionOutputs
+from kartpilot.runtime.supervisor import Supervisor
 from kartpilot.sim.can_ecu import ECU_FAULTS, AppliedCommand, KartpilotEcus, RdwEcus, SimulatedEcus
 from kartpilot.sim.drivers import CenterlineDriver, CenterlineDriverConfig, CommandsDriver
 from kartpilot.sim.referee import RunResult
 from kartpilot.sim.simulator import SimConfig, Simulator
 
-__all__ = ["DRIVERS", "SimRun", "SupervisedRun", "load_commands", "run_simulation", "run_supervised_drive"]
+__all__ = ["DRIVERS", "SimRun", "SupervisedRun", "load_commands", "run_simulation", "run_supervised_drive",
+           "sim_context"]
 
 DRIVERS = ("centerline", "commands", "lanes", "path")
 STOPPED_BEFORE_END_S = 1.5  # a path drive ends this long after the pipeline decided to stop
@@ -80,17 +79,18 @@ def load_commands(path: str | Path) -> list[ActuatorCommand]:
 
 def run_simulation(config: SimConfig, driver: str = "centerline",
                    driver_config: CenterlineDriverConfig | None = None, commands: str | Path | None = None,
-                   record_dir: str | Path | None = None, video_path: str | Path | None = None,
-                   result_path: str | Path | None = None, progress: bool = False,
-                   lane_config: LanePolicyConfig | None = None, reference: ReferencePath | None = None,
-                   drive_config: DriveConfig | None = None, drive_log: str | Path | None = None,
-                   visual_map: VisualMap | None = None, vo_config: StereoVOConfig | None = None) -> SimRun:
+                   stack: StackConfig | None = None, route: Route | None = None,
+                   outputs: SessionOutputs | None = None) -> SimRun:
     """Drive one run and write what was asked for. The result JSON always goes next to the recording.
 
-    The ``path`` driver is the stereo-VO pipeline following ``reference`` (relocalising against
-    ``visual_map`` if given); its run does not end at the finish line but once the pipeline has
-    stopped the kart (end of the reference, or localisation lost).
+    ``lanes`` is the lane pipeline; the ``path`` driver is the stereo-VO pipeline following the route's
+    reference (relocalising against its visual map, if any). A path run does not end at the finish line but
+    once the pipeline has stopped the kart (end of the reference, or localisation lost). ``stack`` gives
+    the pipelines' settings.
     """
+    stack = stack or StackConfig()
+    outputs = outputs or SessionOutputs()
+    record_dir, video_path, drive_log = outputs.record_dir, outputs.video_path, outputs.drive_log
     if driver == "path":
         config = replace(config, referee=replace(config.referee, run_on_m=math.inf))
     with Simulator(config) as sim:
@@ -102,14 +102,12 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
             if commands is None:
                 raise ConfigError("the commands driver needs a recording or commands.csv to replay")
             policy = CommandsDriver(load_commands(commands))
-        elif driver == "lanes":
+        elif driver in ("lanes", "path"):
             if not config.render_images:
-                raise ConfigError("the lanes driver needs rendered images")
-            policy = LanePolicy(sim.cameras, lane_config, config.camera_rate_hz, sim.vehicle.max_steer_rad)
-        elif driver == "path":
-            path_policy = _path_policy(sim, reference, drive_config or DriveConfig(), visual_map,
-                                       vo_config or StereoVOConfig())
-            policy = path_policy
+                raise ConfigError(f"the {driver} driver needs rendered images")
+            policy = build_pipeline("lanes" if driver == "lanes" else "stereo-vo",
+                                    sim_context(sim, stack, route or Route()))
+            path_policy = path_policy_of(policy)
         else:
             raise ConfigError(f"unknown driver {driver!r} ({', '.join(DRIVERS)})")
 
@@ -121,7 +119,7 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
                 "groundtruth_camera": _gt_camera(sim)}, queue_frames=8, drop_when_full=False)
             recorders.append(writer)
         video = _VideoSink(video_path, sim, getattr(policy, "overlay", None)) if video_path is not None else None
-        bar = tqdm(total=round(_goal_m(sim), 1), unit="m", disable=(not progress) or None, leave=False)
+        bar = tqdm(total=round(_goal_m(sim), 1), unit="m", disable=(not outputs.progress) or None, leave=False)
         start = time.perf_counter()
 
         def on_step(frames: FrameSet, command: ActuatorCommand) -> None:
@@ -156,38 +154,20 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
                    "driver": driver, "steps": stats.steps, "dropped_frames": sim.dropped_frames,
                    "missed_deadlines": stats.missed_deadlines, **extra,
                    "stage_ms": {k: round(v, 3) for k, v in stage_ms.items()}}
-        _write_result(payload, result_path, record_dir)
+        _write_result(payload, outputs.result_path, record_dir)
         return SimRun(result, stats.steps, sim.dropped_frames, stage_ms, Path(record_dir) if record_dir else None,
                       sim.ground_truth(_gt_camera(sim)) if sim.stamps_ns else None,
                       tuple(path_policy.samples) if path_policy else (), stats.missed_deadlines, extra)
 
 
-def _path_policy(sim: Simulator, reference: ReferencePath | None, config: DriveConfig,
-                 visual_map: VisualMap | None, vo_config: StereoVOConfig) -> PathFollowPolicy:
-    if reference is None:
-        raise ConfigError("the path driver needs a reference path")
-    vehicle = sim.vehicle
-    pair = vehicle.stereo_pair
-    if pair is None or not set(pair) <= set(sim.cameras) or not sim.config.render_images:
-        raise ConfigError(f"the stereo-VO pipeline needs the {vehicle.name}'s stereo pair rendered "
-                          f"(cameras {', '.join(pair) if pair else 'none on this vehicle'})")
-    return stereo_vo_policy(vehicle.stereo_rig(), sim.cameras[pair[0]].pose_body_cam_array, pair, reference, config,
-                            vo_config, visual_map, vehicle.wheelbase_m, vehicle.max_steer_rad,
-                            sim.config.camera_rate_hz)
-
-
-def _mono_policy(sim: Simulator, places: PlaceDatabase | None, reference: ReferencePath | None, config: DriveConfig,
-                 vo_config: MonoVOConfig | None) -> PathFollowPolicy:
-    if places is None:
-        raise ConfigError("the mono-vo pipeline localises against a place database: give --places (kartpilot places "
-                          "build writes one from a recorded drive)")
-    name = config.mono.camera
-    if name not in sim.cameras or not sim.config.render_images:
-        raise ConfigError(f"the mono-vo pipeline needs the {sim.vehicle.name}'s {name!r} camera rendered "
-                          f"(it has {', '.join(sim.cameras)})")
-    vehicle = sim.vehicle
-    return mono_vo_policy(sim.cameras[name], places, reference, config, vo_config, vehicle.wheelbase_m,
-                          vehicle.max_steer_rad, sim.config.camera_rate_hz)
+def sim_context(sim: Simulator, stack: StackConfig, route: Route) -> PipelineContext:
+    """The simulator as a pipeline's backend: its rendered cameras, its rate, and the kart's stereo pair as
+    ideal, already rectified cameras."""
+    cameras = sim.cameras if sim.config.render_images else {}
+    pair = _recorded_pair(sim) if cameras else None
+    stereo = (StereoInput(pair, StereoSetup(sim.vehicle.stereo_rig(), None, sim.cameras[pair[0]].pose_body_cam_array))
+              if pair is not None else None)
+    return PipelineContext(sim.vehicle, cameras, sim.config.camera_rate_hz, stack, stereo, route)
 
 
 class _UntilStopped:
@@ -286,7 +266,6 @@ class _VideoSink:
         self._writer.release()
 
 
-SUPERVISED_PIPELINES = ("lanes", "stereo-vo", "mono-vo")
 FAULT_HELD_S = 1.0  # a supervised run ends once the kart has been held in a fault this long
 BUS_STEP_S = 0.005  # the simulated bus's time step between two loop steps
 
@@ -397,21 +376,18 @@ class _UntilSettled:
         return frames
 
 
-def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", duration_s: float | None = None,
-                         injections: Sequence[Injection] = (), lane_config: LanePolicyConfig | None = None,
-                         drive_config: DriveConfig | None = None, vo_config: StereoVOConfig | None = None,
-                         places: PlaceDatabase | None = None, mono_config: MonoVOConfig | None = None,
-                         reference: ReferencePath | None = None, visual_map: VisualMap | None = None,
-                         can_config: CanConfig | None = None, limits: ActuatorLimits | None = None,
-                         watchdog_config: WatchdogConfig | None = None,
-                         supervisor_config: SupervisorConfig | None = None, record_dir: str | Path | None = None,
-                         result_path: str | Path | None = None, video_path: str | Path | None = None,
-                         drive_log: str | Path | None = None, progress: bool = False) -> SupervisedRun:
+def run_supervised_drive(config: SimConfig, pipeline: str, stack: StackConfig | None = None, bus: str = "none",
+                         duration_s: float | None = None, injections: Sequence[Injection] = (),
+                         route: Route | None = None, outputs: SessionOutputs | None = None) -> SupervisedRun:
     """Drive ``pipeline`` in the simulator through the supervisor, on the CAN bus (``bus="virtual"``, in the
     protocol the vehicle speaks, its ECUs simulated) or straight to the simulator (``"none"``), with faults
-    injected; write the result (and recording)."""
-    if pipeline not in SUPERVISED_PIPELINES:
-        raise ConfigError(f"unknown pipeline {pipeline!r} ({', '.join(SUPERVISED_PIPELINES)})")
+    injected; write the result (and recording). The simulator's own settings are ``config``; ``stack``
+    gives every other component's."""
+    stack = stack or StackConfig()
+    outputs = outputs or SessionOutputs()
+    record_dir, result_path, video_path = outputs.record_dir, outputs.result_path, outputs.video_path
+    if pipeline not in PIPELINES:
+        raise ConfigError(f"unknown pipeline {pipeline!r} ({', '.join(PIPELINES)})")
     if bus not in ("virtual", "none"):
         raise ConfigError(f"the simulator sits behind the virtual bus or none, not {bus!r}")
     at = {i.kind: i.at_s for i in injections}
@@ -425,18 +401,11 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
     if pipeline != "lanes":
         config = replace(config, referee=replace(config.referee, run_on_m=math.inf))
     with Simulator(config) as sim:
-        path_policy: PathFollowPolicy | None = None
-        policy: Policy
-        if pipeline == "lanes":
-            policy = LanePolicy(sim.cameras, lane_config, config.camera_rate_hz, sim.vehicle.max_steer_rad)
-        else:
-            path_policy = (_path_policy(sim, reference, drive_config or DriveConfig(), visual_map,
-                                        vo_config or StereoVOConfig()) if pipeline == "stereo-vo" else
-                           _mono_policy(sim, places, reference, drive_config or DriveConfig(), mono_config))
-            if "vo-failure" in at:
-                vo = getattr(path_policy.localizer, "vo")  # noqa: B009 (both localisers have one; the protocol not)
-                vo.process = failing_vo(vo.process, Injection("vo-failure", at["vo-failure"]))
-            policy = path_policy
+        policy = build_pipeline(pipeline, sim_context(sim, stack, route or Route()))
+        path_policy = path_policy_of(policy)
+        if path_policy is not None and "vo-failure" in at:
+            vo = getattr(path_policy.localizer, "vo")  # noqa: B009 (both localisers have one; the protocol not)
+            vo.process = failing_vo(vo.process, Injection("vo-failure", at["vo-failure"]))
         if "stage-exception" in at:
             policy = RaisingPipeline(policy, at["stage-exception"])
         writer: RecordingWriter | None = None
@@ -451,7 +420,7 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
         actuator: CanActuator | None = None
         sink: _CanSink | _DirectSink
         if bus == "virtual":
-            can_config = replace(can_config or CanConfig(), interface="virtual", channel=f"kartpilot-sim-{id(sim)}")
+            can_config = replace(stack.can, interface="virtual", channel=f"kartpilot-sim-{id(sim)}")
             clock = _BusClock()
             protocol = make_protocol(can_config, sim.vehicle)
             ecus = _simulated_ecus(sim, protocol.name, can_config, clock)
@@ -461,18 +430,18 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
                 raise ConfigError(f"{', '.join(unsupported)}: the {protocol.name} protocol's simulated ECUs cannot "
                                   f"show it ({sim.vehicle.name}; the rdw protocol's can)")
             actuator = CanActuator(FaultyBus(open_bus(can_config), clock, at.get("can-bus-off")), protocol, can_config,
-                                   (limits or ActuatorLimits()).for_vehicle(sim.vehicle), clock,
+                                   stack.limits.for_vehicle(sim.vehicle), clock,
                                    writer.write_can if writer is not None else None)
             sink = _CanSink(sim, actuator, ecus, clock, at)
         else:
             sink = _DirectSink(sim)
-        supervisor = Supervisor(supervisor_config)
-        watchdogs = Watchdogs(list(sim.cameras) if config.render_images else [], sim.dt_s, watchdog_config, actuator)
+        supervisor = Supervisor(stack.supervisor)
+        watchdogs = Watchdogs(list(sim.cameras) if config.render_images else [], sim.dt_s, stack.watchdogs, actuator)
         drive = SupervisedDrive(policy, supervisor, watchdogs, ScriptedOperator(at.get("gamepad-unplug")), actuator)
         source = _UntilSettled(InjectedSource(sim, list(injections)), sim, drive, path_policy)
         recorders: list[Recorder] = [writer] if writer is not None else []
         video = _VideoSink(video_path, sim, getattr(policy, "overlay", None)) if video_path is not None else None
-        bar = tqdm(total=round(_goal_m(sim), 1), unit="m", disable=(not progress) or None, leave=False)
+        bar = tqdm(total=round(_goal_m(sim), 1), unit="m", disable=(not outputs.progress) or None, leave=False)
 
         def on_step(frames: FrameSet, command: ActuatorCommand) -> None:
             if video is not None:
@@ -488,8 +457,8 @@ def run_supervised_drive(config: SimConfig, pipeline: str, bus: str = "none", du
                 video.close()
             if path_policy is not None:
                 path_policy.close()
-                if drive_log is not None:
-                    write_drive_log(path_policy.samples, drive_log)
+                if outputs.drive_log is not None:
+                    write_drive_log(path_policy.samples, outputs.drive_log)
             if isinstance(sink, _CanSink):
                 sink.actuator.close()
                 sink.ecus.bus.shutdown()
