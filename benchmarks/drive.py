@@ -21,9 +21,10 @@ import numpy as np
 
 from common import write_json
 from kartpilot.control.path_follow import PathFollowConfig
+from kartpilot.core.geometry import ground_poses
 from kartpilot.core.types import FrameSet
 from kartpilot.core.vehicle import get_vehicle
-from kartpilot.odometry.localizer import StereoVOLocalizer, ground_poses
+from kartpilot.odometry.localizer import StereoVOLocalizer
 from kartpilot.odometry.run import run_teach
 from kartpilot.planning.reference_path import PathConfig, build_reference_path
 from kartpilot.record.recording import RecordingStereoSource

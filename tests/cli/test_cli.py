@@ -4,6 +4,7 @@ import pytest
 
 from kartpilot.cli.main import main
 from kartpilot.core.trajectory import read_kitti_poses
+from kartpilot.runtime.session import SessionResult
 
 
 def test_odometry_on_synthetic_writes_trajectory_and_json(tmp_path, capsys) -> None:
@@ -132,7 +133,8 @@ def test_teach_reference_and_drive_it_in_the_simulator_and_on_the_replay(tmp_pat
     data = json.loads(result.read_text())
     assert data["stop_reason"] == "reached the end of the reference" and not data["disqualified"]
     assert "localize.detect" in data["pipeline_stage_ms"] and "missed_deadlines" in data
-    assert set(data["stage_ms"]["policy"]) == {"p50", "p90", "p99", "max"}
+    assert SessionResult.from_json(data).backend == "sim"
+    assert set(data["stage_ms"]["policy"]) == {"mean", "p50", "p90", "p99", "max"}
     assert [t["state"] for t in data["transitions"]] == ["autonomous"] and data["bus"] == "virtual"
     assert main(["drive", "--reference", str(reference)]) == 1
     assert "needs --sim TRACK, --replay RECORDING or --live RIG" in capsys.readouterr().err

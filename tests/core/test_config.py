@@ -67,6 +67,25 @@ def test_stack_yaml_round_trip(tmp_path) -> None:
     assert config_to_dict(config.stereo_vo)["features"]["detector"] == "sift"
 
 
+def test_one_lane_config_with_named_presets(tmp_path) -> None:
+    """kartpilot lanes, replay and the drives read the same lane_policy.lanes; a dash camera is a preset of it,
+    and the YAML goes over the preset."""
+    from kartpilot.perception.lanes import LaneConfig
+    from kartpilot.runtime.lane_policy import LANE_PRESETS
+
+    assert load_stack_config(None).lane_policy.lanes == LANE_PRESETS["kart"] != LaneConfig()
+    assert load_stack_config(None, "dashcam").lane_policy.lanes == LaneConfig()
+    path = tmp_path / "lanes.yaml"
+    path.write_text("lane_policy:\n  lanes: {paint: dark}\n")
+    dark = load_stack_config(path, "dashcam").lane_policy.lanes
+    assert dark.paint == "dark" and dark.roi_top_width == LaneConfig().roi_top_width
+    with pytest.raises(ConfigError, match="unknown lane preset 'tape'"):
+        load_stack_config(None, "tape")
+    path.write_text("lane_detection: {paint: dark}\n")  # the old second section is gone: a clear error
+    with pytest.raises(ConfigError, match="lane_detection"):
+        load_stack_config(path)
+
+
 def test_stack_yaml_typo_is_an_error(tmp_path) -> None:
     path = tmp_path / "vo.yaml"
     path.write_text("stereo_vo:\n  featurse: {detector: orb}\n")

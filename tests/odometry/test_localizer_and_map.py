@@ -8,16 +8,10 @@ import numpy as np
 import pytest
 
 from kartpilot.core.errors import PlanningError
+from kartpilot.core.geometry import between_2d, compose_2d, ground_poses, vo_ground_pose
 from kartpilot.core.types import FrameSet
 from kartpilot.core.vehicle import camera_pose_on_body
-from kartpilot.odometry.localizer import (
-    LocalizerConfig,
-    StereoVOLocalizer,
-    between_2d,
-    compose_2d,
-    ground_poses,
-    vo_ground_pose,
-)
+from kartpilot.odometry.localizer import LocalizerConfig, StereoVOLocalizer
 from kartpilot.odometry.run import run_teach
 from kartpilot.odometry.visual_map import RelocConfig, load_visual_map, map_path_for, relocalize
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource

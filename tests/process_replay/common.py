@@ -17,7 +17,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from kartpilot.odometry.localizer import ground_poses
+from kartpilot.core.geometry import ground_poses
 from kartpilot.planning.reference_path import PathConfig, build_reference_path
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
 from kartpilot.runtime.config import StackConfig

@@ -27,7 +27,7 @@ from kartpilot.record.recording import RecordingReader
 from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.live_drive import LiveDriveSetup, run_live_drive
 from kartpilot.runtime.pipelines import Route
-from kartpilot.runtime.session import SessionOutputs
+from kartpilot.runtime.session import SessionOutputs, SessionResult
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.can_ecu import KartpilotEcus, RdwEcus
 from kartpilot.sim.simulator import SimConfig
@@ -131,6 +131,8 @@ def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(p
         summary = run_live_drive(setup, replace(StackConfig(), can=can_config))
     finally:
         stop.set()
+    assert SessionResult.from_json(summary).backend == "live"
+    assert SessionResult.from_json(json.loads((tmp_path / "live" / "result.json").read_text())).steps > 20
     states = [(t["state"], t["reason"]) for t in summary["transitions"]]
     print(summary["ended"], states, summary["cameras"]["skew_ms"], summary["stage_ms"].get("policy"))
     assert summary["can"]["protocol"] == protocol

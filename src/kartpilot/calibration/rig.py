@@ -38,7 +38,6 @@ opened (:func:`apply_camera_maps`), not when the file is read, so a rig file wri
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -50,6 +49,7 @@ import yaml
 from kartpilot.core.camera import CaptureSettings, PinholeCamera
 from kartpilot.core.config import config_to_dict, merge_config
 from kartpilot.core.errors import CalibrationError, ConfigError
+from kartpilot.core.files import write_text_atomic
 from kartpilot.core.geometry import mount_pose
 from kartpilot.core.vehicle import SteeringCalibration
 
@@ -231,7 +231,4 @@ def save_rig(rig: Rig, path: str | Path) -> Path:
     if rig.camera_maps:
         data["camera_maps"] = [str(Path(m).relative_to(path.parent)) if Path(m).is_relative_to(path.parent) else m
                                for m in rig.camera_maps]
-    temporary = path.with_name(path.name + ".tmp")
-    temporary.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
-    os.replace(temporary, path)  # atomic: a rig file is never half written, even when it is rewritten
-    return path
+    return write_text_atomic(path, yaml.safe_dump(data, sort_keys=False, default_flow_style=None))

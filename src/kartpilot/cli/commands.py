@@ -38,7 +38,8 @@ from kartpilot.sim.referee import RunResult
 from kartpilot.sim.simulator import SimConfig
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
 
-__all__ = ["demo", "disparity", "evaluate", "lanes", "odometry", "run_and_report", "simulate", "steer_agreement"]
+__all__ = ["add_parsers", "demo", "disparity", "evaluate", "lanes", "odometry", "run_and_report", "simulate",
+           "steer_agreement"]
 
 
 def _open_source(args: argparse.Namespace) -> StereoSource:
@@ -205,7 +206,7 @@ LANE_COLUMNS = ("frame", "left_x1", "left_y1", "left_x2", "left_y2", "right_x1",
 def lanes(args: argparse.Namespace) -> int:
     """Lane boundaries per frame to CSV (steer in radians, positive left), with optional overlays; on a
     Donkey Car tub, the agreement of the steer with the human driver's."""
-    stack = load_stack_config(args.config)
+    stack = load_stack_config(args.config, args.preset)
     kind, frames = open_frames(args.input)
     follow = stack.lane_policy.follow
     state = LaneFollowState()
@@ -218,7 +219,7 @@ def lanes(args: argparse.Namespace) -> int:
         for frame_set in frames:
             image = frame_set.images["center"]
             stages = LaneStages() if args.stages else None
-            observation = detect_lanes(image, stack.lane_detection, stages)
+            observation = detect_lanes(image, stack.lane_policy.lanes, stages)
             decision, state = lane_follow_step(follow, state, observation)
             steers.append(decision.steer_rad)
             row: list[object] = [frame_set.index]
@@ -292,3 +293,89 @@ def demo(args: argparse.Namespace) -> int:
     print(summary_line(result))
     print(f"wrote {out / 'sdc-assen-lanes.mp4'}, {out / 'utrack-vo' / 'repeat.mp4'} and their result JSON and plots")
     return 0
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    """This module's subcommands, each with its arguments and handler."""
+    odometry_parser = sub.add_parser("odometry", help="run stereo visual odometry over a dataset or recording")
+    odo_sub = odometry_parser.add_subparsers(dest="source", required=True, metavar="SOURCE")
+    kitti = odo_sub.add_parser("kitti", help="KITTI odometry layout (sequences/NN, poses/NN.txt)")
+    kitti.add_argument("root")
+    kitti.add_argument("--sequence", default="00")
+    euroc = odo_sub.add_parser("euroc", help="EuRoC ASL layout (mav0/cam0, cam1)")
+    euroc.add_argument("root")
+    recording = odo_sub.add_parser("recording", help="a kartpilot recording folder")
+    recording.add_argument("root")
+    synthetic = odo_sub.add_parser("synthetic", help="the built-in synthetic stereo sequence")
+    synthetic.add_argument("--frames", type=int, default=40)
+    synthetic.add_argument("--seed", type=int, default=0)
+    for sub_parser in (kitti, euroc, recording):
+        sub_parser.add_argument("--mono", action="store_true",
+                                help="monocular VO on the left camera, metric scale from the ground plane")
+        sub_parser.add_argument("--camera-height", type=float,
+                                help="--mono: the camera's height above the road, m (1.65 on KITTI, 0.6 on the "
+                                     "SDC kart)")
+    for sub_parser in (kitti, euroc, recording, synthetic):
+        sub_parser.add_argument("--out", required=True, help="trajectory file (.txt = KITTI, .tum = TUM)")
+        sub_parser.add_argument("--format", choices=("kitti", "tum"), help="override the format guessed from --out")
+        sub_parser.add_argument("--config", help="YAML file merged over the defaults")
+        sub_parser.add_argument("--plot", help="write the top-view plot here (PNG)")
+        sub_parser.add_argument("--json", help="write the summary and metrics here")
+        sub_parser.add_argument("--no-progress", action="store_true")
+        sub_parser.set_defaults(handler=odometry)
+
+    evaluate_parser = sub.add_parser("eval", help="ATE, RPE and end-point drift of a trajectory against ground truth")
+    evaluate_parser.add_argument("--gt", required=True)
+    evaluate_parser.add_argument("--est", required=True)
+    evaluate_parser.add_argument("--format", choices=("kitti", "tum"), help="format of both files (default: guessed)")
+    evaluate_parser.add_argument("--plot", help="write the paths and the error over distance here (PNG)")
+    evaluate_parser.add_argument("--json", help="write the metrics here")
+    evaluate_parser.set_defaults(handler=evaluate)
+
+    disparity_parser = sub.add_parser("disparity", help="dense block matching scored against Middlebury ground truth")
+    disparity_parser.add_argument("pair", help="folder with a Middlebury pair and its ground truth")
+    disparity_parser.add_argument("--method", choices=("bm", "sgbm"), default="sgbm")
+    disparity_parser.add_argument("--wls", action="store_true", help="apply the WLS post-filter")
+    disparity_parser.add_argument("--threshold", type=float, default=2.0)
+    disparity_parser.set_defaults(handler=disparity)
+
+    sim = sub.add_parser("sim", help="drive a simulated kart on a track, judged by the referee")
+    sim.add_argument("--track", help="bundled track name (utrack, sdc-assen, straight20) or a track YAML file")
+    sim.add_argument("--vehicle", choices=("rc-kart", "sdc-kart"))
+    sim.add_argument("--driver", choices=("centerline", "commands", "lanes"), default="centerline",
+                     help="lanes: the lane-following pipeline on the rendered cameras (sdc-kart)")
+    sim.add_argument("--speed-mode", type=float, help="cap the top speed, km/h (the SDC kart's 5/15/30/60 modes)")
+    sim.add_argument("--commands", help="recording (or its commands.csv) whose commands the commands driver replays")
+    sim.add_argument("--laps", type=int)
+    sim.add_argument("--speed", type=float, help="target speed of the centerline driver, m/s")
+    sim.add_argument("--weave", type=float, help="zig-zag amplitude of the centerline driver, m")
+    sim.add_argument("--edge-offset", type=float, help="drive this far left (+) or right (-) of the centre, m")
+    sim.add_argument("--seed", type=int)
+    sim.add_argument("--rate", type=float, help="camera and control rate, Hz")
+    sim.add_argument("--cameras", help="comma-separated cameras to render (default: all of the vehicle's)")
+    sim.add_argument("--no-cones", action="store_true", help="remove the cones (scene and referee)")
+    sim.add_argument("--no-render", action="store_true", help="physics and referee only (no images)")
+    sim.add_argument("--record", help="write a recording (frames, commands, ground truth, result.json) here")
+    sim.add_argument("--video", help="write the camera view with the referee's state here (MP4)")
+    sim.add_argument("--result", help="write the referee's result JSON here")
+    sim.add_argument("--config", help="YAML file merged over the defaults (sections sim, centerline_driver)")
+    sim.add_argument("--no-progress", action="store_true")
+    sim.set_defaults(handler=simulate)
+
+    lanes_parser = sub.add_parser("lanes", help="lane boundaries and steer for an image, folder, video, recording or "
+                                                "tub")
+    lanes_parser.add_argument("input")
+    lanes_parser.add_argument("--out", required=True, help="CSV, one row per frame")
+    lanes_parser.add_argument("--overlay", help="write the frames with the lanes drawn: a .mp4 file or a folder")
+    lanes_parser.add_argument("--stages", action="store_true", help="draw the raw and clustered lines too")
+    lanes_parser.add_argument("--preset", choices=("kart", "dashcam"), default="kart",
+                              help="the detector's settings: kart (a camera close to the ground, the lane pipeline's "
+                                   "own) or dashcam (a car's dash camera)")
+    lanes_parser.add_argument("--config", help="YAML file merged over the preset (section lane_policy: lanes, "
+                                               "follow)")
+    lanes_parser.set_defaults(handler=lanes)
+
+    demo_parser = sub.add_parser("demo", help="the main job on an embedded default (see README)")
+    demo_parser.add_argument("--out", default="demo_out")
+    demo_parser.add_argument("--vo-speed", type=float, default=2.0, help="speed of the utrack lap, m/s")
+    demo_parser.set_defaults(handler=demo)

@@ -13,8 +13,9 @@ import numpy as np
 from kartpilot.calibration.rig import load_rig
 from kartpilot.control.path_follow import steer_bias_of_drive
 from kartpilot.core.errors import ConfigError, KartpilotError, RecordingError
+from kartpilot.core.files import write_json_atomic
+from kartpilot.core.geometry import ground_poses
 from kartpilot.core.vehicle import VehicleParams, get_vehicle
-from kartpilot.odometry.localizer import ground_poses
 from kartpilot.odometry.places import load_places
 from kartpilot.odometry.run import run_teach
 from kartpilot.odometry.visual_map import VisualMap, load_visual_map, map_path_for
@@ -29,13 +30,13 @@ from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
 from kartpilot.runtime.faults import parse_injection
 from kartpilot.runtime.live_drive import LiveDriveSetup, run_live_drive
-from kartpilot.runtime.pipelines import Route
+from kartpilot.runtime.pipelines import PIPELINES, Route
 from kartpilot.runtime.replay import replay_recording
-from kartpilot.runtime.session import SessionOutputs
+from kartpilot.runtime.session import SessionOutputs, SessionResult
 from kartpilot.runtime.simulate import run_supervised_drive
 from kartpilot.sim.simulator import SimConfig
 
-__all__ = ["drive", "experiment", "reference", "replay"]
+__all__ = ["add_parsers", "drive", "experiment", "reference", "replay"]
 
 
 def _stereo_vehicle(name: str) -> tuple[VehicleParams, tuple[str, str]]:
@@ -142,12 +143,8 @@ def drive(args: argparse.Namespace) -> int:
         return 0
     if args.replay:
         replayed = replay_recording(args.replay, args.pipeline, replace(stack, drive=drive_config), route,
-                                    args.vehicle, SessionOutputs(drive_log=args.log))
-        summary = replayed.to_json()
-        print(json.dumps(summary))
-        if args.result:
-            Path(args.result).parent.mkdir(parents=True, exist_ok=True)
-            Path(args.result).write_text(json.dumps(summary, indent=2))
+                                    args.vehicle, SessionOutputs(args.record, args.result, drive_log=args.log))
+        print(json.dumps(replayed.to_json()))
         return 0
     if args.live:
         can = stack.can
@@ -165,8 +162,7 @@ def drive(args: argparse.Namespace) -> int:
         for transition in summary["transitions"]:
             print(f"  {transition['t_s']:7.2f} s  {transition['state']:<10} {transition['reason']}")
         if args.result:
-            Path(args.result).parent.mkdir(parents=True, exist_ok=True)
-            Path(args.result).write_text(json.dumps(summary, indent=2))
+            write_json_atomic(args.result, summary)
         if summary["error"]:
             raise KartpilotError(f"the pipeline failed ({summary['error']}); the kart was stopped")
         return 0
@@ -186,14 +182,23 @@ def drive_summary(payload: dict[str, Any]) -> str:
         stop = payload["fault_to_stop_s"]
         lines.append(f"fault to stop: {stop:.3f} s (by {payload['stop_by']})" if stop is not None
                      else "fault to stop: no stop after the fault")
-    lines.append("per step (ms, p50 / p90 / p99): " + ", ".join(
-        f"{stage} {v['p50']:.1f} / {v['p90']:.1f} / {v['p99']:.1f}" for stage, v in payload["stage_ms"].items()))
+    lines.append(stage_lines(SessionResult.from_json(payload)))
     return "\n".join(lines)
+
+
+def stage_lines(session: SessionResult) -> str:
+    """The loop's stages (median, 90th and 99th percentile) and the pipeline's own (mean), in milliseconds."""
+    line = "per step (ms, p50 / p90 / p99): " + ", ".join(
+        f"{stage} {v['p50']:.1f} / {v['p90']:.1f} / {v['p99']:.1f}" for stage, v in session.stage_ms.items())
+    if session.pipeline_stage_ms:
+        line += "\npipeline stages (ms, mean): " + ", ".join(
+            f"{stage} {ms:.1f}" for stage, ms in session.pipeline_stage_ms.items())
+    return line
 
 
 def replay(args: argparse.Namespace) -> int:
     """A recording through a pipeline; its commands and outputs written as a new recording."""
-    stack = load_stack_config(args.config)
+    stack = load_stack_config(args.config, args.preset)
     path = load_reference_path(args.reference) if args.reference else None
     visual_map = _visual_map(args) if path is not None and args.pipeline == "stereo-vo" else None
     places = load_places(args.places) if args.places and args.pipeline == "mono-vo" else None
@@ -204,11 +209,12 @@ def replay(args: argparse.Namespace) -> int:
                               with_frames=args.with_frames)
     steer = np.array([c.steer_rad for c in result.commands])
     braking = np.mean([c.brake > 0 for c in result.commands]) if result.commands else 0.0
-    stop = f", stopped: {result.extra['stop_reason']}" if result.extra.get("stop_reason") else ""
-    print(f"{args.pipeline}: {result.steps} sets at {result.extra['rate_hz']:.1f} Hz, {result.unreadable_frames} "
+    details = result.session.details
+    stop = f", stopped: {details['stop_reason']}" if details.get("stop_reason") else ""
+    print(f"{args.pipeline}: {result.steps} sets at {details['rate_hz']:.1f} Hz, {details['unreadable_frames']} "
           f"unreadable frames, steer {steer.min(initial=0.0):+.3f} to {steer.max(initial=0.0):+.3f} rad, braking "
           f"{100 * braking:.0f} % of the time{stop}")
-    print("per set (ms): " + ", ".join(f"{k} {v:.1f}" for k, v in result.stage_ms.items()))
+    print(stage_lines(result.session))
     if result.out is not None:
         print(f"wrote {result.out} (commands, outputs/, replay.json)")
     return 0
@@ -225,3 +231,99 @@ def experiment(args: argparse.Namespace) -> int:
     print(summary_line(result))
     print(f"wrote {Path(args.out) / 'result.json'}, path.png, steering.png")
     return 0
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    """This module's subcommands, each with its arguments and handler."""
+    ref = sub.add_parser("reference", help="a reference path (and visual map) from a recorded drive")
+    ref.add_argument("recording", help="a kartpilot recording with a stereo pair")
+    ref.add_argument("--out", required=True, help="the path file (.csv or .yaml); the map goes beside it")
+    ref.add_argument("--from", dest="source", choices=("vo", "groundtruth"), default="vo",
+                     help="vo: stereo VO over the recording, with a visual map (default); groundtruth: the "
+                          "simulator's poses")
+    ref.add_argument("--vehicle", default="rc-kart", help="the kart (its wheelbase); camera mounts come from the "
+                     "recording's rig")
+    ref.add_argument("--speed", type=float, help="cruise speed of the path's speed profile, m/s")
+    ref.add_argument("--config", help="YAML file merged over the defaults (sections stereo_vo, drive)")
+    ref.set_defaults(handler=reference)
+
+    drive_parser = sub.add_parser("drive", help="a supervised drive of any pipeline: simulated, replayed or live")
+    drive_parser.add_argument("--vehicle", help="rc-kart or sdc-kart (default: sdc-kart for lanes, rc-kart for "
+                                                "stereo-vo)")
+    drive_parser.add_argument("--pipeline", choices=tuple(PIPELINES), default="stereo-vo",
+                              help="lanes; stereo-vo (--reference); mono-vo: one camera, monocular VO fused with "
+                                   "place fixes (--places)")
+    drive_parser.add_argument("--places", help="mono-vo: the place database of the reference drive (kartpilot places "
+                                               "build); its drive is the reference unless --reference is given")
+    drive_parser.add_argument("--reference", help="stereo-vo: a path written by 'kartpilot reference'")
+    where = drive_parser.add_mutually_exclusive_group()
+    where.add_argument("--sim", metavar="TRACK", help="drive in the simulator on this track")
+    where.add_argument("--replay", metavar="RECORDING", help="run the pipeline on a recording (open loop)")
+    where.add_argument("--live", metavar="RIG", help="drive the real kart: the rig file's cameras, the CAN bus of "
+                                                     "the config's can section (or --bus, --channel)")
+    drive_parser.add_argument("--bus", choices=("virtual", "socketcan", "none"),
+                              help="--sim: virtual (default: the simulated ECUs behind python-can's virtual bus) or "
+                                   "none; --live: socketcan or virtual (default: the config's can.interface)")
+    drive_parser.add_argument("--channel", help="--live: the CAN channel (can0; vcan0 for a bench test)")
+    drive_parser.add_argument("--cameras-json", nargs="+", metavar="JSON",
+                              help="--live: the organiser's camera-mapping files (front, left, right to device "
+                                   "paths); the first whose paths all exist wins (default: the rig file's camera_maps)")
+    drive_parser.add_argument("--gamepad", metavar="DEVICE", help="--live: the gamepad's joystick device "
+                                                                  "(/dev/input/js0)")
+    drive_parser.add_argument("--web", metavar="PORT", type=int, help="--live: serve the kart's web page on this port")
+    drive_parser.add_argument("--duration", type=float, help="--sim, --live: seconds to drive at most")
+    drive_parser.add_argument("--inject", action="append", metavar="KIND@SECONDS",
+                              help="--sim: inject a fault (camera-freeze, black-frame, vo-failure, can-bus-off, "
+                                   "heartbeat-loss, ecu-error, steering-sensor-loss, steering-sensor-range, "
+                                   "loop-stall, gamepad-unplug, stage-exception); repeatable")
+    drive_parser.add_argument("--map", help="the visual map (default: the reference's .map.npz, if there)")
+    drive_parser.add_argument("--no-map", action="store_true", help="localise with VO alone")
+    drive_parser.add_argument("--speed", type=float, help="stereo-vo: cap the path's speed profile, m/s")
+    drive_parser.add_argument("--speed-mode", type=float, help="--sim: cap the top speed, km/h (the SDC kart's modes)")
+    drive_parser.add_argument("--seed", type=int)
+    drive_parser.add_argument("--rate", type=float, help="camera and control rate, Hz (--sim; a replay keeps its own)")
+    drive_parser.add_argument("--steer-bias", type=float, help="the simulated kart's drag to one side, rad (+ left)")
+    drive_parser.add_argument("--record", help="record the drive here (frames, commands, outputs, CAN)")
+    drive_parser.add_argument("--video", help="write the camera view with the referee's state here (MP4)")
+    drive_parser.add_argument("--result", help="write the result JSON here (transitions, fault_to_stop_s, timing)")
+    drive_parser.add_argument("--log", help="stereo-vo, mono-vo: write the pipeline's per-step log here (CSV)")
+    drive_parser.add_argument("--config", help="YAML file merged over the defaults (sections sim, lane_policy, "
+                                               "stereo_vo, drive, can, watchdogs, supervisor)")
+    drive_parser.add_argument("--no-progress", action="store_true")
+    drive_parser.set_defaults(handler=drive)
+
+    rep = sub.add_parser("replay", help="push a recording through a pipeline; write its outputs as a recording")
+    rep.add_argument("recording")
+    rep.add_argument("--pipeline", choices=tuple(PIPELINES), required=True)
+    rep.add_argument("--out", help="the new recording: commands, the pipeline's outputs, replay.json")
+    rep.add_argument("--realtime", action="store_true", help="at the recorded pace (default: as fast as possible)")
+    rep.add_argument("--with-frames", action="store_true", help="copy the frames into the new recording too")
+    rep.add_argument("--reference", help="stereo-vo, mono-vo: the path to follow (written by 'kartpilot reference'; "
+                                         "mono-vo: default the place database's drive)")
+    rep.add_argument("--places", help="mono-vo: the place database of the reference drive (kartpilot places build)")
+    rep.add_argument("--log", help="stereo-vo, mono-vo: write the pipeline's per-step log here (CSV)")
+    rep.add_argument("--map", help="stereo-vo: the visual map (default: the reference's .map.npz, if there)")
+    rep.add_argument("--no-map", action="store_true", help="stereo-vo: localise with VO alone")
+    rep.add_argument("--vehicle", help="the kart (wheelbase, steering range; default: the one the recording was made "
+                                       "on)")
+    rep.add_argument("--preset", choices=("kart", "dashcam"), default="kart",
+                     help="lanes: the detector's settings (kart: a camera close to the ground; dashcam: a car's)")
+    rep.add_argument("--config", help="YAML file merged over the defaults")
+    rep.set_defaults(handler=replay)
+
+    experiment_parser = sub.add_parser("experiment", help="reproduce an experiment of the thesis in the simulator")
+    experiment_parser.add_argument("name", choices=("teach-repeat",),
+                                   help="teach-repeat: teach, build the reference with stereo VO, repeat, score")
+    experiment_parser.add_argument("--track", default="straight20")
+    experiment_parser.add_argument("--speed", type=float, default=0.62, help="m/s")
+    experiment_parser.add_argument("--seed", type=int, default=1)
+    experiment_parser.add_argument("--rate", type=float, default=15.0, help="camera and control rate, Hz")
+    experiment_parser.add_argument("--steer-bias", type=float, default=0.03, help="the kart's drag to one side, rad")
+    experiment_parser.add_argument("--no-map", action="store_true", help="localise with VO alone, as the thesis did")
+    experiment_parser.add_argument("--controller", choices=("tuned", "plain_stanley"), default="tuned",
+                                   help="plain_stanley: the pipeline as the thesis ran it, for comparison")
+    experiment_parser.add_argument("--no-video", action="store_true")
+    experiment_parser.add_argument("--out", required=True)
+    experiment_parser.add_argument("--config", help="YAML file merged over the defaults (sections stereo_vo, drive)")
+    experiment_parser.add_argument("--no-progress", action="store_true")
+    experiment_parser.set_defaults(handler=experiment)

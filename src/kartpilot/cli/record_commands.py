@@ -15,7 +15,7 @@ from kartpilot.record.recording import RecordingReader, RecordingWriter
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.sensors.capture import LiveFrameSource
 
-__all__ = ["record", "recordings_export", "recordings_import_tub", "recordings_info"]
+__all__ = ["add_parsers", "record", "recordings_export", "recordings_import_tub", "recordings_info"]
 
 RECORD_QUEUE_FRAMES = 16  # per camera: half a second at 30 fps before frames are dropped (and counted)
 
@@ -100,3 +100,40 @@ def recordings_export(args: argparse.Namespace) -> int:
     rows = export_recording(args.recording, args.out, args.cameras.split(",") if args.cameras else None)
     print(f"exported {rows} sets to {args.out} (frames.csv, images/)")
     return 0
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    """This module's subcommands, each with its arguments and handler."""
+    rec = sub.add_parser("record", help="record the live cameras of a rig file")
+    rec.add_argument("--rig", required=True, help="rig file: each camera's calibration and capture settings")
+    rec.add_argument("--out", required=True, help="the recording folder to create")
+    rec.add_argument("--duration", type=float, help="seconds to record (default: until Ctrl-C)")
+    rec.add_argument("--cameras", help="comma-separated cameras (default: every camera with capture settings)")
+    rec.add_argument("--cameras-json", nargs="+", metavar="JSON",
+                     help="the organiser's camera-mapping files; the first whose paths all exist wins (default: the "
+                          "rig file's camera_maps)")
+    rec.add_argument("--image-format", choices=("jpg", "png"), default="jpg",
+                     help="jpg (quality 95) keeps up with three 960x540 cameras at 30 fps on two cores; png is "
+                          "lossless and about 25x slower to encode")
+    rec.add_argument("--config", help="YAML file merged over the defaults (section live)")
+    rec.set_defaults(handler=record)
+
+    recordings = sub.add_parser("recordings", help="inspect recordings")
+    rec_sub = recordings.add_subparsers(dest="action", required=True, metavar="ACTION")
+    info = rec_sub.add_parser("info", help="duration, frames per camera, drops, sync skew, command statistics")
+    info.add_argument("recording")
+    info.add_argument("--json", action="store_true")
+    info.set_defaults(handler=recordings_info)
+    tub = rec_sub.add_parser("import-tub", help="a Donkey Car tub as a recording")
+    tub.add_argument("tub")
+    tub.add_argument("--out", required=True)
+    tub.add_argument("--rig", help="a rig file with the tub camera's calibration (default: guessed from --fov-deg)")
+    tub.add_argument("--camera", help="which camera of the rig file (default: its first)")
+    tub.add_argument("--fov-deg", type=float, default=120.0, help="horizontal field of view to guess intrinsics from")
+    tub.add_argument("--max-steer-deg", type=float, default=25.0, help="the steer that user/angle 1 stands for")
+    tub.set_defaults(handler=recordings_import_tub)
+    export = rec_sub.add_parser("export", help="a recording as a folder of images plus one CSV")
+    export.add_argument("recording")
+    export.add_argument("--out", required=True)
+    export.add_argument("--cameras", help="comma-separated cameras (default: all)")
+    export.set_defaults(handler=recordings_export)

@@ -14,8 +14,14 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from kartpilot.core.errors import ConfigError
+
 __all__ = [
     "Array",
+    "Pose2D",
+    "between_2d",
+    "compose_2d",
+    "ground_poses",
     "invert_pose",
     "mount_pose",
     "pose_from_quaternion",
@@ -26,6 +32,7 @@ __all__ = [
     "rotation_angle_rad",
     "rotvec_from_pose",
     "transform_points",
+    "vo_ground_pose",
 ]
 
 Array = NDArray[np.floating[Any]]
@@ -102,3 +109,42 @@ def mount_pose(x_m: float = 0.0, y_m: float = 0.0, z_m: float = 0.0, yaw_deg: fl
     pose[:3, :3] = rz @ ry @ rx @ base
     pose[:3, 3] = (x_m, y_m, z_m)
     return pose
+
+
+# planar poses of the rear axle on the road: x forward, y left, yaw (the odometry frame)
+Pose2D = tuple[float, float, float]
+
+
+def ground_poses(poses_world_cam: Array, pose_body_cam: Array) -> Array:
+    """``(N, 3)`` rear-axle ``x, y, yaw`` in the frame of the first body pose, from ``(N, 4, 4)`` camera poses.
+
+    Works for any world frame (VO's first camera, the simulator's world): the body poses are
+    expressed relative to the first one, then projected onto its ground plane.
+    """
+    poses = np.asarray(poses_world_cam, float)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(poses) == 0:
+        raise ConfigError(f"expected (N, 4, 4) camera poses, got shape {poses.shape}")
+    body = poses @ invert_pose(np.asarray(pose_body_cam, float))
+    relative = invert_pose(body[0]) @ body
+    yaw = np.arctan2(relative[:, 1, 0], relative[:, 0, 0])
+    return np.column_stack([relative[:, 0, 3], relative[:, 1, 3], yaw])
+
+
+def vo_ground_pose(pose_world_cam: Array, pose_body_cam: Array) -> tuple[float, float, float]:
+    """A camera pose in VO's world (the first camera) as the rear axle's planar ``x, y, yaw`` in the
+    odometry frame; the first body pose is ``inverse(pose_body_cam)`` in that world."""
+    relative = pose_body_cam @ pose_world_cam @ invert_pose(pose_body_cam)
+    return float(relative[0, 3]), float(relative[1, 3]), math.atan2(relative[1, 0], relative[0, 0])
+
+
+def compose_2d(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
+    """Planar pose ``a`` followed by the motion ``b`` expressed in ``a``'s frame."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], math.remainder(a[2] + b[2], math.tau)
+
+
+def between_2d(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
+    """The motion from planar pose ``a`` to ``b``, in ``a``'s frame (so ``compose_2d(a, between_2d(a, b)) == b``)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    return c * dx + s * dy, -s * dx + c * dy, math.remainder(b[2] - a[2], math.tau)

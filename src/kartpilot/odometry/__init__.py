@@ -1,1 +1,2 @@
-"""Visual odometry: frame-to-frame motion from stereo (and later monocular) images."""
+"""Visual odometry (stereo, and monocular with the ground plane's scale), place recognition, and the localisers
+that turn them into the kart's pose on the road."""

@@ -2,7 +2,7 @@
 
 Stereo VO reports the left camera's pose in the frame of the first left camera
 (OpenCV axes). Planning and control want the rear axle on the road plane: the
-camera's mount on the body turns one into the other (:func:`ground_poses`), and
+camera's mount on the body turns one into the other (:func:`kartpilot.core.geometry.ground_poses`), and
 the odometry frame is the rear axle at the first frame (x forward, y left).
 
 :class:`StereoVOLocalizer` runs VO frame by frame, relocalises against the taught
@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import cv2
@@ -24,51 +25,15 @@ import numpy as np
 
 from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.errors import ConfigError, OdometryError, PerceptionError
-from kartpilot.core.geometry import Array, invert_pose
+from kartpilot.core.geometry import Array, Pose2D, between_2d, compose_2d, vo_ground_pose
 from kartpilot.core.types import FrameSet, Image, StereoFrame, VehiclePose
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
 from kartpilot.odometry.visual_map import RelocConfig, VisualMap, relocalize
 from kartpilot.sensors.health import HealthConfig, frame_problem
 
-__all__ = ["LocalizerConfig", "PoseTracker", "StereoVOLocalizer", "between_2d", "compose_2d", "ground_poses",
-           "vo_ground_pose"]
+__all__ = ["LocalizerConfig", "PoseTracker", "StereoVOLocalizer"]
 
 log = logging.getLogger(__name__)
-
-
-def ground_poses(poses_world_cam: Array, pose_body_cam: Array) -> Array:
-    """``(N, 3)`` rear-axle ``x, y, yaw`` in the frame of the first body pose, from ``(N, 4, 4)`` camera poses.
-
-    Works for any world frame (VO's first camera, the simulator's world): the body poses are
-    expressed relative to the first one, then projected onto its ground plane.
-    """
-    poses = np.asarray(poses_world_cam, float)
-    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(poses) == 0:
-        raise ConfigError(f"expected (N, 4, 4) camera poses, got shape {poses.shape}")
-    body = poses @ invert_pose(np.asarray(pose_body_cam, float))
-    relative = invert_pose(body[0]) @ body
-    yaw = np.arctan2(relative[:, 1, 0], relative[:, 0, 0])
-    return np.column_stack([relative[:, 0, 3], relative[:, 1, 3], yaw])
-
-
-def vo_ground_pose(pose_world_cam: Array, pose_body_cam: Array) -> tuple[float, float, float]:
-    """A camera pose in VO's world (the first camera) as the rear axle's planar ``x, y, yaw`` in the
-    odometry frame; the first body pose is ``inverse(pose_body_cam)`` in that world."""
-    relative = pose_body_cam @ pose_world_cam @ invert_pose(pose_body_cam)
-    return float(relative[0, 3]), float(relative[1, 3]), math.atan2(relative[1, 0], relative[0, 0])
-
-
-def compose_2d(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
-    """Planar pose ``a`` followed by the motion ``b`` expressed in ``a``'s frame."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], math.remainder(a[2] + b[2], math.tau)
-
-
-def between_2d(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
-    """The motion from planar pose ``a`` to ``b``, in ``a``'s frame (so ``compose_2d(a, between_2d(a, b)) == b``)."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    dx, dy = b[0] - a[0], b[1] - a[1]
-    return c * dx + s * dy, -s * dx + c * dy, math.remainder(b[2] - a[2], math.tau)
 
 
 @dataclass(frozen=True)
@@ -97,7 +62,6 @@ def _gray(image: Image) -> Image:
     return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
 
 
-Pose2D = tuple[float, float, float]
 
 
 class PoseTracker:
@@ -172,10 +136,13 @@ class StereoVOLocalizer(PoseTracker):
     """
 
     def __init__(self, rig: StereoRig, pose_body_cam: Array, vo_config: StereoVOConfig | None = None,
-                 config: LocalizerConfig | None = None, visual_map: VisualMap | None = None) -> None:
+                 config: LocalizerConfig | None = None, visual_map: VisualMap | None = None, *,
+                 wrap_vo: Callable[[StereoVO], StereoVO] | None = None) -> None:
+        """``wrap_vo`` is the seam fault injection wraps the VO at (``vo-failure``)."""
         self.config = config or LocalizerConfig()
         super().__init__(self.config.max_bridge_s, self.config.speed_time_constant_s)
-        self.vo = StereoVO(rig, vo_config)
+        vo = StereoVO(rig, vo_config)
+        self.vo = wrap_vo(vo) if wrap_vo is not None else vo
         self.rig = rig
         self.map = visual_map if self.config.reloc.enabled else None
         self.body_cam = np.asarray(pose_body_cam, float)

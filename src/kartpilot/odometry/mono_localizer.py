@@ -30,6 +30,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -37,9 +38,9 @@ import numpy as np
 
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError, OdometryError, PerceptionError
-from kartpilot.core.geometry import Array, invert_pose
+from kartpilot.core.geometry import Array, Pose2D, between_2d, compose_2d, invert_pose, vo_ground_pose
 from kartpilot.core.types import FrameSet, VehiclePose
-from kartpilot.odometry.localizer import Pose2D, PoseTracker, between_2d, compose_2d, vo_ground_pose
+from kartpilot.odometry.localizer import PoseTracker
 from kartpilot.odometry.mono_vo import MonoVO, MonoVOConfig
 from kartpilot.odometry.places import PlaceDatabase, PlaceFix
 from kartpilot.sensors.health import HealthConfig, frame_problem
@@ -182,7 +183,9 @@ class MonoLocalizer(PoseTracker):
     """Holds the VO, the filter's state and covariance, and the recent fixes for the scale."""
 
     def __init__(self, camera: PinholeCamera, places: PlaceDatabase, vo_config: MonoVOConfig | None = None,
-                 config: MonoLocalizerConfig | None = None) -> None:
+                 config: MonoLocalizerConfig | None = None, *,
+                 wrap_vo: Callable[[MonoVO], MonoVO] | None = None) -> None:
+        """``wrap_vo`` is the seam fault injection wraps the VO at (``vo-failure``)."""
         self.config = config or MonoLocalizerConfig()
         super().__init__(self.config.max_bridge_s, self.config.speed_time_constant_s)
         if camera.size_wh != places.camera.size_wh:
@@ -192,7 +195,8 @@ class MonoLocalizer(PoseTracker):
         height = float(camera.pose_body_cam_array[2, 3])
         if height > 0:  # the mount knows the camera's height above the road better than a default
             vo_config = replace(vo_config, ground=replace(vo_config.ground, camera_height_m=height))
-        self.vo = MonoVO(camera, vo_config)
+        vo = MonoVO(camera, vo_config)
+        self.vo = wrap_vo(vo) if wrap_vo is not None else vo
         self._camera = camera
         self.places = places
         self.body_cam = camera.pose_body_cam_array

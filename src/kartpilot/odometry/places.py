@@ -33,7 +33,6 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import os
 import time
 import zipfile
 from collections.abc import Iterable
@@ -49,6 +48,7 @@ from sklearn.neighbors import BallTree
 from kartpilot.core.camera import PinholeCamera, camera_from_dict, camera_to_dict
 from kartpilot.core.config import config_to_dict, merge_config
 from kartpilot.core.errors import ConfigError, DataError, KartpilotError, PerceptionError
+from kartpilot.core.files import write_atomic
 from kartpilot.core.geometry import Array
 from kartpilot.core.types import Image
 from kartpilot.odometry.mono_vo import beyond_ground_mask, has_mount
@@ -367,11 +367,7 @@ class PlaceDatabase:
             arrays["road_views"] = self.road_views
         if self.pca is not None:
             arrays.update(pca_mean=self.pca.mean, pca_components=self.pca.components, pca_variances=self.pca.variances)
-        temporary = path.with_name(path.name + ".partial")
-        with temporary.open("wb") as f:
-            np.savez(f, **arrays)
-        os.replace(temporary, path)
-        return path
+        return write_atomic(path, lambda handle: np.savez(handle, **arrays))
 
 
 def load_places(path: str | Path) -> PlaceDatabase:

@@ -1,1 +1,1 @@
-"""Perception: features, matching, tracking, stereo depth (and later lanes)."""
+"""Perception: features, matching, tracking, stereo depth, lane boundaries, VLAD and the road's top view."""

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import queue
 import re
 import threading
@@ -40,6 +39,7 @@ import numpy as np
 from kartpilot.calibration.rectify import stereo_setup
 from kartpilot.core.camera import PinholeCamera, StereoRig, camera_from_dict, camera_to_dict
 from kartpilot.core.errors import RecordingError
+from kartpilot.core.files import write_json_atomic
 from kartpilot.core.geometry import Array, invert_pose
 from kartpilot.core.trajectory import Trajectory, read_tum, write_tum
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image, StereoFrame
@@ -160,9 +160,7 @@ class RecordingWriter:
             "image_format": self.image_format,
             "metadata": self.metadata,
         }
-        temporary = self.folder / "manifest.json.tmp"
-        temporary.write_text(json.dumps(manifest, indent=2))
-        os.replace(temporary, self.folder / "manifest.json")  # atomic: never a half-written manifest
+        write_json_atomic(self.folder / "manifest.json", manifest)
 
     def _check_open(self) -> None:
         if self._closed:

@@ -1,1 +1,2 @@
-"""The top layer: the whole-stack configuration and (later) the fixed-rate loop."""
+"""The top layer: the stack's configuration, the pipelines by name, the loop and one drive session (simulator,
+replay or live) with its supervisor, watchdogs and result."""

@@ -23,17 +23,17 @@ Example ``stack.yaml``::
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from kartpilot.actuation.can_bus import ActuatorLimits, CanConfig
 from kartpilot.core.config import load_yaml_mapping, merge_config
+from kartpilot.core.errors import ConfigError
 from kartpilot.odometry.mono_vo import MonoVOConfig
 from kartpilot.odometry.places import PlacesConfig
 from kartpilot.odometry.stereo_vo import StereoVOConfig
-from kartpilot.perception.lanes import LaneConfig
 from kartpilot.runtime.drive import WatchdogConfig
-from kartpilot.runtime.lane_policy import LanePolicyConfig
+from kartpilot.runtime.lane_policy import LANE_PRESETS, LanePolicyConfig
 from kartpilot.runtime.path_policy import DriveConfig
 from kartpilot.runtime.supervisor import SupervisorConfig
 from kartpilot.sensors.capture import LiveConfig
@@ -51,7 +51,6 @@ class StackConfig:
     places: PlacesConfig = field(default_factory=PlacesConfig)
     sim: SimConfig = field(default_factory=SimConfig)
     centerline_driver: CenterlineDriverConfig = field(default_factory=CenterlineDriverConfig)
-    lane_detection: LaneConfig = field(default_factory=LaneConfig)
     lane_policy: LanePolicyConfig = field(default_factory=LanePolicyConfig)
     drive: DriveConfig = field(default_factory=DriveConfig)
     live: LiveConfig = field(default_factory=LiveConfig)
@@ -62,8 +61,12 @@ class StackConfig:
     gamepad: GamepadMapping = field(default_factory=GamepadMapping)
 
 
-def load_stack_config(path: str | Path | None) -> StackConfig:
-    """Defaults, with the YAML file at ``path`` merged over them when given."""
-    if path is None:
-        return StackConfig()
-    return merge_config(StackConfig(), load_yaml_mapping(path))
+def load_stack_config(path: str | Path | None, lane_preset: str | None = None) -> StackConfig:
+    """Defaults, with the lane detector's preset (``LANE_PRESETS``: ``kart``, the default, or ``dashcam``)
+    and then the YAML file at ``path`` merged over them when given."""
+    base = StackConfig()
+    if lane_preset is not None:
+        if lane_preset not in LANE_PRESETS:
+            raise ConfigError(f"unknown lane preset {lane_preset!r} ({', '.join(LANE_PRESETS)})")
+        base = replace(base, lane_policy=replace(base.lane_policy, lanes=LANE_PRESETS[lane_preset]))
+    return base if path is None else merge_config(base, load_yaml_mapping(path))

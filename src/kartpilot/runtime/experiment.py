@@ -29,10 +29,9 @@ from scipy.spatial import cKDTree
 from kartpilot.control.path_follow import BiasConfig, PathFollowConfig, steer_bias_of_drive
 from kartpilot.control.stanley import StanleyConfig
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.geometry import Array
+from kartpilot.core.geometry import Array, ground_poses
 from kartpilot.core.vehicle import VehicleParams, get_vehicle
 from kartpilot.eval.plots import plot_path_following, plot_steering
-from kartpilot.odometry.localizer import ground_poses
 from kartpilot.odometry.run import run_teach
 from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.odometry.visual_map import map_path_for

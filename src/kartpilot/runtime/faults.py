@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar, cast
 
 import can
 import numpy as np
@@ -27,8 +27,10 @@ import numpy as np
 from kartpilot.core.errors import ConfigError, OdometryError
 from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource
 
-__all__ = ["BUS_OFF_S", "KINDS", "FaultyBus", "InjectedSource", "Injection", "RaisingPipeline", "failing_vo",
-           "parse_injection"]
+__all__ = ["BUS_OFF_S", "KINDS", "FailingVO", "FaultyBus", "InjectedSource", "Injection", "RaisingPipeline",
+           "failing_vo", "parse_injection"]
+
+T = TypeVar("T")
 
 KINDS = ("camera-freeze", "black-frame", "vo-failure", "can-bus-off", "heartbeat-loss", "ecu-error",
          "steering-sensor-loss", "steering-sensor-range", "loop-stall", "gamepad-unplug", "stage-exception")
@@ -112,17 +114,29 @@ class FaultyBus(can.BusABC):
         super().shutdown()
 
 
-def failing_vo(process: Callable[..., Any], injection: Injection) -> Callable[..., Any]:
-    """Wrap a VO's ``process`` so it fails on every frame from the injection's time: stereo VO's takes a frame
-    (with its ``stamp_ns``), mono VO's takes ``(index, stamp_ns, image)``."""
+class FailingVO:
+    """A VO that fails on every frame from the injection's time (``vo-failure``); otherwise the VO itself. Stereo
+    VO's ``process`` takes a frame (with its ``stamp_ns``), mono VO's takes ``(index, stamp_ns, image)``."""
 
-    def wrapped(*args: Any) -> Any:
+    def __init__(self, vo: Any, injection: Injection) -> None:
+        self.vo, self.injection = vo, injection
+
+    def process(self, *args: Any) -> Any:
         stamp_ns = args[0].stamp_ns if len(args) == 1 else args[1]
-        if injection.active(stamp_ns):
+        if self.injection.active(stamp_ns):
             raise OdometryError("visual odometry failed (injected)")
-        return process(*args)
+        return self.vo.process(*args)
 
-    return wrapped
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.vo, name)
+
+
+def failing_vo(injection: Injection) -> Callable[[T], T]:
+    """The ``wrap_vo`` seam of a localiser for the ``vo-failure`` injection."""
+    def wrap(vo: T) -> T:
+        return cast(T, FailingVO(vo, injection))
+
+    return wrap
 
 
 class RaisingPipeline:

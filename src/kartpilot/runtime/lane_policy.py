@@ -32,7 +32,15 @@ from kartpilot.perception.lanes import (
     draw_lanes,
 )
 
-__all__ = ["LanePolicy", "LanePolicyConfig", "side_search_band"]
+__all__ = ["LANE_PRESETS", "LanePolicy", "LanePolicyConfig", "side_search_band"]
+
+LANE_PRESETS: dict[str, LaneConfig] = {
+    # a kart's camera sees a wide road from close to the ground: the boundaries run out to the image's
+    # sides at shallow slopes, so the region is a full-width band and shallow lines are kept
+    "kart": LaneConfig(roi_top_width=1.0, min_abs_slope=0.1),
+    # a car's dash camera, higher up and looking further: a trapezoid narrowing to the vanishing point
+    "dashcam": LaneConfig(),
+}
 
 
 @dataclass(frozen=True)
@@ -47,9 +55,7 @@ class LanePolicyConfig:
         speed_pi: the speed controller's gains.
     """
 
-    # a kart's camera sees a wide road from close to the ground: the boundaries run out to the image's
-    # sides at shallow slopes, so the region is a full-width band and shallow lines are kept
-    lanes: LaneConfig = field(default_factory=lambda: LaneConfig(roi_top_width=1.0, min_abs_slope=0.1))
+    lanes: LaneConfig = field(default_factory=lambda: LANE_PRESETS["kart"])
     side: SideSearchConfig = field(default_factory=SideSearchConfig)
     follow: LaneFollowConfig = field(default_factory=LaneFollowConfig)
     near_m: float = 0.15

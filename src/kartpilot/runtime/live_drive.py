@@ -11,10 +11,10 @@ drive ends (duration, Ctrl-C, an error), the stop command goes out and the recor
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -24,13 +24,15 @@ from kartpilot.calibration.rectify import stereo_setup
 from kartpilot.calibration.rig import Rig, apply_camera_maps
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError
+from kartpilot.core.files import write_json_atomic, write_text_atomic
 from kartpilot.core.types import ActuatorCommand, FrameSet, OperatorInput
 from kartpilot.core.vehicle import VehicleParams
 from kartpilot.record.recording import RecordingWriter
 from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.drive import SupervisedDrive, Watchdogs
-from kartpilot.runtime.loop import Recorder, run_loop
+from kartpilot.runtime.loop import LoopStats, Policy, run_loop
 from kartpilot.runtime.pipelines import PipelineContext, Route, StereoInput, build_pipeline
+from kartpilot.runtime.session import SessionResult
 from kartpilot.runtime.supervisor import Supervisor
 from kartpilot.runtime.webui import WebConfig, WebOperator, WebServer
 from kartpilot.sensors.capture import LiveFrameSource
@@ -80,55 +82,34 @@ class LiveDriveSetup:
 
 
 def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
-    """Drive until the duration, the cameras' end, or Ctrl-C; return the summary (also in the recording)."""
+    """Drive until the duration, the cameras' end, or Ctrl-C; return the result (also in the recording).
+    However it ends, the stop command goes out, then the recording, the people's inputs and the cameras are
+    closed."""
     rig = apply_camera_maps(setup.rig)
     vehicle = setup.vehicle
-    limits = stack.limits.for_vehicle(vehicle)
-    source = LiveFrameSource(rig, stack.live)
-    period_s = 1.0 / rig.capture[source.reference].fps
-    cameras = {n: rig.cameras[n] for n in source.threads}
-    pair = rig.stereo_pair
-    stereo = (StereoInput(pair, stereo_setup(rig.cameras[pair[0]], rig.cameras[pair[1]]))
-              if pair is not None and setup.pipeline == "stereo-vo" else None)
-    try:
-        pipeline = build_pipeline(setup.pipeline, PipelineContext(vehicle, cameras, 1.0 / period_s, stack, stereo,
-                                                                  setup.route))
-    except Exception:
-        source.close()  # the cameras were opened for their calibration and rate; nothing has started yet
-        raise
-    operators: list[Callable[[int], OperatorInput]] = []
-    gamepad = Gamepad(setup.gamepad, stack.gamepad).start() if setup.gamepad else None
-    if gamepad is not None:
-        operators.append(gamepad)
-    web = WebOperator(WebConfig(port=setup.web_port)) if setup.web_port is not None else None
-    server = WebServer(web).start() if web is not None else None
-    if web is not None:
-        operators.append(web)
-        print(f"web page: {server.url if server else ''}")
-    writer: RecordingWriter | None = None
-    actuator: CanActuator | None = None
-    started = time.monotonic()
-    try:
-        operator = CombinedOperator(operators)
+    with ExitStack() as closing:
+        source = LiveFrameSource(rig, stack.live)
+        closing.callback(source.close)
+        period_s = 1.0 / rig.capture[source.reference].fps
+        pipeline = _live_pipeline(setup, stack, rig, list(source.threads), period_s)
+        operator, web = _people(setup, stack, closing)
+        writer = None
         if setup.record_dir is not None:
             writer = RecordingWriter(setup.record_dir, {n: rig.cameras[n] for n in source.threads},
                                      stereo_pair=rig.stereo_pair, queue_frames=RECORD_QUEUE_FRAMES,
                                      drop_when_full=True, image_format="jpg",
                                      metadata={"source": "kartpilot drive --live", "pipeline": setup.pipeline,
                                                "vehicle": vehicle.name, "can": config_to_dict(stack.can)})
+            closing.callback(writer.close)
         protocol = make_protocol(stack.can, vehicle, rig.steering, time.monotonic_ns())
-        actuator = CanActuator(open_bus(stack.can), protocol, stack.can, limits,
+        actuator = CanActuator(open_bus(stack.can), protocol, stack.can, stack.limits.for_vehicle(vehicle),
                                log_frame=writer.write_can if writer is not None else None).start()
+        closing.callback(actuator.close)  # the stop command, one last time (before the recording closes)
         supervisor = Supervisor(stack.supervisor)
         drive = SupervisedDrive(pipeline, supervisor, Watchdogs(list(source.threads), period_s, stack.watchdogs,
                                                                 actuator), operator, actuator)
         source.start()
-
-        class _Timed:
-            def read(self) -> FrameSet | None:
-                if setup.duration_s is not None and time.monotonic() - started > setup.duration_s:
-                    return None
-                return source.read()
+        timed = _Timed(source, setup.duration_s)
 
         def on_step(frames: FrameSet, command: ActuatorCommand) -> None:
             if web is not None:
@@ -136,35 +117,67 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
                             steer_rad=round(command.steer_rad, 3), throttle=round(command.throttle, 3),
                             brake=round(command.brake, 3), camera_problems=source.problems)
 
-        recorders: list[Recorder] = [writer] if writer is not None else []
-        how = "ended"
         try:
-            stats = run_loop(_Timed(), drive, actuator, recorders, on_step, period_s=period_s)
+            stats = run_loop(timed, drive, actuator, [writer] if writer is not None else [], on_step,
+                             period_s=period_s)
         except KeyboardInterrupt:
-            how = "stopped by the user (Ctrl-C)"
-            stats = None
-        summary: dict[str, Any] = {
-            "pipeline": setup.pipeline, "ended": how, "seconds": round(time.monotonic() - started, 2),
-            "transitions": [t.to_json(0) for t in supervisor.transitions], "final_state": supervisor.state,
-            "error": f"{type(drive.error).__name__}: {drive.error}" if drive.error else None,
-            "cameras": source.stats(), "can": {"protocol": protocol.name, "frames_sent": actuator.frames_sent,
-                                               "tx_errors": actuator.tx_errors, "rx_errors": actuator.rx_errors,
-                                               "quiet_stops": actuator.quiet_stops},
-            "stage_ms": stats.stage_percentiles_ms() if stats is not None else {},
-            "missed_deadlines": stats.missed_deadlines if stats is not None else None,
-        }
+            timed.ended = "stopped by the user (Ctrl-C)"
+            stats = LoopStats(steps=len(drive.step_s), samples_s={"policy": drive.step_s})  # what the loop got done
+        session = SessionResult(
+            "live", setup.pipeline, vehicle.name, stats.steps, timed.ended, supervisor.state,
+            f"{type(drive.error).__name__}: {drive.error}" if drive.error else None, stats.missed_deadlines,
+            stats.stage_summary_ms(), transitions=tuple(t.to_json(0) for t in supervisor.transitions),
+            details={"seconds": round(time.monotonic() - timed.started, 2), "cameras": source.stats(),
+                     "can": {"protocol": protocol.name, "frames_sent": actuator.frames_sent,
+                             "tx_errors": actuator.tx_errors, "rx_errors": actuator.rx_errors,
+                             "quiet_stops": actuator.quiet_stops}})
+        summary = session.to_json()
         if setup.record_dir is not None:
             if drive.error_text:
-                (Path(setup.record_dir) / "error.txt").write_text(drive.error_text)
-            (Path(setup.record_dir) / "result.json").write_text(json.dumps(summary, indent=2))
+                write_text_atomic(Path(setup.record_dir) / "error.txt", drive.error_text)
+            write_json_atomic(Path(setup.record_dir) / "result.json", summary)
         return summary
-    finally:
-        source.close()
-        if actuator is not None:
-            actuator.close()  # the stop command, one last time
-        if gamepad is not None:
-            gamepad.close()
-        if server is not None:
-            server.close()
-        if writer is not None:
-            writer.close()
+
+
+class _Timed:
+    """The live cameras, until the drive's duration; says why the drive ended."""
+
+    def __init__(self, source: LiveFrameSource, duration_s: float | None) -> None:
+        self.source, self.duration_s = source, duration_s
+        self.started = time.monotonic()
+        self.ended = "the cameras stopped"
+
+    def read(self) -> FrameSet | None:
+        if self.duration_s is not None and time.monotonic() - self.started > self.duration_s:
+            self.ended = f"the {self.duration_s:g} s duration elapsed"
+            return None
+        return self.source.read()
+
+
+def _live_pipeline(setup: LiveDriveSetup, stack: StackConfig, rig: Rig, cameras: list[str], period_s: float
+                   ) -> Policy:
+    """The pipeline on the live cameras (a raw stereo pair is rectified on the way in)."""
+    pair = rig.stereo_pair
+    stereo = (StereoInput(pair, stereo_setup(rig.cameras[pair[0]], rig.cameras[pair[1]]))
+              if pair is not None and setup.pipeline == "stereo-vo" else None)
+    context = PipelineContext(setup.vehicle, {n: rig.cameras[n] for n in cameras}, 1.0 / period_s, stack, stereo,
+                              setup.route)
+    return build_pipeline(setup.pipeline, context)
+
+
+def _people(setup: LiveDriveSetup, stack: StackConfig, closing: ExitStack
+            ) -> tuple[CombinedOperator, WebOperator | None]:
+    """The person in charge: the gamepad, the web page, or both (each closed with the drive)."""
+    operators: list[Callable[[int], OperatorInput]] = []
+    if setup.gamepad:
+        gamepad = Gamepad(setup.gamepad, stack.gamepad).start()
+        closing.callback(gamepad.close)
+        operators.append(gamepad)
+    web = None
+    if setup.web_port is not None:
+        web = WebOperator(WebConfig(port=setup.web_port))
+        server = WebServer(web).start()
+        closing.callback(server.close)
+        operators.append(web)
+        print(f"web page: {server.url}")
+    return CombinedOperator(operators), web

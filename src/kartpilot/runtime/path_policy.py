@@ -21,19 +21,16 @@ import cv2
 import numpy as np
 
 from kartpilot.control.path_follow import PathFollowConfig, PathFollowState, path_follow_step
-from kartpilot.core.camera import PinholeCamera, StereoRig
+from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.geometry import Array, invert_pose, transform_points
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image, VehicleFeedback, VehiclePose
-from kartpilot.odometry.localizer import LocalizerConfig, StereoVOLocalizer
-from kartpilot.odometry.mono_localizer import MonoLocalizer, MonoLocalizerConfig, place_ground_poses
-from kartpilot.odometry.mono_vo import MonoVOConfig
+from kartpilot.odometry.localizer import LocalizerConfig
+from kartpilot.odometry.mono_localizer import MonoLocalizerConfig, place_ground_poses
 from kartpilot.odometry.places import PlaceDatabase
-from kartpilot.odometry.stereo_vo import StereoVOConfig
-from kartpilot.odometry.visual_map import MapConfig, VisualMap
+from kartpilot.odometry.visual_map import MapConfig
 from kartpilot.planning.reference_path import PathConfig, ReferencePath, build_reference_path
 
-__all__ = ["DriveConfig", "DriveSample", "Localizer", "PathFollowPolicy", "mono_vo_policy", "places_reference",
-           "stereo_vo_policy", "write_drive_log"]
+__all__ = ["DriveConfig", "DriveSample", "Localizer", "PathFollowPolicy", "places_reference", "write_drive_log"]
 
 OVERRUN_FACTOR, OVERRUN_M = 1.1, 2.0  # stop after driving 10 % + 2 m more than the reference is long
 
@@ -209,29 +206,10 @@ class PathFollowPolicy:
         return canvas
 
 
-def stereo_vo_policy(rig: StereoRig, pose_body_cam: Array, pair: tuple[str, str], reference: ReferencePath,
-                     config: DriveConfig, vo_config: StereoVOConfig | None, visual_map: VisualMap | None,
-                     wheelbase_m: float, max_steer_rad: float, rate_hz: float) -> PathFollowPolicy:
-    """The stereo-VO pipeline on the pair named ``pair`` (left, right), following ``reference``."""
-    localizer = StereoVOLocalizer(rig, pose_body_cam, vo_config,
-                                  replace(config.localizer, left_camera=pair[0], right_camera=pair[1]), visual_map)
-    return PathFollowPolicy(localizer, reference, config.follow, wheelbase_m, max_steer_rad, rate_hz)
-
-
 def places_reference(places: PlaceDatabase, pose_body_cam: Array, config: PathConfig) -> ReferencePath:
     """The reference drive of a place database as a path to follow, in the mono localiser's frame."""
     ground = place_ground_poses(places.poses_world_cam, pose_body_cam, places.poses_world_cam[0])
     return build_reference_path(ground[:, :2], config)
-
-
-def mono_vo_policy(camera: PinholeCamera, places: PlaceDatabase, reference: ReferencePath | None,
-                   config: DriveConfig, vo_config: MonoVOConfig | None, wheelbase_m: float, max_steer_rad: float,
-                   rate_hz: float) -> PathFollowPolicy:
-    """One camera (``config.mono.camera``): monocular VO fused with place fixes, following ``reference`` (by
-    default the database's own drive)."""
-    localizer = MonoLocalizer(camera, places, vo_config, config.mono)
-    path = reference if reference is not None else places_reference(places, camera.pose_body_cam_array, config.path)
-    return PathFollowPolicy(localizer, path, config.follow, wheelbase_m, max_steer_rad, rate_hz)
 
 
 def write_drive_log(samples: list[DriveSample], target: str | Path) -> Path:

@@ -16,22 +16,25 @@ entry in :data:`PIPELINES`.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 from kartpilot.calibration.rectify import StereoSetup
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image, VehicleFeedback
 from kartpilot.core.vehicle import VehicleParams
+from kartpilot.odometry.localizer import StereoVOLocalizer
+from kartpilot.odometry.mono_localizer import MonoLocalizer
 from kartpilot.odometry.places import PlaceDatabase
 from kartpilot.odometry.visual_map import VisualMap
 from kartpilot.planning.reference_path import ReferencePath
 from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.lane_policy import LanePolicy
 from kartpilot.runtime.loop import Policy
-from kartpilot.runtime.path_policy import PathFollowPolicy, mono_vo_policy, stereo_vo_policy
+from kartpilot.runtime.path_policy import PathFollowPolicy, places_reference
 
-__all__ = ["PIPELINES", "PipelineContext", "RectifiedPipeline", "Route", "StereoInput", "build_pipeline",
+__all__ = ["PIPELINES", "PipelineContext", "PreparedPipeline", "Route", "StereoInput", "build_pipeline",
            "path_policy_of"]
 
 
@@ -66,6 +69,7 @@ class PipelineContext:
             kart's steering range).
         stereo: the stereo pair, where the source delivers one.
         route: what the path-following pipelines follow and localise against.
+        wrap_vo: the seam fault injection wraps a localiser's VO at (``vo-failure``); None: the VO itself.
     """
 
     vehicle: VehicleParams
@@ -74,6 +78,7 @@ class PipelineContext:
     stack: StackConfig = field(default_factory=StackConfig)
     stereo: StereoInput | None = None
     route: Route = field(default_factory=Route)
+    wrap_vo: Callable[[Any], Any] | None = None
 
     @property
     def max_steer_rad(self) -> float:
@@ -81,23 +86,15 @@ class PipelineContext:
         return self.stack.limits.for_vehicle(self.vehicle).max_steer_rad
 
 
-class RectifiedPipeline:
-    """The stereo pipeline on a raw pair, rectified first (the raw frames are what gets recorded)."""
+class PreparedPipeline:
+    """A pipeline whose images are prepared on the way in: a raw stereo pair rectified. The raw frames are what
+    gets recorded; the pipeline, its outputs and its view see the prepared ones."""
 
-    def __init__(self, policy: PathFollowPolicy, stereo: StereoInput) -> None:
-        self.policy, self.stereo = policy, stereo
-
-    def _rectified(self, frames: FrameSet) -> FrameSet:
-        names = self.stereo.pair
-        left, right = (frames.images.get(n) for n in names)
-        if left is None or right is None:
-            return frames
-        left, right = self.stereo.setup.rectify(left, right)
-        return FrameSet(frames.index, frames.stamp_ns, {**frames.images, names[0]: left, names[1]: right},
-                        frames.capture_ns)
+    def __init__(self, policy: PathFollowPolicy, prepare: Callable[[FrameSet], FrameSet]) -> None:
+        self.policy, self.prepare = policy, prepare
 
     def __call__(self, frames: FrameSet) -> ActuatorCommand:
-        return self.policy(self._rectified(frames))
+        return self.policy(self.prepare(frames))
 
     def observe_vehicle(self, feedback: VehicleFeedback) -> None:
         self.policy.observe_vehicle(feedback)
@@ -109,10 +106,23 @@ class RectifiedPipeline:
         return self.policy.outputs()
 
     def overlay(self, frames: FrameSet) -> Image | None:
-        return self.policy.overlay(self._rectified(frames))
+        return self.policy.overlay(self.prepare(frames))
 
     def close(self) -> None:
         self.policy.close()
+
+
+def _rectifier(stereo: StereoInput) -> Callable[[FrameSet], FrameSet]:
+    def prepare(frames: FrameSet) -> FrameSet:
+        names = stereo.pair
+        left, right = (frames.images.get(n) for n in names)
+        if left is None or right is None:
+            return frames
+        left, right = stereo.setup.rectify(left, right)
+        return FrameSet(frames.index, frames.stamp_ns, {**frames.images, names[0]: left, names[1]: right},
+                        frames.capture_ns)
+
+    return prepare
 
 
 def _lanes(context: PipelineContext) -> Policy:
@@ -120,35 +130,38 @@ def _lanes(context: PipelineContext) -> Policy:
 
 
 def _stereo_vo(context: PipelineContext) -> Policy:
-    stereo = context.stereo
+    stereo, route, stack = context.stereo, context.route, context.stack
     if stereo is None or not set(stereo.pair) <= set(context.cameras):
         raise ConfigError(f"the stereo-vo pipeline needs a stereo pair ({context.vehicle.name}'s cameras here: "
                           f"{', '.join(context.cameras) or 'none'})")
-    if context.route.reference is None:
+    if route.reference is None:
         raise ConfigError("the stereo-vo pipeline follows a reference: give --reference (kartpilot reference writes "
                           "one from a recorded drive)")
-    stack = context.stack
-    policy = stereo_vo_policy(stereo.setup.rig, stereo.setup.pose_body_left, stereo.pair, context.route.reference,
-                              stack.drive, stack.stereo_vo, context.route.visual_map, context.vehicle.wheelbase_m,
+    config = replace(stack.drive.localizer, left_camera=stereo.pair[0], right_camera=stereo.pair[1])
+    localizer = StereoVOLocalizer(stereo.setup.rig, stereo.setup.pose_body_left, stack.stereo_vo, config,
+                                  route.visual_map, wrap_vo=context.wrap_vo)
+    policy = PathFollowPolicy(localizer, route.reference, stack.drive.follow, context.vehicle.wheelbase_m,
                               context.max_steer_rad, context.rate_hz)
-    return policy if stereo.setup.rectification is None else RectifiedPipeline(policy, stereo)
+    return policy if stereo.setup.rectification is None else PreparedPipeline(policy, _rectifier(stereo))
 
 
 def _mono_vo(context: PipelineContext) -> Policy:
-    if context.route.places is None:
+    route, stack = context.route, context.stack
+    if route.places is None:
         raise ConfigError("the mono-vo pipeline localises against a place database: give --places (kartpilot places "
                           "build writes one from a recorded drive)")
-    stack = context.stack
     name = stack.drive.mono.camera
     if name not in context.cameras:
         raise ConfigError(f"the mono-vo pipeline needs the {name!r} camera (the {context.vehicle.name} has "
                           f"{', '.join(context.cameras) or 'none'} here)")
-    if any(context.cameras[name].distortion):
+    camera = context.cameras[name]
+    if any(camera.distortion):
         raise ConfigError(f"the {name!r} camera has lens distortion, and the mono-vo pipeline takes its images as a "
                           "pinhole's: undistorted input is not supported yet")
-    return mono_vo_policy(context.cameras[name], context.route.places, context.route.reference, stack.drive,
-                          stack.mono_vo,
-                          context.vehicle.wheelbase_m, context.max_steer_rad, context.rate_hz)
+    localizer = MonoLocalizer(camera, route.places, stack.mono_vo, stack.drive.mono, wrap_vo=context.wrap_vo)
+    path = route.reference or places_reference(route.places, camera.pose_body_cam_array, stack.drive.path)
+    return PathFollowPolicy(localizer, path, stack.drive.follow, context.vehicle.wheelbase_m, context.max_steer_rad,
+                            context.rate_hz)
 
 
 PIPELINES: dict[str, Callable[[PipelineContext], Policy]] = {
@@ -169,6 +182,6 @@ def build_pipeline(name: str, context: PipelineContext) -> Policy:
 
 def path_policy_of(policy: Policy) -> PathFollowPolicy | None:
     """The path follower inside a pipeline (its drive log, its stop), or None for the lane follower."""
-    if isinstance(policy, RectifiedPipeline):
+    if isinstance(policy, PreparedPipeline):
         return policy.policy
     return policy if isinstance(policy, PathFollowPolicy) else None

@@ -11,7 +11,6 @@ replays of one recording give identical outputs.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +22,7 @@ import numpy as np
 from kartpilot.calibration.rectify import StereoSetup
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError
+from kartpilot.core.files import write_json_atomic
 from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.record.recording import RecordingReader, RecordingWriter
@@ -31,7 +31,7 @@ from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.loop import Outputs, Recorder, run_loop
 from kartpilot.runtime.path_policy import write_drive_log
 from kartpilot.runtime.pipelines import PIPELINES, PipelineContext, Route, StereoInput, build_pipeline, path_policy_of
-from kartpilot.runtime.session import SessionOutputs
+from kartpilot.runtime.session import SessionOutputs, SessionResult
 
 __all__ = ["ReplayResult", "recorded_rate_hz", "replay_recording"]
 
@@ -40,21 +40,19 @@ RNG_SEED = 0
 
 @dataclass(frozen=True)
 class ReplayResult:
-    """What a replay did. ``commands`` are the pipeline's, one per set."""
+    """What a replay did: the session's result (``replay.json``), the pipeline's commands (one per set) and
+    where the new recording went."""
 
-    pipeline: str
-    steps: int
-    unreadable_frames: int
-    missed_deadlines: int
-    stage_ms: dict[str, float]
+    session: SessionResult
     commands: tuple[ActuatorCommand, ...]
     out: Path | None
-    extra: dict[str, Any]
+
+    @property
+    def steps(self) -> int:
+        return self.session.steps
 
     def to_json(self) -> dict[str, Any]:
-        return {"pipeline": self.pipeline, "steps": self.steps, "unreadable_frames": self.unreadable_frames,
-                "missed_deadlines": self.missed_deadlines, "out": str(self.out) if self.out else None, **self.extra,
-                "stage_ms": {k: round(v, 3) for k, v in self.stage_ms.items()}}
+        return self.session.to_json()
 
 
 class _CommandLog:
@@ -120,61 +118,73 @@ def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, rout
     if pipeline not in PIPELINES:
         raise ConfigError(f"unknown pipeline {pipeline!r} ({', '.join(PIPELINES)})")
     outputs = outputs or SessionOutputs()
-    out, drive_log = outputs.record_dir, outputs.drive_log
     reader = RecordingReader(folder)
     name = vehicle or reader.vehicle
     if name is None:
         raise ConfigError(f"{folder} does not say which kart it was recorded on: give --vehicle (rc-kart, sdc-kart)")
     params = get_vehicle(name)
     cv2.setRNGSeed(RNG_SEED)
-    source: StereoReplaySource | RecordingFrameSource
-    stereo: StereoInput | None = None
-    if pipeline == "stereo-vo":
-        if reader.stereo_pair is None:
-            raise ConfigError(f"{folder} has no stereo pair: the stereo-vo pipeline needs one")
-        source = StereoReplaySource(folder)
-        stereo = StereoInput((source.left_name, source.right_name),
-                             StereoSetup(source.stereo.rig, None, source.stereo.pose_body_left))
-        rate = recorded_rate_hz(reader, source.left_name)
-    else:
-        names = [stack.drive.mono.camera] if pipeline == "mono-vo" else list(reader.cameras)
-        missing = [n for n in names if n not in reader.cameras]
-        if missing:
-            raise ConfigError(f"{folder} has no {', '.join(missing)} camera (it has {', '.join(reader.cameras)})")
-        rate = recorded_rate_hz(reader, "center" if "center" in names else names[0])
-        source = RecordingFrameSource(folder, names)
-    context = PipelineContext(params, reader.cameras, rate, stack, stereo, route or Route())
-    policy = build_pipeline(pipeline, context)
+    source, stereo, rate = _replay_source(reader, pipeline, stack)
+    policy = build_pipeline(pipeline, PipelineContext(params, reader.cameras, rate, stack, stereo, route or Route()))
     path_policy = path_policy_of(policy)
-    writer: RecordingWriter | None = None
-    recorders: list[Recorder] = []
-    if out is not None:
-        stack_config = config_to_dict(stack)
-        settings = {"lanes": {"lane_policy": stack_config["lane_policy"]},
-                    "stereo-vo": {"stereo_vo": stack_config["stereo_vo"], "drive": stack_config["drive"]},
-                    "mono-vo": {"mono_vo": stack_config["mono_vo"], "drive": stack_config["drive"]}}[pipeline]
-        writer = RecordingWriter(out, reader.cameras, reader.stereo_pair, metadata={
-            "source": "kartpilot replay", "replay_of": str(reader.folder), "pipeline": pipeline, "vehicle": params.name,
-            "config": settings})
-        recorders.append(writer if with_frames else _WithoutFrames(writer))
+    writer = _replay_writer(reader, pipeline, params.name, stack, outputs.record_dir)
+    recorders: list[Recorder] = [] if writer is None else [writer if with_frames else _WithoutFrames(writer)]
     sink = _CommandLog()
     try:
         stats = run_loop(_Paced(source) if realtime else source, policy, sink, recorders, period_s=1.0 / rate)
     finally:
         if path_policy is not None:
             path_policy.close()
-            if drive_log is not None:
-                write_drive_log(path_policy.samples, drive_log)
+            if outputs.drive_log is not None:
+                write_drive_log(path_policy.samples, outputs.drive_log)
         if writer is not None:
             writer.close()
-    stage_ms = stats.stage_ms()
-    extra: dict[str, Any] = {"rate_hz": round(rate, 3), "stage_ms_percentiles": stats.stage_percentiles_ms()}
+    details: dict[str, Any] = {"replay_of": str(reader.folder), "rate_hz": round(rate, 3),
+                               "unreadable_frames": source.unreadable,
+                               "out": str(outputs.record_dir) if outputs.record_dir is not None else None}
+    pipeline_ms: dict[str, float] = {}
     if path_policy is not None:
         steps = max(stats.steps, 1)
-        stage_ms.update({k: 1e3 * v / steps for k, v in path_policy.stage_s.items()})
-        extra.update(stop_reason=path_policy.stop_reason, relocalised_frames=path_policy.localizer.relocalisations)
-    result = ReplayResult(pipeline, stats.steps, source.unreadable, stats.missed_deadlines, stage_ms,
-                          tuple(sink.commands), Path(out) if out is not None else None, extra)
+        pipeline_ms = {k: 1e3 * v / steps for k, v in path_policy.stage_s.items()}
+        details.update(stop_reason=path_policy.stop_reason, relocalised_frames=path_policy.localizer.relocalisations)
+    session = SessionResult("replay", pipeline, params.name, stats.steps, "the recording ended", None, None,
+                            stats.missed_deadlines, stats.stage_summary_ms(), pipeline_ms, details=details)
+    out = Path(outputs.record_dir) if outputs.record_dir is not None else None
     if out is not None:
-        (Path(out) / "replay.json").write_text(json.dumps(result.to_json(), indent=2))
-    return result
+        write_json_atomic(out / "replay.json", session.to_json())
+    if outputs.result_path is not None:
+        write_json_atomic(outputs.result_path, session.to_json())
+    return ReplayResult(session, tuple(sink.commands), out)
+
+
+def _replay_source(reader: RecordingReader, pipeline: str, stack: StackConfig
+                   ) -> tuple[StereoReplaySource | RecordingFrameSource, StereoInput | None, float]:
+    """The recording as the pipeline's source (a rectified stereo pair, or the cameras it reads), the pair,
+    and the recorded rate."""
+    if pipeline == "stereo-vo":
+        if reader.stereo_pair is None:
+            raise ConfigError(f"{reader.folder} has no stereo pair: the stereo-vo pipeline needs one")
+        stereo_source = StereoReplaySource(reader.folder)
+        stereo = StereoInput((stereo_source.left_name, stereo_source.right_name),
+                             StereoSetup(stereo_source.stereo.rig, None, stereo_source.stereo.pose_body_left))
+        return stereo_source, stereo, recorded_rate_hz(reader, stereo_source.left_name)
+    names = [stack.drive.mono.camera] if pipeline == "mono-vo" else list(reader.cameras)
+    missing = [n for n in names if n not in reader.cameras]
+    if missing:
+        raise ConfigError(f"{reader.folder} has no {', '.join(missing)} camera (it has {', '.join(reader.cameras)})")
+    rate = recorded_rate_hz(reader, "center" if "center" in names else names[0])
+    return RecordingFrameSource(reader.folder, names), None, rate
+
+
+def _replay_writer(reader: RecordingReader, pipeline: str, vehicle: str, stack: StackConfig,
+                   out: str | Path | None) -> RecordingWriter | None:
+    """The replay's own recording, its manifest naming the replayed one and the settings that mattered."""
+    if out is None:
+        return None
+    stack_config = config_to_dict(stack)
+    settings = {"lanes": {"lane_policy": stack_config["lane_policy"]},
+                "stereo-vo": {"stereo_vo": stack_config["stereo_vo"], "drive": stack_config["drive"]},
+                "mono-vo": {"mono_vo": stack_config["mono_vo"], "drive": stack_config["drive"]}}[pipeline]
+    return RecordingWriter(out, reader.cameras, reader.stereo_pair, metadata={
+        "source": "kartpilot replay", "replay_of": str(reader.folder), "pipeline": pipeline, "vehicle": vehicle,
+        "config": settings})

@@ -1,17 +1,34 @@
-"""What one drive session writes, whichever backend it runs on (simulator, replay, live)."""
+"""What one drive session writes and returns, whichever backend it runs on (simulator, replay, live).
+
+Every session ends with one result of one shape, :class:`SessionResult`, written as ``result.json``
+(``replay.json`` for a replay) and returned to the caller. Its common fields are the same for every
+backend; what only one backend knows (the referee's verdict, the CAN traffic, the cameras' skew, a
+replay's rate) sits beside them as ``details``. ``schema_version`` changes whenever a common field
+does, and :meth:`SessionResult.from_json` refuses a result of another version, or one with a common
+field missing or of the wrong type, naming the field.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
-__all__ = ["SessionOutputs"]
+from kartpilot.core.errors import DataError
+from kartpilot.runtime.loop import STAGE_STATS
+
+__all__ = ["BACKENDS", "SCHEMA_VERSION", "SessionOutputs", "SessionResult"]
+
+SCHEMA_VERSION = 1
+BACKENDS = ("sim", "replay", "live")
 
 
 @dataclass(frozen=True)
 class SessionOutputs:
     """Attributes:
-        record_dir: the recording (frames, commands, the pipeline's outputs, CAN traffic, result.json).
+        record_dir: the recording (frames, commands, the pipeline's outputs, CAN traffic, the result).
         result_path: the result JSON, besides the copy in the recording.
         video_path: the pipeline's view as a video.
         drive_log: the path follower's log, one row per step (path-following pipelines).
@@ -23,3 +40,79 @@ class SessionOutputs:
     video_path: str | Path | None = None
     drive_log: str | Path | None = None
     progress: bool = False
+
+
+@dataclass(frozen=True)
+class SessionResult:
+    """Attributes:
+        backend: ``sim``, ``replay`` or ``live``.
+        pipeline: the pipeline (or, for ``kartpilot sim``, the driver) that drove.
+        vehicle: the kart.
+        steps: loop steps (frame sets).
+        ended: why the session ended (the source ran out, a fault held, the duration, Ctrl-C).
+        final_state: the supervisor's last state (None for an unsupervised run: a replay, ``kartpilot sim``).
+        error: the pipeline's exception, if it raised (the kart was stopped).
+        missed_deadlines: steps that took longer than the period.
+        stage_ms: the loop's stages (source, policy, sinks): ``STAGE_STATS`` in milliseconds per step.
+        pipeline_stage_ms: the pipeline's own stages, mean milliseconds per step (empty when it has none).
+        transitions: the supervisor's transitions (time, state, reason).
+        details: what only this backend knows, beside the common fields in the JSON.
+        schema_version: the shape of the common fields.
+    """
+
+    backend: str
+    pipeline: str
+    vehicle: str
+    steps: int
+    ended: str
+    final_state: str | None
+    error: str | None
+    missed_deadlines: int
+    stage_ms: Mapping[str, Mapping[str, float]]
+    pipeline_stage_ms: Mapping[str, float] = field(default_factory=dict)
+    transitions: tuple[Mapping[str, Any], ...] = ()
+    details: Mapping[str, Any] = field(default_factory=dict)
+    schema_version: int = SCHEMA_VERSION
+
+    def to_json(self) -> dict[str, Any]:
+        common = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "details"}
+        clash = sorted(set(common) & set(self.details))
+        if clash:
+            raise ValueError(f"details may not reuse common fields: {', '.join(clash)}")
+        common["stage_ms"] = {k: dict(v) for k, v in self.stage_ms.items()}
+        common["pipeline_stage_ms"] = {k: round(float(v), 3) for k, v in self.pipeline_stage_ms.items()}
+        common["transitions"] = [dict(t) for t in self.transitions]
+        return {**common, **self.details}
+
+    @classmethod
+    def from_json(cls, payload: Mapping[str, Any]) -> SessionResult:
+        """The result in ``payload`` (a ``result.json``), checked against this schema."""
+        version = payload.get("schema_version")
+        if version != SCHEMA_VERSION:
+            raise DataError(f"result schema_version {version!r}, this kartpilot reads {SCHEMA_VERSION}")
+        expected: dict[str, tuple[type, ...]] = {
+            "backend": (str,), "pipeline": (str,), "vehicle": (str,), "steps": (int,), "ended": (str,),
+            "final_state": (str, type(None)), "error": (str, type(None)), "missed_deadlines": (int,),
+            "stage_ms": (dict,), "pipeline_stage_ms": (dict,), "transitions": (list,)}
+        for key, types in expected.items():
+            if key not in payload:
+                raise DataError(f"result: {key} missing")
+            if not isinstance(payload[key], types) or isinstance(payload[key], bool):
+                raise DataError(f"result: {key} is {type(payload[key]).__name__}, expected "
+                                f"{' or '.join(t.__name__ for t in types)}")
+        if payload["backend"] not in BACKENDS:
+            raise DataError(f"result: backend {payload['backend']!r} is none of {', '.join(BACKENDS)}")
+        for stage, stats in payload["stage_ms"].items():
+            if not isinstance(stats, dict) or set(stats) != set(STAGE_STATS):
+                raise DataError(f"result: stage_ms.{stage} must hold {', '.join(STAGE_STATS)}")
+            if not all(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0 for v in stats.values()):
+                raise DataError(f"result: stage_ms.{stage} must be finite, non-negative milliseconds")
+        for stage, ms in payload["pipeline_stage_ms"].items():
+            if not isinstance(ms, (int, float)) or not math.isfinite(ms):
+                raise DataError(f"result: pipeline_stage_ms.{stage} must be finite milliseconds")
+        for k, transition in enumerate(payload["transitions"]):
+            if not isinstance(transition, dict) or not {"t_s", "state", "reason"} <= set(transition):
+                raise DataError(f"result: transitions[{k}] must hold t_s, state and reason")
+        common = {f.name for f in fields(cls)} - {"details"}
+        return cls(**{k: payload[k] for k in expected if k != "transitions"}, transitions=tuple(payload["transitions"]),
+                   details={k: v for k, v in payload.items() if k not in common}, schema_version=version)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -17,13 +16,14 @@ from kartpilot.actuation.can_bus import CanActuator, CanConfig, make_protocol, o
 from kartpilot.calibration.rectify import StereoSetup
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError, RecordingError
+from kartpilot.core.files import write_json_atomic, write_text_atomic
 from kartpilot.core.trajectory import Trajectory
-from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource, Image
+from kartpilot.core.types import ActuatorCommand, CommandSink, FrameSet, FrameSource, Image
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.drive import ScriptedOperator, SupervisedDrive, Watchdogs
 from kartpilot.runtime.faults import FaultyBus, InjectedSource, Injection, RaisingPipeline, failing_vo
-from kartpilot.runtime.loop import Policy, Recorder, run_loop
+from kartpilot.runtime.loop import LoopStats, Policy, run_loop
 from kartpilot.runtime.path_policy import DriveSample, PathFollowPolicy, write_drive_log
 from kartpilot.runtime.pipelines import (
     PIPELINES,
@@ -33,7 +33,7 @@ from kartpilot.runtime.pipelines import (
     build_pipeline,
     path_policy_of,
 )
-from kartpilot.runtime.session import SessionOutputs
+from kartpilot.runtime.session import SessionOutputs, SessionResult
 from kartpilot.runtime.supervisor import Supervisor
 from kartpilot.sim.can_ecu import ECU_FAULTS, AppliedCommand, KartpilotEcus, RdwEcus, SimulatedEcus
 from kartpilot.sim.drivers import CenterlineDriver, CenterlineDriverConfig, CommandsDriver
@@ -90,74 +90,92 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
     """
     stack = stack or StackConfig()
     outputs = outputs or SessionOutputs()
-    record_dir, video_path, drive_log = outputs.record_dir, outputs.video_path, outputs.drive_log
     if driver == "path":
         config = replace(config, referee=replace(config.referee, run_on_m=math.inf))
     with Simulator(config) as sim:
-        policy: Policy
-        path_policy: PathFollowPolicy | None = None
-        if driver == "centerline":
-            policy = CenterlineDriver(sim, driver_config)
-        elif driver == "commands":
-            if commands is None:
-                raise ConfigError("the commands driver needs a recording or commands.csv to replay")
-            policy = CommandsDriver(load_commands(commands))
-        elif driver in ("lanes", "path"):
-            if not config.render_images:
-                raise ConfigError(f"the {driver} driver needs rendered images")
-            policy = build_pipeline("lanes" if driver == "lanes" else "stereo-vo",
-                                    sim_context(sim, stack, route or Route()))
-            path_policy = path_policy_of(policy)
-        else:
-            raise ConfigError(f"unknown driver {driver!r} ({', '.join(DRIVERS)})")
-
-        recorders: list[Recorder] = []
-        writer: RecordingWriter | None = None
-        if record_dir is not None:
-            writer = RecordingWriter(record_dir, sim.cameras, stereo_pair=_recorded_pair(sim), metadata={
-                "source": "kartpilot sim", "driver": driver, "sim": config_to_dict(config),
-                "groundtruth_camera": _gt_camera(sim)}, queue_frames=8, drop_when_full=False)
-            recorders.append(writer)
-        video = _VideoSink(video_path, sim, getattr(policy, "overlay", None)) if video_path is not None else None
-        bar = tqdm(total=round(_goal_m(sim), 1), unit="m", disable=(not outputs.progress) or None, leave=False)
-        start = time.perf_counter()
-
-        def on_step(frames: FrameSet, command: ActuatorCommand) -> None:
-            if video is not None:
-                video.write(frames)
-            bar.update(round(min(max(sim.referee.progress_m, 0.0), bar.total), 1) - bar.n)
-
+        policy = _driver(sim, driver, driver_config, commands, stack, route or Route())
+        path_policy = path_policy_of(policy)
+        writer = _writer(sim, outputs, {"source": "kartpilot sim", "driver": driver, "sim": config_to_dict(config),
+                                        "groundtruth_camera": _gt_camera(sim)})
         source = _UntilStopped(sim, path_policy) if path_policy is not None else sim
-        try:
-            stats = run_loop(source, policy, sim, recorders, on_step, period_s=sim.dt_s)
-        finally:
-            bar.close()
-            wall = time.perf_counter() - start
-            if video is not None:
-                video.close()
-            if path_policy is not None:
-                path_policy.close()
-                if drive_log is not None:  # written even when the run failed: it says why
-                    write_drive_log(path_policy.samples, drive_log)
-            if writer is not None:
-                if sim.stamps_ns:
-                    writer.write_groundtruth(sim.ground_truth(_gt_camera(sim)))
-                writer.close()
-        result = sim.result(wall)
+        stats, wall_s = _run(sim, source, policy, sim, writer, outputs, path_policy)
+        result = sim.result(wall_s)
+        pipeline_ms, summary = _path_policy_summary(path_policy, stats.steps)
+        ended = "the pipeline stopped the kart" if path_policy is not None and path_policy.stopped else \
+            "the simulation ended"
+        session = SessionResult("sim", driver, sim.vehicle.name, stats.steps, ended, None, None, stats.missed_deadlines,
+                                stats.stage_summary_ms(), pipeline_ms, details={
+                                    **result.to_json(), "track": sim.track.name, "seed": config.seed,
+                                    "dropped_frames": sim.dropped_frames, **summary})
+        _write_result(session.to_json(), outputs.result_path, outputs.record_dir)
         stage_ms = stats.stage_ms()
-        extra: dict[str, object] = {}
-        if path_policy is not None:
+        if path_policy is not None:  # the pipeline's own stages instead of the policy's total
             del stage_ms["policy"]
-            pipeline_ms, extra = _path_policy_summary(path_policy, stats.steps)
             stage_ms.update(pipeline_ms)
-        payload = {**result.to_json(), "track": sim.track.name, "vehicle": sim.vehicle.name, "seed": config.seed,
-                   "driver": driver, "steps": stats.steps, "dropped_frames": sim.dropped_frames,
-                   "missed_deadlines": stats.missed_deadlines, **extra,
-                   "stage_ms": {k: round(v, 3) for k, v in stage_ms.items()}}
-        _write_result(payload, outputs.result_path, record_dir)
-        return SimRun(result, stats.steps, sim.dropped_frames, stage_ms, Path(record_dir) if record_dir else None,
+        return SimRun(result, stats.steps, sim.dropped_frames, stage_ms,
+                      Path(outputs.record_dir) if outputs.record_dir else None,
                       sim.ground_truth(_gt_camera(sim)) if sim.stamps_ns else None,
-                      tuple(path_policy.samples) if path_policy else (), stats.missed_deadlines, extra)
+                      tuple(path_policy.samples) if path_policy else (), stats.missed_deadlines, summary)
+
+
+def _driver(sim: Simulator, driver: str, driver_config: CenterlineDriverConfig | None, commands: str | Path | None,
+            stack: StackConfig, route: Route) -> Policy:
+    """What drives a ``kartpilot sim`` run: a scripted driver or a pipeline."""
+    if driver == "centerline":
+        return CenterlineDriver(sim, driver_config)
+    if driver == "commands":
+        if commands is None:
+            raise ConfigError("the commands driver needs a recording or commands.csv to replay")
+        return CommandsDriver(load_commands(commands))
+    if driver in ("lanes", "path"):
+        if not sim.config.render_images:
+            raise ConfigError(f"the {driver} driver needs rendered images")
+        return build_pipeline("lanes" if driver == "lanes" else "stereo-vo", sim_context(sim, stack, route))
+    raise ConfigError(f"unknown driver {driver!r} ({', '.join(DRIVERS)})")
+
+
+def _writer(sim: Simulator, outputs: SessionOutputs, metadata: dict[str, object]) -> RecordingWriter | None:
+    """The simulated run's recording (it waits for the writer instead of dropping frames), if one was asked for."""
+    if outputs.record_dir is None:
+        return None
+    return RecordingWriter(outputs.record_dir, sim.cameras, stereo_pair=_recorded_pair(sim), metadata=metadata,
+                           queue_frames=8, drop_when_full=False)
+
+
+def _run(sim: Simulator, source: FrameSource, policy: Policy, sink: CommandSink, writer: RecordingWriter | None,
+         outputs: SessionOutputs, path_policy: PathFollowPolicy | None,
+         before_close: Callable[[], None] | None = None) -> tuple[LoopStats, float]:
+    """The loop over the simulator, with the video and the progress bar; however it ends, the video, the
+    pipeline, its drive log (which says why a failed run failed) and the recording (with the ground truth) are
+    closed, ``before_close`` first. Returns the loop's statistics and the wall time."""
+    view = policy.pipeline if isinstance(policy, SupervisedDrive) else policy
+    video = _VideoSink(outputs.video_path, sim, getattr(view, "overlay", None)) if outputs.video_path else None
+    bar = tqdm(total=round(_goal_m(sim), 1), unit="m", disable=(not outputs.progress) or None, leave=False)
+
+    def on_step(frames: FrameSet, command: ActuatorCommand) -> None:
+        if video is not None:
+            video.write(frames)
+        bar.update(round(min(max(sim.referee.progress_m, 0.0), bar.total), 1) - bar.n)
+
+    start = time.perf_counter()
+    try:
+        stats = run_loop(source, policy, sink, [writer] if writer is not None else [], on_step, period_s=sim.dt_s)
+    finally:
+        bar.close()
+        wall_s = time.perf_counter() - start
+        if video is not None:
+            video.close()
+        if path_policy is not None:
+            path_policy.close()
+            if outputs.drive_log is not None:
+                write_drive_log(path_policy.samples, outputs.drive_log)
+        if before_close is not None:
+            before_close()
+        if writer is not None:
+            if sim.stamps_ns:
+                writer.write_groundtruth(sim.ground_truth(_gt_camera(sim)))
+            writer.close()
+    return stats, wall_s
 
 
 def sim_context(sim: Simulator, stack: StackConfig, route: Route) -> PipelineContext:
@@ -182,8 +200,11 @@ class _UntilStopped:
         return self.sim.read()
 
 
-def _path_policy_summary(policy: PathFollowPolicy, steps: int) -> tuple[dict[str, float], dict[str, object]]:
-    """The path follower's mean milliseconds per step by stage, and how its drive went."""
+def _path_policy_summary(policy: PathFollowPolicy | None, steps: int) -> tuple[dict[str, float], dict[str, object]]:
+    """The path follower's mean milliseconds per step by stage, and how its drive went (nothing for other
+    drivers)."""
+    if policy is None:
+        return {}, {}
     per_step = 1.0 / max(steps, 1)
     stages = {k: 1e3 * v * per_step for k, v in policy.stage_s.items()}
     stages.update({f"localize.{k}": v * per_step for k, v in policy.localizer.timing_ms.items()})
@@ -198,8 +219,7 @@ def _write_result(payload: dict[str, object], result_path: str | Path | None, re
     if record_dir is not None:
         targets.append(Path(record_dir) / "result.json")
     for target in targets:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        target.write_text(json.dumps(payload, indent=2))
+        write_json_atomic(target, payload)
 
 
 def _recorded_pair(sim: Simulator) -> tuple[str, str] | None:
@@ -316,9 +336,46 @@ class _CanSink:
         self.pending = {kind: at_s for kind, at_s in at.items() if kind in ECU_FAULTS}
         self.stall_at_s = at.get("loop-stall")
 
+    @classmethod
+    def open(cls, sim: Simulator, stack: StackConfig, at: dict[str, float], writer: RecordingWriter | None
+             ) -> _CanSink:
+        """The kart's actuator on a virtual bus of its own, the simulated ECUs of its protocol behind it, and the
+        bus faults of ``at`` armed; the traffic goes into the recording."""
+        can_config = replace(stack.can, interface="virtual", channel=f"kartpilot-sim-{id(sim)}")
+        clock = _BusClock()
+        protocol = make_protocol(can_config, sim.vehicle)
+        ecus = _simulated_ecus(sim, protocol.name, can_config, clock)
+        unsupported = sorted(set(at) & set(ECU_FAULTS) - ecus.FAULTS)
+        if unsupported:
+            ecus.bus.shutdown()
+            raise ConfigError(f"{', '.join(unsupported)}: the {protocol.name} protocol's simulated ECUs cannot "
+                              f"show it ({sim.vehicle.name}; the rdw protocol's can)")
+        actuator = CanActuator(FaultyBus(open_bus(can_config), clock, at.get("can-bus-off")), protocol, can_config,
+                               stack.limits.for_vehicle(sim.vehicle), clock,
+                               writer.write_can if writer is not None else None)
+        return cls(sim, actuator, ecus, clock, at)
+
     @property
     def applied(self) -> list[AppliedCommand]:
         return self.ecus.applied
+
+    def close(self) -> None:
+        self.actuator.close()
+        self.ecus.bus.shutdown()
+
+    def traffic(self) -> dict[str, object]:
+        """What went over the bus, for the result; on the RDW protocol, how far 0x440's speed was from the
+        simulator's."""
+        actuator = self.actuator
+        traffic: dict[str, object] = {
+            "protocol": actuator.protocol.name, "frames_sent": actuator.frames_sent, "tx_errors": actuator.tx_errors,
+            "rx_errors": actuator.rx_errors, "quiet_stops": actuator.quiet_stops,
+            "frames_rejected_by_ecus": self.ecus.rejected_frames}
+        if isinstance(self.ecus, RdwEcus) and self.ecus.speed_reports:
+            reports = np.array(self.ecus.speed_reports)
+            traffic.update(speed_reports=len(reports),
+                           speed_error_kmh_max=round(float(np.max(np.abs(reports[:, 2] - reports[:, 1] * 3.6))), 4))
+        return traffic
 
     def send(self, command: ActuatorCommand) -> None:
         start_ns, period_ns = self.sim.time_ns, round(self.sim.dt_s * 1e9)
@@ -385,7 +442,52 @@ def run_supervised_drive(config: SimConfig, pipeline: str, stack: StackConfig | 
     gives every other component's."""
     stack = stack or StackConfig()
     outputs = outputs or SessionOutputs()
-    record_dir, result_path, video_path = outputs.record_dir, outputs.result_path, outputs.video_path
+    at = _check_injections(pipeline, bus, injections)
+    if duration_s is not None:
+        config = replace(config, max_time_s=duration_s)
+    if pipeline != "lanes":
+        config = replace(config, referee=replace(config.referee, run_on_m=math.inf))
+    with Simulator(config) as sim:
+        wrap_vo = failing_vo(Injection("vo-failure", at["vo-failure"])) if "vo-failure" in at else None
+        policy = build_pipeline(pipeline, replace(sim_context(sim, stack, route or Route()), wrap_vo=wrap_vo))
+        path_policy = path_policy_of(policy)
+        if "stage-exception" in at:
+            policy = RaisingPipeline(policy, at["stage-exception"])
+        writer = _writer(sim, outputs, {"source": "kartpilot drive --sim", "pipeline": pipeline, "bus": bus,
+                                        "vehicle": sim.vehicle.name, "sim": config_to_dict(config),
+                                        "injections": [f"{i.kind}@{i.at_s:g}" for i in injections]})
+        sink = _CanSink.open(sim, stack, at, writer) if bus == "virtual" else _DirectSink(sim)
+        actuator = sink.actuator if isinstance(sink, _CanSink) else None
+        supervisor = Supervisor(stack.supervisor)
+        watchdogs = Watchdogs(list(sim.cameras) if config.render_images else [], sim.dt_s, stack.watchdogs, actuator)
+        drive = SupervisedDrive(policy, supervisor, watchdogs, ScriptedOperator(at.get("gamepad-unplug")), actuator)
+        source = _UntilSettled(InjectedSource(sim, list(injections)), sim, drive, path_policy)
+
+        def before_close() -> None:
+            if isinstance(sink, _CanSink):
+                sink.close()
+            if outputs.record_dir is not None and drive.error_text:
+                write_text_atomic(Path(outputs.record_dir) / "error.txt", drive.error_text)
+
+        stats, wall_s = _run(sim, source, drive, sink, writer, outputs, path_policy, before_close)
+        result = sim.result(wall_s)
+        pipeline_ms, summary = _path_policy_summary(path_policy, stats.steps)
+        details = {**result.to_json(), "track": sim.track.name, "seed": config.seed, "bus": bus,
+                   "injections": [{"kind": i.kind, "at_s": i.at_s} for i in injections],
+                   **_fault_to_stop(sink.applied, at), **summary}
+        if isinstance(sink, _CanSink):
+            details["can"] = sink.traffic()
+        session = SessionResult("sim", pipeline, sim.vehicle.name, stats.steps, source.ended, supervisor.state,
+                                f"{type(drive.error).__name__}: {drive.error}" if drive.error else None,
+                                stats.missed_deadlines, stats.stage_summary_ms(), pipeline_ms,
+                                tuple(t.to_json() for t in supervisor.transitions), details)
+        payload = session.to_json()
+        _write_result(payload, outputs.result_path, outputs.record_dir)
+        return SupervisedRun(result, payload, drive.error)
+
+
+def _check_injections(pipeline: str, bus: str, injections: Sequence[Injection]) -> dict[str, float]:
+    """Each injection's time by kind, once the pipeline, the bus and the injections are known to fit."""
     if pipeline not in PIPELINES:
         raise ConfigError(f"unknown pipeline {pipeline!r} ({', '.join(PIPELINES)})")
     if bus not in ("virtual", "none"):
@@ -396,107 +498,12 @@ def run_supervised_drive(config: SimConfig, pipeline: str, stack: StackConfig | 
     bus_only = {"can-bus-off", "loop-stall", *ECU_FAULTS} & set(at)
     if bus == "none" and bus_only:
         raise ConfigError(f"{', '.join(sorted(bus_only))} need(s) --bus virtual")
-    if duration_s is not None:
-        config = replace(config, max_time_s=duration_s)
-    if pipeline != "lanes":
-        config = replace(config, referee=replace(config.referee, run_on_m=math.inf))
-    with Simulator(config) as sim:
-        policy = build_pipeline(pipeline, sim_context(sim, stack, route or Route()))
-        path_policy = path_policy_of(policy)
-        if path_policy is not None and "vo-failure" in at:
-            vo = getattr(path_policy.localizer, "vo")  # noqa: B009 (both localisers have one; the protocol not)
-            vo.process = failing_vo(vo.process, Injection("vo-failure", at["vo-failure"]))
-        if "stage-exception" in at:
-            policy = RaisingPipeline(policy, at["stage-exception"])
-        writer: RecordingWriter | None = None
-        if record_dir is not None:
-            writer = RecordingWriter(record_dir, sim.cameras, stereo_pair=_recorded_pair(sim),
-                                     metadata={"source": "kartpilot drive --sim", "pipeline": pipeline, "bus": bus,
-                                               "vehicle": sim.vehicle.name,
-                                               "sim": config_to_dict(config),
-                                               "injections": [f"{i.kind}@{i.at_s:g}" for i in injections]},
-                                     queue_frames=8, drop_when_full=False)
+    return at
 
-        actuator: CanActuator | None = None
-        sink: _CanSink | _DirectSink
-        if bus == "virtual":
-            can_config = replace(stack.can, interface="virtual", channel=f"kartpilot-sim-{id(sim)}")
-            clock = _BusClock()
-            protocol = make_protocol(can_config, sim.vehicle)
-            ecus = _simulated_ecus(sim, protocol.name, can_config, clock)
-            unsupported = sorted(set(at) & set(ECU_FAULTS) - ecus.FAULTS)
-            if unsupported:
-                ecus.bus.shutdown()
-                raise ConfigError(f"{', '.join(unsupported)}: the {protocol.name} protocol's simulated ECUs cannot "
-                                  f"show it ({sim.vehicle.name}; the rdw protocol's can)")
-            actuator = CanActuator(FaultyBus(open_bus(can_config), clock, at.get("can-bus-off")), protocol, can_config,
-                                   stack.limits.for_vehicle(sim.vehicle), clock,
-                                   writer.write_can if writer is not None else None)
-            sink = _CanSink(sim, actuator, ecus, clock, at)
-        else:
-            sink = _DirectSink(sim)
-        supervisor = Supervisor(stack.supervisor)
-        watchdogs = Watchdogs(list(sim.cameras) if config.render_images else [], sim.dt_s, stack.watchdogs, actuator)
-        drive = SupervisedDrive(policy, supervisor, watchdogs, ScriptedOperator(at.get("gamepad-unplug")), actuator)
-        source = _UntilSettled(InjectedSource(sim, list(injections)), sim, drive, path_policy)
-        recorders: list[Recorder] = [writer] if writer is not None else []
-        video = _VideoSink(video_path, sim, getattr(policy, "overlay", None)) if video_path is not None else None
-        bar = tqdm(total=round(_goal_m(sim), 1), unit="m", disable=(not outputs.progress) or None, leave=False)
 
-        def on_step(frames: FrameSet, command: ActuatorCommand) -> None:
-            if video is not None:
-                video.write(frames)
-            bar.update(round(min(max(sim.referee.progress_m, 0.0), bar.total), 1) - bar.n)
-
-        start = time.perf_counter()
-        try:
-            stats = run_loop(source, drive, sink, recorders, on_step, period_s=sim.dt_s)
-        finally:
-            bar.close()
-            if video is not None:
-                video.close()
-            if path_policy is not None:
-                path_policy.close()
-                if outputs.drive_log is not None:
-                    write_drive_log(path_policy.samples, outputs.drive_log)
-            if isinstance(sink, _CanSink):
-                sink.actuator.close()
-                sink.ecus.bus.shutdown()
-            if writer is not None:
-                if drive.error_text:
-                    (Path(record_dir) / "error.txt").write_text(drive.error_text)  # type: ignore[arg-type]
-                if sim.stamps_ns:
-                    writer.write_groundtruth(sim.ground_truth(_gt_camera(sim)))
-                writer.close()
-        result = sim.result(time.perf_counter() - start)
-        first_fault = min(at.values()) if at else None
-        stop = next((a for a in sink.applied if first_fault is not None and a.stamp_ns * 1e-9 >= first_fault
-                     and a.command.is_stop), None)
-        payload: dict[str, object] = {
-            **result.to_json(), "track": sim.track.name, "vehicle": sim.vehicle.name, "seed": config.seed,
-            "pipeline": pipeline, "bus": bus, "steps": stats.steps, "ended": source.ended,
-            "injections": [{"kind": i.kind, "at_s": i.at_s} for i in injections],
-            "transitions": [t.to_json() for t in supervisor.transitions],
-            "final_state": supervisor.state,
-            "fault_to_stop_s": round(stop.stamp_ns * 1e-9 - first_fault, 4) if stop and first_fault is not None
-            else None,
-            "stop_by": stop.source if stop else None,
-            "error": f"{type(drive.error).__name__}: {drive.error}" if drive.error else None,
-            "missed_deadlines": stats.missed_deadlines,
-            "stage_ms": stats.stage_percentiles_ms(),
-        }
-        if isinstance(sink, _CanSink):
-            traffic: dict[str, object] = {
-                "protocol": sink.actuator.protocol.name, "frames_sent": sink.actuator.frames_sent,
-                "tx_errors": sink.actuator.tx_errors, "rx_errors": sink.actuator.rx_errors,
-                "quiet_stops": sink.actuator.quiet_stops, "frames_rejected_by_ecus": sink.ecus.rejected_frames}
-            if isinstance(sink.ecus, RdwEcus) and sink.ecus.speed_reports:
-                reports = np.array(sink.ecus.speed_reports)  # what 0x440 said against the simulator's speed
-                traffic.update(speed_reports=len(reports),
-                               speed_error_kmh_max=round(float(np.max(np.abs(reports[:, 2] - reports[:, 1] * 3.6))), 4))
-            payload["can"] = traffic
-        if path_policy is not None:
-            stages, summary = _path_policy_summary(path_policy, stats.steps)
-            payload.update(summary, pipeline_stage_ms={k: round(v, 3) for k, v in stages.items()})
-        _write_result(payload, result_path, record_dir)
-        return SupervisedRun(result, payload, drive.error)
+def _fault_to_stop(applied: Sequence[AppliedCommand], at: dict[str, float]) -> dict[str, object]:
+    """How long after the first injected fault the kart got its first stop, and from whom."""
+    first = min(at.values()) if at else None
+    stop = next((a for a in applied if first is not None and a.stamp_ns * 1e-9 >= first and a.command.is_stop), None)
+    return {"fault_to_stop_s": round(stop.stamp_ns * 1e-9 - first, 4) if stop and first is not None else None,
+            "stop_by": stop.source if stop else None}

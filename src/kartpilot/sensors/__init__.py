@@ -1,1 +1,2 @@
-"""Frame sources: datasets, recordings and (later) live cameras behind one interface."""
+"""Frame sources: datasets, recordings, live cameras (synchronised, watched for health) and the gamepad, behind
+one interface."""
