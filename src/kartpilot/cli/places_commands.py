@@ -4,16 +4,21 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
+from kartpilot.calibration.lens import undistortion
 from kartpilot.core.errors import ConfigError, DataError
+from kartpilot.core.files import write_json_atomic
+from kartpilot.core.geometry import invert_pose
 from kartpilot.core.trajectory import Trajectory, read_trajectory
+from kartpilot.core.types import Image
 from kartpilot.eval.places import evaluate_places
 from kartpilot.odometry.places import PlaceFix, build_places, load_places
-from kartpilot.record.recording import RecordingReader
-from kartpilot.runtime.config import load_stack_config
+from kartpilot.odometry.run import run_mono_vo_frames, run_stereo_vo
+from kartpilot.record.recording import RecordingReader, RecordingStereoSource
+from kartpilot.runtime.config import StackConfig, load_stack_config
 from kartpilot.sensors.base import read_gray
 
 __all__ = ["add_parsers", "places_build", "places_query"]
@@ -30,15 +35,13 @@ def _camera(reader: RecordingReader, name: str | None) -> str:
 
 
 def places_build(args: argparse.Namespace) -> int:
-    config = load_stack_config(args.config).places
+    stack = load_stack_config(args.config)
+    config = stack.places
     reader = RecordingReader(args.recording)
     camera = _camera(reader, args.camera)
-    given = read_trajectory(args.positions) if args.positions else None
-    poses = reader.camera_poses(camera, given)
-    if poses is None:
-        raise DataError(f"{args.recording} has no ground truth to tag its images with: pass --positions with the "
-                        f"{camera} camera's trajectory (e.g. from `kartpilot odometry recording`)")
-    source = f"--positions {args.positions}" if given is not None else "the recording's ground truth"
+    if camera not in reader.cameras:
+        raise ConfigError(f"the recording has no camera {camera!r} (it has {', '.join(reader.cameras)})")
+    poses, source = _positions(reader, camera, args, stack)
     start = time.perf_counter()
     database = build_places(reader.posed_frames(camera, poses), reader.cameras[camera], camera, config,
                             {"recording": str(args.recording), "positions": source})
@@ -48,6 +51,42 @@ def places_build(args: argparse.Namespace) -> int:
           f"{config.vlad.words} words, {database.vectors.shape[1]}-dimensional vectors; "
           f"{path.stat().st_size / 1e6:.1f} MB in {time.perf_counter() - start:.0f} s -> {path}")
     return 0
+
+
+def _positions(reader: RecordingReader, camera: str, args: argparse.Namespace, stack: StackConfig
+               ) -> tuple[Trajectory, str]:
+    """The camera's poses to tag the places with, and where they came from: a given trajectory, the
+    recording's ground truth, or visual odometry over the recording itself (a real drive has no ground truth;
+    places from VO are in VO's frame, which the mono-vo pipeline follows as it is)."""
+    if args.positions:
+        return read_trajectory(args.positions), f"--positions {args.positions}"
+    wanted = args.positions_from
+    truth = reader.camera_poses(camera) if wanted in (None, "truth") else None
+    if truth is not None:
+        return truth, "the recording's ground truth"
+    if wanted is None or wanted == "truth":
+        raise DataError(f"{args.recording} has no ground truth to tag its images with: pass --positions with the "
+                        f"{camera} camera's trajectory, or --positions-from stereo-vo or mono-vo")
+    if wanted == "stereo-vo":
+        stereo = RecordingStereoSource(reader.folder)
+        run = run_stereo_vo(stereo, stack.stereo_vo)
+        # the rectified left camera's poses, moved onto the database's camera by the two mounts
+        to_camera = invert_pose(stereo.pose_body_left) @ reader.cameras[camera].pose_body_cam_array
+        print(run.summary())
+        return Trajectory(run.trajectory.stamps_s, run.trajectory.poses @ to_camera), "stereo VO over the recording"
+    calibration = reader.cameras[camera]
+    lens = undistortion(calibration)
+    pinhole = lens.pinhole if lens is not None else calibration
+    height = float(pinhole.pose_body_cam_array[2, 3])
+    if height <= 0:
+        raise ConfigError(f"monocular VO's scale comes from the {camera!r} camera's height above the road, and "
+                          "its mount in the recording does not give one")
+    config = replace(stack.mono_vo, ground=replace(stack.mono_vo.ground, camera_height_m=height))
+    frames = ((k, stamp, lens(read_gray(path)) if lens is not None else read_gray(path))
+              for k, (stamp, path) in enumerate(reader.frames(camera)))
+    mono = run_mono_vo_frames(frames, pinhole, str(reader.folder), config)
+    print(mono.summary())
+    return mono.trajectory, f"monocular VO over the recording (scale from the {mono.scale_source})"
 
 
 def places_query(args: argparse.Namespace) -> int:
@@ -64,16 +103,26 @@ def places_query(args: argparse.Namespace) -> int:
     if camera not in reader.cameras:
         raise ConfigError(f"the recording has no camera {camera!r} (the database is of {database.camera_name!r}; "
                           f"the recording has {', '.join(reader.cameras)})")
+    distortion = reader.cameras[camera].distortion
+    if tuple(database.info.get("undistorted", ())) != tuple(distortion):
+        raise ConfigError(f"the database was built from a camera with lens coefficients "
+                          f"{database.info.get('undistorted', [])}, the recording's {camera!r} has {list(distortion)}")
+    lens = undistortion(reader.cameras[camera])  # queried as the database's images were built: undistorted
+
+    def straight(image: Image) -> Image:
+        return lens(image) if lens is not None else image
+
     truth = reader.camera_poses(camera)
     fixes: list[PlaceFix] = []
     if truth is not None:
-        recall = evaluate_places(database, reader.posed_frames(camera, truth), args.radius, fixes)
+        queries = ((stamp, straight(image), pose) for stamp, image, pose in reader.posed_frames(camera, truth))
+        recall = evaluate_places(database, queries, args.radius, fixes)
         print(f"{target} against {args.database}, the truth from the recording's ground truth\n{recall.table()}")
         if args.json:
-            Path(args.json).write_text(json.dumps(recall.to_json(), indent=2))
+            write_json_atomic(args.json, recall.to_json())
     else:
         for stamp_ns, path in reader.frames(camera):
-            fixes.append(database.locate(read_gray(path), stamp_ns))
+            fixes.append(database.locate(straight(read_gray(path)), stamp_ns))
         accepted = sum(f.accepted for f in fixes)
         print(f"{len(fixes)} images, {accepted} placed (no ground truth in the recording to score them)")
     if args.out:
@@ -111,6 +160,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     build.add_argument("recording")
     build.add_argument("--out", required=True, help="the database file (places.db)")
     build.add_argument("--camera", help="the camera (default: center, else the stereo pair's left, else the first)")
+    build.add_argument("--positions-from", choices=("truth", "stereo-vo", "mono-vo"),
+                       help="tag the places with the recording's ground truth (the default, where it has one), or "
+                            "with visual odometry over the recording (a real drive)")
     build.add_argument("--positions", help="the camera's trajectory (KITTI or TUM; default: the recording's "
                                            "ground truth)")
     build.add_argument("--config", help="YAML file merged over the defaults (section places)")

@@ -5,7 +5,9 @@ within ``radius_m`` of where the query image was truly taken. Recall@1 after the
 takes the place the check ranked best instead, and counts a rejected query as a miss. The
 position error is that of the combined fix, over the accepted queries; its part across the track
 (along the true camera's x axis) and the heading error (the angle between the fix's and the true
-camera's orientation) are also given over the fixes registered on the road.
+camera's orientation) are also given over the fixes registered on the road. Along the track (the true
+camera's z axis) the error is set against the fix's own standard deviation there: a fix that says it
+is good to half a metre and is two metres off is worse than one that admits it is ambiguous.
 """
 
 from __future__ import annotations
@@ -46,6 +48,9 @@ class PlaceRecall:
     accepted: float
     median_error_m: float
     p90_error_m: float
+    median_along_error_m: float
+    p90_along_error_m: float
+    along_within_2_sigma: float
     registered: float
     median_cross_track_error_m: float
     p90_cross_track_error_m: float
@@ -64,6 +69,8 @@ class PlaceRecall:
             f"Recall@1 (checked)   {100 * self.checked_recall_at_1:.1f} %   after the geometric check",
             f"accepted             {100 * self.accepted:.1f} %",
             f"fix error            median {self.median_error_m:.2f} m, 90 % {self.p90_error_m:.2f} m",
+            f"  along the track    median {self.median_along_error_m:.2f} m, 90 % {self.p90_along_error_m:.2f} m; "
+            f"{100 * self.along_within_2_sigma:.1f} % within twice the fix's own sigma",
             f"registered on road   {100 * self.registered:.1f} %",
             f"  across the track   median {self.median_cross_track_error_m:.3f} m, "
             f"90 % {self.p90_cross_track_error_m:.3f} m",
@@ -83,6 +90,8 @@ def evaluate_places(database: PlaceDatabase, queries: Iterable[tuple[int, Image,
     errors: list[float] = []
     across: list[float] = []
     heading: list[float] = []
+    along: list[float] = []
+    honest = 0
     accepted = 0
     elapsed = 0.0
     width = max(5, database.config.top_k)
@@ -102,6 +111,8 @@ def evaluate_places(database: PlaceDatabase, queries: Iterable[tuple[int, Image,
         if fix.accepted:
             accepted += 1
             errors.append(float(np.linalg.norm(fix.position_m - position)))
+            along.append(abs(float((np.asarray(pose, float)[:3, :3].T @ (fix.position_m - position))[2])))
+            honest += along[-1] <= 2 * fix.sigma_m
         if fix.registered:
             rotation = np.asarray(pose, float)[:3, :3]
             across.append(abs(float((rotation.T @ (fix.position_m - position))[0])))
@@ -111,9 +122,11 @@ def evaluate_places(database: PlaceDatabase, queries: Iterable[tuple[int, Image,
     if len(t) == 0:
         raise EvaluationError("no query image had a true pose")
     r = np.array(retrieved)
-    error, cross, turned = (np.array(v) if v else np.array([np.nan]) for v in (errors, across, heading))
+    error, cross, turned, ahead = (np.array(v) if v else np.array([np.nan]) for v in (errors, across, heading, along))
     return PlaceRecall(len(t), radius_m, recall_at_k(t, r, 1, radius_m), recall_at_k(t, r, 5, radius_m),
                        recall_at_k(t, np.array(checked)[:, None], 1, radius_m), accepted / len(t),
-                       float(np.median(error)), float(np.percentile(error, 90)), len(across) / len(t),
+                       float(np.median(error)), float(np.percentile(error, 90)), float(np.median(ahead)),
+                       float(np.percentile(ahead, 90)), honest / accepted if accepted else float("nan"),
+                       len(across) / len(t),
                        float(np.median(cross)), float(np.percentile(cross, 90)), float(np.median(turned)),
                        float(np.percentile(turned, 90)), 1e3 * elapsed / len(t))

@@ -191,6 +191,9 @@ class MonoLocalizer(PoseTracker):
         if camera.size_wh != places.camera.size_wh:
             raise ConfigError(f"the place database is of a {places.camera.size_wh} camera, the kart's "
                               f"{self.config.camera!r} camera is {camera.size_wh}")
+        if not np.allclose(camera.matrix, places.camera.matrix, rtol=1e-3) or any(camera.distortion):
+            raise ConfigError(f"the place database's camera matrix is not the {self.config.camera!r} camera's "
+                              "pinhole one: build the database from this camera's drive")
         vo_config = vo_config or MonoVOConfig()
         height = float(camera.pose_body_cam_array[2, 3])
         if height > 0:  # the mount knows the camera's height above the road better than a default

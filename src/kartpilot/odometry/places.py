@@ -45,6 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 from sklearn.neighbors import BallTree
 
+from kartpilot.calibration.lens import undistortion
 from kartpilot.core.camera import PinholeCamera, camera_from_dict, camera_to_dict
 from kartpilot.core.config import config_to_dict, merge_config
 from kartpilot.core.errors import ConfigError, DataError, KartpilotError, PerceptionError
@@ -409,8 +410,16 @@ def load_places(path: str | Path) -> PlaceDatabase:
 def build_places(images: Iterable[tuple[int, Image, Array]], camera: PinholeCamera, camera_name: str,
                  config: PlacesConfig | None = None, info: dict[str, Any] | None = None) -> PlaceDatabase:
     """A database from ``(stamp_ns, image, pose_world_cam)`` of a reference drive, keeping an image every
-    ``spacing_m``. ``info`` says where the images and positions came from (kept in the file)."""
+    ``spacing_m``. ``info`` says where the images and positions came from (kept in the file). A camera with
+    lens distortion has its images undistorted first (:func:`kartpilot.calibration.lens.undistortion`): the
+    database holds the pinhole camera, and ``info["undistorted"]`` the coefficients taken out, which a
+    query's camera must have too."""
     config = config or PlacesConfig()
+    lens = undistortion(camera)
+    info = {**(info or {}), "undistorted": list(camera.distortion) if lens is not None else []}
+    if lens is not None:
+        camera = lens.pinhole
+        images = ((stamp, lens(image), pose) for stamp, image, pose in images)
     describer = _Describer(camera, config)
     try:
         grids = road_grids(camera, config.road) if config.register and has_mount(camera) else None
@@ -441,4 +450,4 @@ def build_places(images: Iterable[tuple[int, Image, Array]], camera: PinholeCame
     return PlaceDatabase(camera_name, camera, config, centres, pca, np.ascontiguousarray(vectors, np.float32),
                          np.array([p for _, p, _ in kept]), np.array([s for s, _, _ in kept], np.int64),
                          [f.points_px.astype(np.float32) for f in strongest],
-                         [f.descriptors for f in strongest], dict(info or {}), np.array(views) if views else None)
+                         [f.descriptors for f in strongest], info, np.array(views) if views else None)

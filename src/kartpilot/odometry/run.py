@@ -1,23 +1,24 @@
-"""Run stereo VO over a whole frame source and summarise the run."""
+"""Run stereo or monocular VO over a whole frame source and summarise the run."""
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import DataError, KartpilotError
-from kartpilot.core.geometry import Array
+from kartpilot.core.geometry import Array, vo_ground_pose
 from kartpilot.core.trajectory import Trajectory
-from kartpilot.odometry.localizer import vo_ground_pose
+from kartpilot.core.types import Image
 from kartpilot.odometry.mono_vo import MonoEstimate, MonoVO, MonoVOConfig
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig, VOEstimate
 from kartpilot.odometry.visual_map import MapBuilder, MapConfig, VisualMap
 from kartpilot.sensors.base import StereoSource
 
-__all__ = ["MonoRun", "OdometryRun", "run_mono_vo", "run_stereo_vo", "run_teach"]
+__all__ = ["MonoRun", "OdometryRun", "run_mono_vo", "run_mono_vo_frames", "run_stereo_vo", "run_teach"]
 
 
 class _RunCounts:
@@ -134,24 +135,40 @@ def run_mono_vo(source: StereoSource, config: MonoVOConfig | None = None,
     """Monocular VO on the left camera of ``source`` (its right image is not used)."""
     if len(source) == 0:
         raise DataError(f"{source.name} has no frames")
-    vo = MonoVO(source.rig.camera, config)
+
+    def frames() -> Iterator[tuple[int, int, Image] | int]:
+        for index in range(len(source)):
+            try:
+                frame = source.frame(index)
+            except KartpilotError:
+                yield index
+                continue
+            yield frame.index, frame.stamp_ns, frame.left
+
+    return run_mono_vo_frames(frames(), source.rig.camera, source.name, config, on_frame)
+
+
+def run_mono_vo_frames(frames: Iterable[tuple[int, int, Image] | int], camera: PinholeCamera, name: str,
+                       config: MonoVOConfig | None = None, on_frame: Callable[[MonoEstimate], None] | None = None
+                       ) -> MonoRun:
+    """Monocular VO over ``(index, stamp_ns, grey image)`` of one camera; a bare index is a frame that could not
+    be read."""
+    vo = MonoVO(camera, config)
     estimates: list[MonoEstimate] = []
     unreadable: list[int] = []
     start = time.perf_counter()
-    for index in range(len(source)):
-        try:
-            frame = source.frame(index)
-        except KartpilotError:
-            unreadable.append(index)
+    for item in frames:
+        if isinstance(item, int):
+            unreadable.append(item)
             continue
-        estimate = vo.process(frame.index, frame.stamp_ns, frame.left)
+        estimate = vo.process(*item)
         estimates.append(estimate)
         if on_frame is not None:
             on_frame(estimate)
     wall = time.perf_counter() - start
     if not estimates:
-        raise DataError(f"none of the {len(source)} frames of {source.name} could be read")
+        raise DataError(f"none of the frames of {name} could be read")
     trajectory = Trajectory.from_poses([e.pose_world_cam for e in estimates], [e.stamp_ns * 1e-9 for e in estimates])
-    frames = max(len(estimates) - 1, 1)
+    count = max(len(estimates) - 1, 1)
     return MonoRun(trajectory, tuple(estimates), tuple(unreadable), wall,
-                   {k: v / frames for k, v in vo.timing_ms.items()})
+                   {k: v / count for k, v in vo.timing_ms.items()})

@@ -19,6 +19,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from kartpilot.calibration.lens import LensRemap, undistortion
 from kartpilot.calibration.rectify import StereoSetup
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
@@ -87,8 +88,9 @@ class PipelineContext:
 
 
 class PreparedPipeline:
-    """A pipeline whose images are prepared on the way in: a raw stereo pair rectified. The raw frames are what
-    gets recorded; the pipeline, its outputs and its view see the prepared ones."""
+    """A pipeline whose images are prepared on the way in: a raw stereo pair rectified, a lens's image
+    undistorted. The raw frames are what gets recorded; the pipeline, its outputs and its view see the
+    prepared ones."""
 
     def __init__(self, policy: PathFollowPolicy, prepare: Callable[[FrameSet], FrameSet]) -> None:
         self.policy, self.prepare = policy, prepare
@@ -125,6 +127,16 @@ def _rectifier(stereo: StereoInput) -> Callable[[FrameSet], FrameSet]:
     return prepare
 
 
+def _undistorter(name: str, lens: LensRemap) -> Callable[[FrameSet], FrameSet]:
+    def prepare(frames: FrameSet) -> FrameSet:
+        image = frames.images.get(name)
+        if image is None:
+            return frames
+        return FrameSet(frames.index, frames.stamp_ns, {**frames.images, name: lens(image)}, frames.capture_ns)
+
+    return prepare
+
+
 def _lanes(context: PipelineContext) -> Policy:
     return LanePolicy(dict(context.cameras), context.stack.lane_policy, context.rate_hz, context.max_steer_rad)
 
@@ -155,13 +167,17 @@ def _mono_vo(context: PipelineContext) -> Policy:
         raise ConfigError(f"the mono-vo pipeline needs the {name!r} camera (the {context.vehicle.name} has "
                           f"{', '.join(context.cameras) or 'none'} here)")
     camera = context.cameras[name]
-    if any(camera.distortion):
-        raise ConfigError(f"the {name!r} camera has lens distortion, and the mono-vo pipeline takes its images as a "
-                          "pinhole's: undistorted input is not supported yet")
-    localizer = MonoLocalizer(camera, route.places, stack.mono_vo, stack.drive.mono, wrap_vo=context.wrap_vo)
-    path = route.reference or places_reference(route.places, camera.pose_body_cam_array, stack.drive.path)
-    return PathFollowPolicy(localizer, path, stack.drive.follow, context.vehicle.wheelbase_m, context.max_steer_rad,
-                            context.rate_hz)
+    built = tuple(route.places.info.get("undistorted", ()))
+    if built != tuple(camera.distortion):
+        raise ConfigError(f"the place database was built from a camera with lens coefficients {list(built)}, the "
+                          f"{name!r} camera has {list(camera.distortion)}: build it from this camera's drive")
+    lens = undistortion(camera)  # the one place the lens is taken out, as the database's images were
+    pinhole = lens.pinhole if lens is not None else camera
+    localizer = MonoLocalizer(pinhole, route.places, stack.mono_vo, stack.drive.mono, wrap_vo=context.wrap_vo)
+    path = route.reference or places_reference(route.places, pinhole.pose_body_cam_array, stack.drive.path)
+    policy = PathFollowPolicy(localizer, path, stack.drive.follow, context.vehicle.wheelbase_m,
+                              context.max_steer_rad, context.rate_hz)
+    return policy if lens is None else PreparedPipeline(policy, _undistorter(name, lens))
 
 
 PIPELINES: dict[str, Callable[[PipelineContext], Policy]] = {

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from kartpilot.calibration.lens import lens_distortion
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array
 from kartpilot.core.trajectory import Trajectory
@@ -39,6 +40,8 @@ class CameraEffectsConfig:
         drop_probability: chance that a camera delivers no frame at a step.
         vibration_m, vibration_pitch_deg, vibration_hz: vertical shake of the cameras (amplitudes reached
             at 1 m/s and above; the small kart shook).
+        lens_distortion: OpenCV distortion coefficients (k1, k2, p1, p2[, k3]) every camera's lens has: the
+            cameras' calibration carries them and the images are bent by them (empty: pinhole cameras).
     """
 
     exposure_gain: float = 1.0
@@ -49,6 +52,7 @@ class CameraEffectsConfig:
     vibration_m: float = 0.0
     vibration_pitch_deg: float = 0.0
     vibration_hz: float = 11.0
+    lens_distortion: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -104,7 +108,10 @@ class Simulator:
         if config.speed_mode_mps > 0:
             self.vehicle = replace(self.vehicle, top_speed_mps=min(self.vehicle.top_speed_mps, config.speed_mode_mps))
         names = config.cameras or tuple(name for name, _ in self.vehicle.cameras)
-        self.cameras = {name: self.vehicle.camera(name) for name in names}
+        lens = tuple(config.effects.lens_distortion)
+        self.cameras = {name: replace(self.vehicle.camera(name), distortion=lens) for name in names}
+        self._lenses = {name: remap for name, cam in self.cameras.items()
+                        if (remap := lens_distortion(cam)) is not None} if config.render_images else {}
         self.dt_s = 1.0 / config.camera_rate_hz
         x, y, yaw = self.track.start_pose()
         self.state = VehicleState(x_m=x, y_m=y, yaw_rad=yaw)
@@ -115,7 +122,8 @@ class Simulator:
         self._noise_bank = self._make_noise_bank() if config.effects.noise_sigma > 0 and config.render_images else []
         self._renderer: Renderer | None = None
         if config.render_images:
-            self._renderer = Renderer(self.track, self.cameras, config.render, show_cones=config.show_cones)
+            pinholes = {name: replace(cam, distortion=()) for name, cam in self.cameras.items()}
+            self._renderer = Renderer(self.track, pinholes, config.render, show_cones=config.show_cones)
         self.camera_poses: dict[str, list[Array]] = {name: [] for name in self.cameras}
         self.stamps_ns: list[int] = []
         self.dropped_frames = 0
@@ -234,7 +242,8 @@ class Simulator:
                 for name, image in sub.items():
                     sums[name] = sums.get(name, 0) + image.astype(np.float32)
             images = {name: (total / n).astype(np.uint8) for name, total in sums.items()}
-        return {name: self._expose(image) for name, image in images.items()}
+        bent = {name: self._lenses[name](image) if name in self._lenses else image for name, image in images.items()}
+        return {name: self._expose(image) for name, image in bent.items()}
 
     def _expose(self, image: Image) -> Image:
         effects = self.config.effects
