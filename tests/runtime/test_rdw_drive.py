@@ -12,6 +12,8 @@ import pytest
 from kartpilot.actuation.rdw_protocol import decode_rdw, load_rdw_dbc
 from kartpilot.cli.main import main
 from kartpilot.record.recording import RecordingReader
+from kartpilot.runtime.config import load_stack_config
+from kartpilot.runtime.replay import replay_recording
 
 COMMANDS = {0x110, 0x220, 0x330}
 REPORTS = {0x440, 0x1E5, 0x710, 0x720, 0x730}
@@ -82,3 +84,10 @@ def test_with_a_speed_the_lane_follower_holds_it_on_the_kart_s_measured_speed(tm
     settled = np.array([row["Speed"] for row in kart if row["stamp_ns"] > 4e9]) / 3.6
     print(f"measured speed after 4 s: {settled.mean():.2f} m/s (min {settled.min():.2f}, max {settled.max():.2f})")
     assert settled.mean() == pytest.approx(3.0, abs=0.15) and settled.max() < 3.4
+    # replayed, the pipeline is told what the kart measured at each step, as it was live: the closed loop's
+    # commands come out again (without it, the replay would give the open-loop throttle)
+    replayed = replay_recording(folder, "lanes", load_stack_config(config)).commands
+    driven = RecordingReader(folder).commands()
+    assert len(replayed) == len(driven)
+    assert max(abs(a.throttle - b.throttle) + abs(a.brake - b.brake) + abs(a.steer_rad - b.steer_rad)
+               for a, b in zip(replayed, driven, strict=True)) < 1e-5  # the recording keeps 6 digits

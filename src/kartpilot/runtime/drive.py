@@ -13,6 +13,7 @@ the same step, and the error is kept so the run can end non-zero once the stop h
 from __future__ import annotations
 
 import logging
+import math
 import time
 import traceback
 from collections.abc import Callable, Sequence
@@ -20,12 +21,13 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from kartpilot.actuation.can_bus import CanActuator
-from kartpilot.core.types import ActuatorCommand, FrameSet, OperatorInput
+from kartpilot.core.types import ActuatorCommand, FrameSet, OperatorInput, VehicleFeedback
 from kartpilot.runtime.loop import Policy
 from kartpilot.runtime.supervisor import Supervisor
 from kartpilot.sensors.health import CameraWatchdog, HealthConfig
 
-__all__ = ["ScriptedOperator", "SupervisedDrive", "WatchdogConfig", "Watchdogs"]
+__all__ = ["ScriptedOperator", "SupervisedDrive", "WatchdogConfig", "Watchdogs", "feedback_columns",
+           "recorded_feedback"]
 
 log = logging.getLogger(__name__)
 
@@ -100,6 +102,7 @@ class SupervisedDrive:
         self.error_at_ns: int | None = None
         self.faults: list[str] = []
         self.step_s: list[float] = []
+        self.feedback: VehicleFeedback | None = None  # what the pipeline was told the kart measured, last step
 
     def __call__(self, frames: FrameSet) -> ActuatorCommand:
         t0 = time.perf_counter()
@@ -108,8 +111,10 @@ class SupervisedDrive:
         if self.error is None:
             try:
                 observe = getattr(self.pipeline, "observe_vehicle", None)
-                if observe is not None and self.actuator is not None:
-                    observe(self.actuator.feedback())
+                if self.actuator is not None:
+                    self.feedback = self.actuator.feedback()
+                    if observe is not None:
+                        observe(self.feedback)
                 autonomous = self.pipeline(frames)
                 fault_of = getattr(self.pipeline, "fault", None)
                 pipeline_fault = fault_of() if fault_of is not None else ""
@@ -136,5 +141,22 @@ class SupervisedDrive:
         result["supervisor"] = {"state": self.supervisor.state, "faults": len(self.faults),
                                 "reason": self.supervisor.reason.replace(",", ";")}
         if self.actuator is not None:
-            result["kart"] = self.actuator.outputs()
+            feedback = self.feedback or VehicleFeedback(0)
+            result["kart"] = {**self.actuator.outputs(), **feedback_columns(feedback)}
         return result
+
+
+def feedback_columns(feedback: VehicleFeedback) -> dict[str, float]:
+    """What the pipeline was told the kart measured, as the ``kart`` topic's columns (NaN: nothing fresh), so a
+    replay can tell the pipeline the same."""
+    return {"feedback_speed_mps": math.nan if feedback.speed_mps is None else feedback.speed_mps,
+            "feedback_steer_rad": math.nan if feedback.steer_rad is None else feedback.steer_rad}
+
+
+def recorded_feedback(row: dict[str, Any], stamp_ns: int) -> VehicleFeedback:
+    """The inverse of :func:`feedback_columns`, for a recorded ``kart`` row."""
+    def value(key: str) -> float | None:
+        v = row.get(key)
+        return float(v) if isinstance(v, (int, float)) and math.isfinite(v) else None
+
+    return VehicleFeedback(stamp_ns, value("feedback_speed_mps"), value("feedback_steer_rad"))

@@ -1,6 +1,8 @@
 """A recording through the same pipeline code as live driving, its outputs written as a new recording.
 
-Any pipeline of :mod:`kartpilot.runtime.pipelines`: ``lanes`` gets the recording's cameras, ``stereo-vo``
+Where the drive recorded what the kart measured (its ``kart`` topic), the pipeline is told the same before
+each step, so a replay of a closed-loop drive stays closed loop. Any pipeline of
+:mod:`kartpilot.runtime.pipelines`: ``lanes`` gets the recording's cameras, ``stereo-vo``
 its rectified stereo pair (with a reference path to follow), ``mono-vo`` its centre camera (with a place
 database, following the database's drive or a given reference). Nothing
 moves: the commands go to a log and to the new recording, with the pipeline's outputs
@@ -28,6 +30,7 @@ from kartpilot.core.vehicle import get_vehicle
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 from kartpilot.record.replay import RecordingFrameSource, StereoReplaySource
 from kartpilot.runtime.config import StackConfig
+from kartpilot.runtime.drive import recorded_feedback
 from kartpilot.runtime.loop import Outputs, Recorder, run_loop
 from kartpilot.runtime.path_policy import write_drive_log
 from kartpilot.runtime.pipelines import PIPELINES, PipelineContext, Route, StereoInput, build_pipeline, path_policy_of
@@ -81,6 +84,31 @@ class _WithoutFrames:
         self.writer.write_outputs(stamp_ns, outputs)
 
 
+class _Told:
+    """The pipeline, told before each step what the kart measured then (the drive's recorded ``kart`` topic), as
+    the live drive told it: a replay of a closed-loop drive stays closed loop."""
+
+    def __init__(self, policy: Any, kart: dict[int, dict[str, Any]]) -> None:
+        self.policy, self.kart = policy, kart
+
+    def __call__(self, frames: FrameSet) -> ActuatorCommand:
+        row = self.kart.get(frames.stamp_ns)
+        if row is not None:
+            self.policy.observe_vehicle(recorded_feedback(row, frames.stamp_ns))
+        return self.policy(frames)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.policy, name)
+
+
+def _recorded_kart(reader: RecordingReader) -> dict[int, dict[str, Any]]:
+    """The drive's ``kart`` rows by stamp, where it recorded what it told the pipeline."""
+    if "kart" not in reader.output_topics():
+        return {}
+    rows = reader.outputs("kart")
+    return {int(r["stamp_ns"]): r for r in rows if "feedback_speed_mps" in r}
+
+
 class _Paced:
     """A source delivered at the pace it was recorded."""
 
@@ -127,6 +155,9 @@ def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, rout
     source, stereo, rate = _replay_source(reader, pipeline, stack)
     policy = build_pipeline(pipeline, PipelineContext(params, reader.cameras, rate, stack, stereo, route or Route()))
     path_policy = path_policy_of(policy)
+    recorded = _recorded_kart(reader)
+    if recorded and hasattr(policy, "observe_vehicle"):
+        policy = _Told(policy, recorded)
     writer = _replay_writer(reader, pipeline, params.name, stack, outputs.record_dir)
     recorders: list[Recorder] = [] if writer is None else [writer if with_frames else _WithoutFrames(writer)]
     sink = _CommandLog()
