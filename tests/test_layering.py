@@ -36,3 +36,20 @@ def test_no_import_runs_back_up():
             if RANK[imported] >= RANK[package]:
                 upward.append(f"{path.relative_to(root)} imports kartpilot.{imported}")
     assert not upward, "\n".join(upward)
+
+
+def test_the_runtime_layer_stays_small_functions():
+    """runtime/ is where the stack is put together, and where it got hard to carry on: no function there over 60
+    lines or 8 parameters (issue 18's bound)."""
+    root = Path(kartpilot.__file__).parent / "runtime"
+    too_big = []
+    for path in sorted(root.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                lines = (node.end_lineno or node.lineno) - node.lineno + 1
+                arguments = node.args.args + node.args.kwonlyargs
+                count = len([a for a in arguments if a.arg not in ("self", "cls")])
+                count += bool(node.args.vararg) + bool(node.args.kwarg)
+                if lines > 60 or count > 8:
+                    too_big.append(f"{path.name}: {node.name} ({lines} lines, {count} parameters)")
+    assert not too_big, "\n".join(too_big)

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from kartpilot.core.errors import DataError
+from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.replay import replay_recording
 from kartpilot.runtime.session import SCHEMA_VERSION, SessionOutputs, SessionResult
@@ -66,3 +66,21 @@ def test_a_missing_field_is_named(results):
 def test_details_may_not_shadow_a_common_field():
     with pytest.raises(ValueError, match="steps"):
         SessionResult("sim", "lanes", "sdc-kart", 1, "", None, None, 0, {}, details={"steps": 2}).to_json()
+
+
+def test_an_output_that_could_only_fail_at_the_end_is_refused_before_the_drive(tmp_path, capsys):
+    """A result path that is a folder (or under a file) used to fail after the whole drive; now nothing runs and
+    nothing is half written."""
+    from kartpilot.cli.main import main
+
+    (tmp_path / "a_folder").mkdir()
+    (tmp_path / "a_file").write_text("")
+    for target, message in ((tmp_path / "a_folder", "which is a folder"),
+                            (tmp_path / "a_file" / "result.json", "is a file")):
+        assert main(["drive", "--sim", "sdc-assen", "--vehicle", "sdc-kart", "--pipeline", "lanes", "--duration",
+                     "60", "--result", str(target), "--record", str(tmp_path / "rec"), "--no-progress"]) == 1
+        error = capsys.readouterr().err
+        assert error.startswith("kartpilot: ") and message in error and len(error.strip().splitlines()) == 1
+        assert not (tmp_path / "rec").exists()
+    with pytest.raises(ConfigError, match="the drive log would go to"):
+        SessionOutputs(drive_log=tmp_path / "a_file" / "log.csv").check()

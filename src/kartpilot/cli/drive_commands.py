@@ -157,6 +157,7 @@ def drive(args: argparse.Namespace) -> int:
             rig = replace(rig, camera_maps=tuple(args.cameras_json))
         setup = LiveDriveSetup(rig, args.pipeline, vehicle, route, args.gamepad, args.web, args.record,
                                args.duration)
+        SessionOutputs(result_path=args.result).check()  # before the kart moves, not after
         summary = run_live_drive(setup, replace(stack, can=can))
         print(json.dumps({k: summary[k] for k in ("ended", "seconds", "final_state", "error")}))
         for transition in summary["transitions"]:

@@ -146,6 +146,7 @@ def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, rout
     if pipeline not in PIPELINES:
         raise ConfigError(f"unknown pipeline {pipeline!r} ({', '.join(PIPELINES)})")
     outputs = outputs or SessionOutputs()
+    outputs.check()
     reader = RecordingReader(folder)
     name = vehicle or reader.vehicle
     if name is None:

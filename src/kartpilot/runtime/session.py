@@ -11,12 +11,13 @@ field missing or of the wrong type, naming the field.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from kartpilot.core.errors import DataError
+from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.runtime.loop import STAGE_STATS
 
 __all__ = ["BACKENDS", "SCHEMA_VERSION", "SessionOutputs", "SessionResult"]
@@ -40,6 +41,24 @@ class SessionOutputs:
     video_path: str | Path | None = None
     drive_log: str | Path | None = None
     progress: bool = False
+
+    def check(self) -> None:
+        """Refuse, before anything runs, an output that could only fail once the session is over: a file
+        target that is a folder, or sits under a file, or in a folder that cannot be written."""
+        for what, target in (("the result", self.result_path), ("the video", self.video_path),
+                             ("the drive log", self.drive_log)):
+            if target is None:
+                continue
+            path = Path(target)
+            if path.is_dir():
+                raise ConfigError(f"{what} would go to {path}, which is a folder: give a file name")
+            parent = path.parent
+            while not parent.exists() and parent != parent.parent:
+                parent = parent.parent
+            if not parent.is_dir():
+                raise ConfigError(f"{what} would go to {path}, but {parent} is a file")
+            if not os.access(parent, os.W_OK):
+                raise ConfigError(f"{what} would go to {path}, but {parent} cannot be written")
 
 
 @dataclass(frozen=True)

@@ -90,6 +90,7 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
     """
     stack = stack or StackConfig()
     outputs = outputs or SessionOutputs()
+    outputs.check()
     if driver == "path":
         config = replace(config, referee=replace(config.referee, run_on_m=math.inf))
     with Simulator(config) as sim:
@@ -442,6 +443,7 @@ def run_supervised_drive(config: SimConfig, pipeline: str, stack: StackConfig | 
     gives every other component's."""
     stack = stack or StackConfig()
     outputs = outputs or SessionOutputs()
+    outputs.check()
     at = _check_injections(pipeline, bus, injections)
     if duration_s is not None:
         config = replace(config, max_time_s=duration_s)
