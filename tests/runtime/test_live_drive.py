@@ -126,7 +126,8 @@ def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(p
     # the watchdogs' timing is tested with a simulated clock; here threads share two cores with a video decoder
     can_config = CanConfig(channel=channel, protocol=protocol, status_timeout_s=0.3,
                            rdw=RdwConfig(sensor_timeout_s=0.5, feedback_timeout_s=0.5))
-    setup = LiveDriveSetup(rig, pipeline, sdc, route, web_port=port, record_dir=tmp_path / "live", duration_s=3.0)
+    setup = LiveDriveSetup(rig, pipeline, sdc, route, web_port=port,
+                           outputs=SessionOutputs(record_dir=tmp_path / "live"), duration_s=3.0)
     try:
         summary = run_live_drive(setup, replace(StackConfig(), can=can_config))
     finally:

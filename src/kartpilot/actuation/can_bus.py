@@ -323,6 +323,11 @@ class CanActuator:
         """True while the kart reports its emergency-stop circuit open (where its protocol can say so)."""
         return self.protocol.estop
 
+    def traffic(self) -> dict[str, object]:
+        """What went over the bus, for a drive's result."""
+        return {"protocol": self.protocol.name, "frames_sent": self.frames_sent, "tx_errors": self.tx_errors,
+                "rx_errors": self.rx_errors, "quiet_stops": self.quiet_stops}
+
     def faults(self) -> list[str]:
         """What is wrong with the bus and the kart now (empty: all is well)."""
         with self._lock:

@@ -13,7 +13,6 @@ import numpy as np
 from kartpilot.calibration.rig import load_rig
 from kartpilot.control.path_follow import steer_bias_of_drive
 from kartpilot.core.errors import ConfigError, KartpilotError, RecordingError
-from kartpilot.core.files import write_json_atomic
 from kartpilot.core.geometry import ground_poses
 from kartpilot.core.vehicle import VehicleParams, get_vehicle
 from kartpilot.odometry.places import load_places
@@ -102,8 +101,8 @@ def _drive_vehicle(args: argparse.Namespace) -> VehicleParams:
 
 
 def drive(args: argparse.Namespace) -> int:
-    """A supervised drive with the lanes or stereo-VO pipeline: in the simulator (through the CAN layer) or on
-    a replayed recording (open loop)."""
+    """A supervised drive of any pipeline: in the simulator (through the CAN layer), on a replayed recording
+    (open loop, told what the kart measured), or on the real kart."""
     stack = load_stack_config(args.config)
     vehicle = _drive_vehicle(args)
     path: ReferencePath | None = None
@@ -155,15 +154,12 @@ def drive(args: argparse.Namespace) -> int:
         rig = load_rig(args.live)
         if args.cameras_json:
             rig = replace(rig, camera_maps=tuple(args.cameras_json))
-        setup = LiveDriveSetup(rig, args.pipeline, vehicle, route, args.gamepad, args.web, args.record,
-                               args.duration)
-        SessionOutputs(result_path=args.result).check()  # before the kart moves, not after
+        setup = LiveDriveSetup(rig, args.pipeline, vehicle, route, args.gamepad, args.web,
+                               SessionOutputs(args.record, args.result), args.duration)
         summary = run_live_drive(setup, replace(stack, can=can))
         print(json.dumps({k: summary[k] for k in ("ended", "seconds", "final_state", "error")}))
         for transition in summary["transitions"]:
             print(f"  {transition['t_s']:7.2f} s  {transition['state']:<10} {transition['reason']}")
-        if args.result:
-            write_json_atomic(args.result, summary)
         if summary["error"]:
             raise KartpilotError(f"the pipeline failed ({summary['error']}); the kart was stopped")
         return 0

@@ -102,6 +102,7 @@ def evaluate_places(database: PlaceDatabase, queries: Iterable[tuple[int, Image,
         if fixes is not None:
             fixes.append(fix)
         position = np.asarray(pose, float)[:3, 3]
+        rotation = np.asarray(pose, float)[:3, :3]
         truth.append(position)
         row = np.full((width, 3), np.nan)
         found = database.positions_m[list(fix.candidates[:width])]
@@ -111,10 +112,9 @@ def evaluate_places(database: PlaceDatabase, queries: Iterable[tuple[int, Image,
         if fix.accepted:
             accepted += 1
             errors.append(float(np.linalg.norm(fix.position_m - position)))
-            along.append(abs(float((np.asarray(pose, float)[:3, :3].T @ (fix.position_m - position))[2])))
+            along.append(abs(float((rotation.T @ (fix.position_m - position))[2])))
             honest += along[-1] <= 2 * fix.sigma_m
         if fix.registered:
-            rotation = np.asarray(pose, float)[:3, :3]
             across.append(abs(float((rotation.T @ (fix.position_m - position))[0])))
             turn = fix.pose_world_cam[:3, :3].T @ rotation
             heading.append(float(np.degrees(np.arccos(np.clip((np.trace(turn) - 1) / 2, -1.0, 1.0)))))

@@ -135,6 +135,11 @@ class SupervisedDrive:
             self.actuator.state = self.supervisor.state
         return command
 
+    @property
+    def error_line(self) -> str | None:
+        """The pipeline's exception in one line, for the result (None when it never raised)."""
+        return f"{type(self.error).__name__}: {self.error}" if self.error is not None else None
+
     def outputs(self) -> dict[str, dict[str, Any]]:
         pipeline_outputs = getattr(self.pipeline, "outputs", None)
         result: dict[str, dict[str, Any]] = dict(pipeline_outputs()) if pipeline_outputs is not None else {}

@@ -16,7 +16,6 @@ import time
 from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from kartpilot.actuation.can_bus import CanActuator, make_protocol, open_bus
@@ -24,7 +23,6 @@ from kartpilot.calibration.rectify import stereo_setup
 from kartpilot.calibration.rig import Rig, apply_camera_maps
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.files import write_json_atomic, write_text_atomic
 from kartpilot.core.types import ActuatorCommand, FrameSet, OperatorInput
 from kartpilot.core.vehicle import VehicleParams
 from kartpilot.record.recording import RecordingWriter
@@ -32,7 +30,7 @@ from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.drive import SupervisedDrive, Watchdogs
 from kartpilot.runtime.loop import LoopStats, Policy, run_loop
 from kartpilot.runtime.pipelines import PipelineContext, Route, StereoInput, build_pipeline
-from kartpilot.runtime.session import SessionResult
+from kartpilot.runtime.session import SessionOutputs, SessionResult
 from kartpilot.runtime.supervisor import Supervisor
 from kartpilot.runtime.webui import WebConfig, WebOperator, WebServer
 from kartpilot.sensors.capture import LiveFrameSource
@@ -77,7 +75,7 @@ class LiveDriveSetup:
     route: Route = field(default_factory=Route)
     gamepad: str | None = None
     web_port: int | None = None
-    record_dir: str | Path | None = None
+    outputs: SessionOutputs = field(default_factory=SessionOutputs)
     duration_s: float | None = None
 
 
@@ -85,8 +83,10 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
     """Drive until the duration, the cameras' end, or Ctrl-C; return the result (also in the recording).
     However it ends, the stop command goes out, then the recording, the people's inputs and the cameras are
     closed."""
+    setup.outputs.check()  # before the kart moves, not after
     rig = apply_camera_maps(setup.rig)
     vehicle = setup.vehicle
+    record_dir = setup.outputs.record_dir
     with ExitStack() as closing:
         source = LiveFrameSource(rig, stack.live)
         closing.callback(source.close)
@@ -94,8 +94,8 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
         pipeline = _live_pipeline(setup, stack, rig, list(source.threads), period_s)
         operator, web = _people(setup, stack, closing)
         writer = None
-        if setup.record_dir is not None:
-            writer = RecordingWriter(setup.record_dir, {n: rig.cameras[n] for n in source.threads},
+        if record_dir is not None:
+            writer = RecordingWriter(record_dir, {n: rig.cameras[n] for n in source.threads},
                                      stereo_pair=rig.stereo_pair, queue_frames=RECORD_QUEUE_FRAMES,
                                      drop_when_full=True, image_format="jpg",
                                      metadata={"source": "kartpilot drive --live", "pipeline": setup.pipeline,
@@ -125,18 +125,11 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
             stats = LoopStats(steps=len(drive.step_s), samples_s={"policy": drive.step_s})  # what the loop got done
         session = SessionResult(
             "live", setup.pipeline, vehicle.name, stats.steps, timed.ended, supervisor.state,
-            f"{type(drive.error).__name__}: {drive.error}" if drive.error else None, stats.missed_deadlines,
+            drive.error_line, stats.missed_deadlines,
             stats.stage_summary_ms(), transitions=tuple(t.to_json(0) for t in supervisor.transitions),
             details={"seconds": round(time.monotonic() - timed.started, 2), "cameras": source.stats(),
-                     "can": {"protocol": protocol.name, "frames_sent": actuator.frames_sent,
-                             "tx_errors": actuator.tx_errors, "rx_errors": actuator.rx_errors,
-                             "quiet_stops": actuator.quiet_stops}})
-        summary = session.to_json()
-        if setup.record_dir is not None:
-            if drive.error_text:
-                write_text_atomic(Path(setup.record_dir) / "error.txt", drive.error_text)
-            write_json_atomic(Path(setup.record_dir) / "result.json", summary)
-        return summary
+                     "can": actuator.traffic()})
+        return setup.outputs.write_result(session, error_text=drive.error_text)
 
 
 class _Timed:

@@ -158,6 +158,16 @@ class PathFollowPolicy:
     def close(self) -> None:
         self.localizer.close()
 
+    def summary(self, steps: int) -> tuple[dict[str, float], dict[str, object]]:
+        """The mean milliseconds per step of each stage (the localiser's own inside ``localize``), and how the
+        drive went, for a session's result."""
+        per_step = 1.0 / max(steps, 1)
+        stages = {k: 1e3 * v * per_step for k, v in self.stage_s.items()}
+        stages.update({f"localize.{k}": v * per_step for k, v in self.localizer.timing_ms.items()})
+        statuses = [sample.pose_status for sample in self.samples]
+        return stages, {"stop_reason": self.stop_reason, "bridged_frames": statuses.count("bridged"),
+                        "lost_frames": statuses.count("lost"), "relocalised_frames": self.localizer.relocalisations}
+
     def fault(self) -> str:
         """What is wrong with the pipeline, for the supervisor: localisation lost, or an overrun. The end of
         the reference is not a fault: the pipeline stops the kart there itself."""

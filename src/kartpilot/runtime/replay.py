@@ -24,7 +24,6 @@ import numpy as np
 from kartpilot.calibration.rectify import StereoSetup
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.files import write_json_atomic
 from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.record.recording import RecordingReader, RecordingWriter
@@ -174,19 +173,12 @@ def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, rout
     details: dict[str, Any] = {"replay_of": str(reader.folder), "rate_hz": round(rate, 3),
                                "unreadable_frames": source.unreadable,
                                "out": str(outputs.record_dir) if outputs.record_dir is not None else None}
-    pipeline_ms: dict[str, float] = {}
-    if path_policy is not None:
-        steps = max(stats.steps, 1)
-        pipeline_ms = {k: 1e3 * v / steps for k, v in path_policy.stage_s.items()}
-        details.update(stop_reason=path_policy.stop_reason, relocalised_frames=path_policy.localizer.relocalisations)
+    pipeline_ms, summary = path_policy.summary(stats.steps) if path_policy is not None else ({}, {})
     session = SessionResult("replay", pipeline, params.name, stats.steps, "the recording ended", None, None,
-                            stats.missed_deadlines, stats.stage_summary_ms(), pipeline_ms, details=details)
-    out = Path(outputs.record_dir) if outputs.record_dir is not None else None
-    if out is not None:
-        write_json_atomic(out / "replay.json", session.to_json())
-    if outputs.result_path is not None:
-        write_json_atomic(outputs.result_path, session.to_json())
-    return ReplayResult(session, tuple(sink.commands), out)
+                            stats.missed_deadlines, stats.stage_summary_ms(), pipeline_ms,
+                            details={**details, **summary})
+    outputs.write_result(session, "replay.json")
+    return ReplayResult(session, tuple(sink.commands), Path(outputs.record_dir) if outputs.record_dir else None)
 
 
 def _replay_source(reader: RecordingReader, pipeline: str, stack: StackConfig

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from kartpilot.core.errors import ConfigError, DataError
+from kartpilot.core.files import write_json_atomic, write_text_atomic
 from kartpilot.runtime.loop import STAGE_STATS
 
 __all__ = ["BACKENDS", "SCHEMA_VERSION", "SessionOutputs", "SessionResult"]
@@ -59,6 +60,18 @@ class SessionOutputs:
                 raise ConfigError(f"{what} would go to {path}, but {parent} is a file")
             if not os.access(parent, os.W_OK):
                 raise ConfigError(f"{what} would go to {path}, but {parent} cannot be written")
+
+    def write_result(self, result: SessionResult, name: str = "result.json", error_text: str = "") -> dict[str, Any]:
+        """The result where it was asked for and beside the recording (as ``name``), with the pipeline's
+        traceback as ``error.txt`` there if it raised; returns the result's JSON."""
+        payload = result.to_json()
+        if self.result_path is not None:
+            write_json_atomic(self.result_path, payload)
+        if self.record_dir is not None:
+            write_json_atomic(Path(self.record_dir) / name, payload)
+            if error_text:
+                write_text_atomic(Path(self.record_dir) / "error.txt", error_text)
+        return payload
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,6 @@ from kartpilot.actuation.can_bus import CanActuator, CanConfig, make_protocol, o
 from kartpilot.calibration.rectify import StereoSetup
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError, RecordingError
-from kartpilot.core.files import write_json_atomic, write_text_atomic
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, CommandSink, FrameSet, FrameSource, Image
 from kartpilot.record.recording import RecordingReader, RecordingWriter
@@ -101,14 +100,14 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
         source = _UntilStopped(sim, path_policy) if path_policy is not None else sim
         stats, wall_s = _run(sim, source, policy, sim, writer, outputs, path_policy)
         result = sim.result(wall_s)
-        pipeline_ms, summary = _path_policy_summary(path_policy, stats.steps)
+        pipeline_ms, summary = path_policy.summary(stats.steps) if path_policy is not None else ({}, {})
         ended = "the pipeline stopped the kart" if path_policy is not None and path_policy.stopped else \
             "the simulation ended"
         session = SessionResult("sim", driver, sim.vehicle.name, stats.steps, ended, None, None, stats.missed_deadlines,
                                 stats.stage_summary_ms(), pipeline_ms, details={
                                     **result.to_json(), "track": sim.track.name, "seed": config.seed,
                                     "dropped_frames": sim.dropped_frames, **summary})
-        _write_result(session.to_json(), outputs.result_path, outputs.record_dir)
+        outputs.write_result(session)
         stage_ms = stats.stage_ms()
         if path_policy is not None:  # the pipeline's own stages instead of the policy's total
             del stage_ms["policy"]
@@ -199,28 +198,6 @@ class _UntilStopped:
         if self.policy.stopped_for_s(self.sim.time_ns) >= STOPPED_BEFORE_END_S:
             return None
         return self.sim.read()
-
-
-def _path_policy_summary(policy: PathFollowPolicy | None, steps: int) -> tuple[dict[str, float], dict[str, object]]:
-    """The path follower's mean milliseconds per step by stage, and how its drive went (nothing for other
-    drivers)."""
-    if policy is None:
-        return {}, {}
-    per_step = 1.0 / max(steps, 1)
-    stages = {k: 1e3 * v * per_step for k, v in policy.stage_s.items()}
-    stages.update({f"localize.{k}": v * per_step for k, v in policy.localizer.timing_ms.items()})
-    statuses = [sample.pose_status for sample in policy.samples]
-    return stages, {"stop_reason": policy.stop_reason, "bridged_frames": statuses.count("bridged"),
-                    "lost_frames": statuses.count("lost"), "relocalised_frames": policy.localizer.relocalisations}
-
-
-def _write_result(payload: dict[str, object], result_path: str | Path | None, record_dir: str | Path | None) -> None:
-    """The result JSON where it was asked for, and always beside the recording."""
-    targets = [Path(result_path)] if result_path else []
-    if record_dir is not None:
-        targets.append(Path(record_dir) / "result.json")
-    for target in targets:
-        write_json_atomic(target, payload)
 
 
 def _recorded_pair(sim: Simulator) -> tuple[str, str] | None:
@@ -367,11 +344,7 @@ class _CanSink:
     def traffic(self) -> dict[str, object]:
         """What went over the bus, for the result; on the RDW protocol, how far 0x440's speed was from the
         simulator's."""
-        actuator = self.actuator
-        traffic: dict[str, object] = {
-            "protocol": actuator.protocol.name, "frames_sent": actuator.frames_sent, "tx_errors": actuator.tx_errors,
-            "rx_errors": actuator.rx_errors, "quiet_stops": actuator.quiet_stops,
-            "frames_rejected_by_ecus": self.ecus.rejected_frames}
+        traffic = {**self.actuator.traffic(), "frames_rejected_by_ecus": self.ecus.rejected_frames}
         if isinstance(self.ecus, RdwEcus) and self.ecus.speed_reports:
             reports = np.array(self.ecus.speed_reports)
             traffic.update(speed_reports=len(reports),
@@ -465,26 +438,19 @@ def run_supervised_drive(config: SimConfig, pipeline: str, stack: StackConfig | 
         drive = SupervisedDrive(policy, supervisor, watchdogs, ScriptedOperator(at.get("gamepad-unplug")), actuator)
         source = _UntilSettled(InjectedSource(sim, list(injections)), sim, drive, path_policy)
 
-        def before_close() -> None:
-            if isinstance(sink, _CanSink):
-                sink.close()
-            if outputs.record_dir is not None and drive.error_text:
-                write_text_atomic(Path(outputs.record_dir) / "error.txt", drive.error_text)
-
-        stats, wall_s = _run(sim, source, drive, sink, writer, outputs, path_policy, before_close)
+        stats, wall_s = _run(sim, source, drive, sink, writer, outputs, path_policy,
+                             sink.close if isinstance(sink, _CanSink) else None)
         result = sim.result(wall_s)
-        pipeline_ms, summary = _path_policy_summary(path_policy, stats.steps)
+        pipeline_ms, summary = path_policy.summary(stats.steps) if path_policy is not None else ({}, {})
         details = {**result.to_json(), "track": sim.track.name, "seed": config.seed, "bus": bus,
                    "injections": [{"kind": i.kind, "at_s": i.at_s} for i in injections],
                    **_fault_to_stop(sink.applied, at), **summary}
         if isinstance(sink, _CanSink):
             details["can"] = sink.traffic()
         session = SessionResult("sim", pipeline, sim.vehicle.name, stats.steps, source.ended, supervisor.state,
-                                f"{type(drive.error).__name__}: {drive.error}" if drive.error else None,
-                                stats.missed_deadlines, stats.stage_summary_ms(), pipeline_ms,
+                                drive.error_line, stats.missed_deadlines, stats.stage_summary_ms(), pipeline_ms,
                                 tuple(t.to_json() for t in supervisor.transitions), details)
-        payload = session.to_json()
-        _write_result(payload, outputs.result_path, outputs.record_dir)
+        payload = outputs.write_result(session, error_text=drive.error_text)
         return SupervisedRun(result, payload, drive.error)
 
 
