@@ -6,7 +6,7 @@ import pytest
 from kartpilot.core.config import config_to_dict, load_yaml_mapping, merge_config
 from kartpilot.core.errors import ConfigError
 from kartpilot.odometry.stereo_vo import StereoVOConfig
-from kartpilot.runtime.config import load_stack_config
+from kartpilot.runtime.config import StackConfig, load_stack_config
 
 
 @dataclass(frozen=True)
@@ -84,6 +84,18 @@ def test_one_lane_config_with_named_presets(tmp_path) -> None:
     path.write_text("lane_detection: {paint: dark}\n")  # the old second section is gone: a clear error
     with pytest.raises(ConfigError, match="lane_detection"):
         load_stack_config(path)
+
+
+@pytest.mark.parametrize(("mapping", "key"), [
+    ({"drive": {"mono": {"wheel_sigma_mps": float("nan")}}}, "wheel_sigma_mps"),
+    ({"drive": {"mono": {"place_every_m": float("nan")}}}, "place_every_m"),
+    ({"lane_policy": {"speed_mps": float("nan")}}, "speed_mps"),
+    ({"sim": {"effects": {"lens_distortion": [0.1, 0.2]}}}, "sim.effects.lens_distortion"),
+    ({"sim": {"effects": {"lens_distortion": [float("inf"), 0.0, 0.0, 0.0]}}}, "sim.effects.lens_distortion"),
+])
+def test_a_nan_or_a_malformed_value_in_the_new_fields_is_refused(mapping, key) -> None:
+    with pytest.raises(ConfigError, match=key):
+        merge_config(StackConfig(), mapping)
 
 
 def test_stack_yaml_typo_is_an_error(tmp_path) -> None:

@@ -80,13 +80,12 @@ class MonoLocalizerConfig:
     wheel_sigma_mps: float = 0.15
 
     def __post_init__(self) -> None:
-        if self.place_every_m <= 0 or self.cross_track_sigma_m <= 0:
+        if not (self.place_every_m > 0 and self.cross_track_sigma_m > 0):
             raise ConfigError("mono_localizer.place_every_m and cross_track_sigma_m must be positive")
-        if min(self.vo_sigma_per_m, self.vo_yaw_sigma_per_m, self.scale_sigma, self.scale_sigma_per_m,
-               self.wheel_sigma_mps) <= 0:
+        if not all(v > 0 for v in (self.vo_sigma_per_m, self.vo_yaw_sigma_per_m, self.scale_sigma,
+                                   self.scale_sigma_per_m, self.wheel_sigma_mps)):  # NaN too
             raise ConfigError("mono_localizer.vo_sigma_per_m, vo_yaw_sigma_per_m, scale_sigma, scale_sigma_per_m and "
-                              "wheel_sigma_mps "
-                              "must be positive")
+                              "wheel_sigma_mps must be positive")
 
 
 def along_arc(step: Pose2D) -> Pose2D:

@@ -54,6 +54,12 @@ class CameraEffectsConfig:
     vibration_hz: float = 11.0
     lens_distortion: tuple[float, ...] = ()
 
+    def __post_init__(self) -> None:
+        if len(self.lens_distortion) not in (0, 4, 5, 8, 12, 14) or not all(map(math.isfinite,
+                                                                                   self.lens_distortion)):
+            raise ConfigError("sim.effects.lens_distortion needs 4, 5, 8, 12 or 14 finite OpenCV coefficients "
+                              f"(or none), got {list(self.lens_distortion)}")
+
 
 @dataclass(frozen=True)
 class DisturbanceConfig:
