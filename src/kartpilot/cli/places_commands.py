@@ -103,11 +103,7 @@ def places_query(args: argparse.Namespace) -> int:
     if camera not in reader.cameras:
         raise ConfigError(f"the recording has no camera {camera!r} (the database is of {database.camera_name!r}; "
                           f"the recording has {', '.join(reader.cameras)})")
-    distortion = reader.cameras[camera].distortion
-    if tuple(database.info.get("undistorted", ())) != tuple(distortion):
-        raise ConfigError(f"the database was built from a camera with lens coefficients "
-                          f"{database.info.get('undistorted', [])}, the recording's {camera!r} has {list(distortion)}")
-    lens = undistortion(reader.cameras[camera])  # queried as the database's images were built: undistorted
+    lens = database.lens_for(reader.cameras[camera], camera)  # queried as the database's images were built
 
     def straight(image: Image) -> Image:
         return lens(image) if lens is not None else image

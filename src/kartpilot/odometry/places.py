@@ -45,7 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 from sklearn.neighbors import BallTree
 
-from kartpilot.calibration.lens import undistortion
+from kartpilot.calibration.lens import LensRemap, undistortion
 from kartpilot.core.camera import PinholeCamera, camera_from_dict, camera_to_dict
 from kartpilot.core.config import config_to_dict, merge_config
 from kartpilot.core.errors import ConfigError, DataError, KartpilotError, PerceptionError
@@ -246,6 +246,15 @@ class PlaceDatabase:
         """The ``k`` nearest places to a VLAD vector and their distances, nearest first."""
         distances, indices = self.tree.query(vector[None], k=min(k, len(self)))
         return indices[0], distances[0]
+
+    def lens_for(self, camera: PinholeCamera, name: str) -> LensRemap | None:
+        """How to take ``camera``'s lens out of a query image, as the database's images were built; a camera with
+        other coefficients than those is refused (its images would not match the database's geometry)."""
+        built = tuple(self.info.get("undistorted", ()))
+        if built != tuple(camera.distortion):
+            raise ConfigError(f"the place database was built from a camera with lens coefficients {list(built)}, the "
+                              f"{name!r} camera has {list(camera.distortion)}: build it from this camera's drive")
+        return undistortion(camera)
 
     def locate(self, image: Image, stamp_ns: int = 0) -> PlaceFix:
         """Where ``image`` was taken (see the module's description)."""

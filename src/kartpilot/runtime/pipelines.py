@@ -19,7 +19,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from kartpilot.calibration.lens import LensRemap, undistortion
+from kartpilot.calibration.lens import LensRemap
 from kartpilot.calibration.rectify import StereoSetup
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
@@ -167,11 +167,7 @@ def _mono_vo(context: PipelineContext) -> Policy:
         raise ConfigError(f"the mono-vo pipeline needs the {name!r} camera (the {context.vehicle.name} has "
                           f"{', '.join(context.cameras) or 'none'} here)")
     camera = context.cameras[name]
-    built = tuple(route.places.info.get("undistorted", ()))
-    if built != tuple(camera.distortion):
-        raise ConfigError(f"the place database was built from a camera with lens coefficients {list(built)}, the "
-                          f"{name!r} camera has {list(camera.distortion)}: build it from this camera's drive")
-    lens = undistortion(camera)  # the one place the lens is taken out, as the database's images were
+    lens = route.places.lens_for(camera, name)  # the one place the lens is taken out, as the database's images were
     pinhole = lens.pinhole if lens is not None else camera
     localizer = MonoLocalizer(pinhole, route.places, stack.mono_vo, stack.drive.mono, wrap_vo=context.wrap_vo)
     path = route.reference or places_reference(route.places, pinhole.pose_body_cam_array, stack.drive.path)
