@@ -13,7 +13,10 @@ import numpy as np
 from kartpilot.core.errors import CalibrationError
 from kartpilot.core.geometry import Array
 
-__all__ = ["CaptureSettings", "PinholeCamera", "StereoRig", "camera_from_dict", "camera_to_dict"]
+__all__ = ["DISTORTION_COUNTS", "CaptureSettings", "PinholeCamera", "StereoRig", "camera_from_dict",
+           "camera_to_dict"]
+
+DISTORTION_COUNTS = (0, 4, 5, 8, 12, 14)  # how many coefficients OpenCV's lens models take (0: none)
 
 
 @dataclass(frozen=True)
@@ -76,7 +79,7 @@ class PinholeCamera:
                 f"principal point ({self.cx_px}, {self.cy_px}) lies outside the "
                 f"{self.width_px}x{self.height_px} image"
             )
-        if len(self.distortion) not in (0, 4, 5, 8, 12, 14):
+        if len(self.distortion) not in DISTORTION_COUNTS:
             raise CalibrationError(f"distortion needs 4, 5, 8, 12 or 14 values, got {len(self.distortion)}")
 
     @classmethod

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from kartpilot.calibration.lens import lens_distortion
+from kartpilot.core.camera import DISTORTION_COUNTS
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array
 from kartpilot.core.trajectory import Trajectory
@@ -55,8 +56,7 @@ class CameraEffectsConfig:
     lens_distortion: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
-        if len(self.lens_distortion) not in (0, 4, 5, 8, 12, 14) or not all(map(math.isfinite,
-                                                                                   self.lens_distortion)):
+        if len(self.lens_distortion) not in DISTORTION_COUNTS or not all(map(math.isfinite, self.lens_distortion)):
             raise ConfigError("sim.effects.lens_distortion needs 4, 5, 8, 12 or 14 finite OpenCV coefficients "
                               f"(or none), got {list(self.lens_distortion)}")
 
