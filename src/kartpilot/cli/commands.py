@@ -28,6 +28,7 @@ from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
+from kartpilot.runtime.lane_policy import LANE_PRESETS
 from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sensors.base import StereoSource
@@ -368,7 +369,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     lanes_parser.add_argument("--out", required=True, help="CSV, one row per frame")
     lanes_parser.add_argument("--overlay", help="write the frames with the lanes drawn: a .mp4 file or a folder")
     lanes_parser.add_argument("--stages", action="store_true", help="draw the raw and clustered lines too")
-    lanes_parser.add_argument("--preset", choices=("kart", "dashcam"), default="kart",
+    lanes_parser.add_argument("--preset", choices=tuple(LANE_PRESETS), default="kart",
                               help="the detector's settings: kart (a camera close to the ground, the lane pipeline's "
                                    "own) or dashcam (a car's dash camera)")
     lanes_parser.add_argument("--config", help="YAML file merged over the preset (section lane_policy: lanes, "

@@ -28,6 +28,7 @@ from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
 from kartpilot.runtime.faults import parse_injection
+from kartpilot.runtime.lane_policy import LANE_PRESETS
 from kartpilot.runtime.live_drive import LiveDriveSetup, run_live_drive
 from kartpilot.runtime.pipelines import PIPELINES, Route
 from kartpilot.runtime.replay import replay_recording
@@ -303,7 +304,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     rep.add_argument("--no-map", action="store_true", help="stereo-vo: localise with VO alone")
     rep.add_argument("--vehicle", help="the kart (wheelbase, steering range; default: the one the recording was made "
                                        "on)")
-    rep.add_argument("--preset", choices=("kart", "dashcam"), default="kart",
+    rep.add_argument("--preset", choices=tuple(LANE_PRESETS), default="kart",
                      help="lanes: the detector's settings (kart: a camera close to the ground; dashcam: a car's)")
     rep.add_argument("--config", help="YAML file merged over the defaults")
     rep.set_defaults(handler=replay)
