@@ -93,7 +93,7 @@ def test_a_taught_map_relocalises_its_own_frames_and_survives_a_round_trip(sourc
     from kartpilot.odometry.stereo_vo import StereoVO
 
     vo = StereoVO(source.rig)
-    vo.process(source.frame(7))
+    vo.process(source.frame(7).as_frame_set())
     latest = vo.last_features()
     assert latest is not None
     found = relocalize(loaded, 1, latest[0], source.rig.camera.matrix, RelocConfig())

@@ -11,6 +11,7 @@ from tests.conftest import KART, road_texture, road_view
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import mount_pose, transform_points
+from kartpilot.core.types import FrameSet
 from kartpilot.odometry.mono_vo import (
     GroundConfig,
     MonoVO,
@@ -94,8 +95,8 @@ def test_the_arc_step_is_found_by_aligning_the_road(yaw_deg, length_m):
     step = arc_step(math.radians(yaw_deg), length_m, np.eye(4))  # the rear axle's own motion
     before, after = (road_view(texture, pose, 0.01) for pose in (np.eye(4), step))
     vo = MonoVO(KART, MonoVOConfig(ground=GroundConfig(camera_height_m=0.6)))
-    assert vo.process(0, 0, before).status == "init"
-    estimate = vo.process(1, 10**8, after)
+    assert vo.process(FrameSet(0, 0, {"left": before})).status == "init"
+    estimate = vo.process(FrameSet(1, 10**8, {"left": after}))
     assert estimate.status == "ok"
     body = KART.pose_body_cam_array @ estimate.pose_world_cam @ np.linalg.inv(KART.pose_body_cam_array)
     print(f"true {yaw_deg:+.2f} deg {length_m:.3f} m; found {math.degrees(math.atan2(body[1, 0], body[0, 0])):+.3f} "
@@ -107,8 +108,8 @@ def test_the_arc_step_is_found_by_aligning_the_road(yaw_deg, length_m):
 def test_a_blank_road_gives_no_arc_step():
     vo = MonoVO(KART, MonoVOConfig(ground=GroundConfig(camera_height_m=0.6)))
     grey = np.full((480, 640), 90, np.uint8)
-    vo.process(0, 0, grey)
-    estimate = vo.process(1, 10**8, grey)
+    vo.process(FrameSet(0, 0, {"left": grey}))
+    estimate = vo.process(FrameSet(1, 10**8, {"left": grey}))
     assert estimate.status == "bridged" and "no texture" in estimate.reason
 
 
@@ -163,8 +164,9 @@ def test_on_a_simulated_kart_drive_the_ground_plane_gives_metres(tmp_path):
                    outputs=SessionOutputs(record_dir=tmp_path / "drive"))
     reader = RecordingReader(tmp_path / "drive")
     camera = reader.cameras["center"]
-    vo = MonoVO(camera, MonoVOConfig(ground=GroundConfig(camera_height_m=float(camera.pose_body_cam_array[2, 3]))))
-    estimates = [vo.process(k, stamp, cv2.imread(str(path), cv2.IMREAD_GRAYSCALE))
+    vo = MonoVO(camera, MonoVOConfig(ground=GroundConfig(camera_height_m=float(camera.pose_body_cam_array[2, 3]))),
+                "center")
+    estimates = [vo.process(FrameSet(k, stamp, {"center": cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)}))
                  for k, (stamp, path) in enumerate(reader.frames("center"))]
     estimate = Trajectory.from_poses([e.pose_world_cam for e in estimates], [e.stamp_ns * 1e-9 for e in estimates])
     truth = reader.groundtruth()

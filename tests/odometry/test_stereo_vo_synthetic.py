@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 
 from kartpilot.core.errors import DataError, PerceptionError
-from kartpilot.core.types import StereoFrame
+from kartpilot.core.types import FrameSet, StereoFrame
 from kartpilot.eval.trajectory_metrics import evaluate_trajectory
-from kartpilot.odometry.run import run_stereo_vo
+from kartpilot.odometry.run import run_vo, stereo_frames
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
@@ -16,7 +16,7 @@ def source() -> SyntheticStereoSource:
 
 
 def test_vo_follows_the_synthetic_drive(source: SyntheticStereoSource) -> None:
-    run = run_stereo_vo(source)
+    run = run_vo(stereo_frames(source), StereoVO(source.rig), source.name)
     metrics = evaluate_trajectory(source.ground_truth(), run.trajectory)
     print(metrics.table())
     assert run.bridged_frames == 0
@@ -30,7 +30,7 @@ def test_vo_follows_the_synthetic_drive(source: SyntheticStereoSource) -> None:
 def test_alternative_configurations_also_track(source: SyntheticStereoSource, overrides: dict) -> None:
     from kartpilot.core.config import merge_config
 
-    run = run_stereo_vo(source, merge_config(StereoVOConfig(), overrides))
+    run = run_vo(stereo_frames(source), StereoVO(source.rig, merge_config(StereoVOConfig(), overrides)), source.name)
     metrics = evaluate_trajectory(source.ground_truth(), run.trajectory)
     assert metrics.end_drift_percent < 2.0, overrides
 
@@ -43,7 +43,7 @@ def test_black_frame_is_bridged_not_fatal(source: SyntheticStereoSource) -> None
         if index == 4:
             black = np.zeros_like(frame.left)
             frame = StereoFrame(frame.index, frame.stamp_ns, black, black)
-        estimates.append(vo.process(frame))
+        estimates.append(vo.process(frame.as_frame_set()))
     vo.close()
     assert estimates[4].status == "bridged"
     assert "correspondences" in estimates[4].reason or "inliers" in estimates[4].reason
@@ -52,11 +52,19 @@ def test_black_frame_is_bridged_not_fatal(source: SyntheticStereoSource) -> None
     assert np.linalg.norm(estimates[4].pose_world_cam[:3, 3] - truth[:3, 3]) < 0.05
 
 
+def test_a_missing_camera_is_a_clear_error(source: SyntheticStereoSource) -> None:
+    vo = StereoVO(source.rig)
+    frame = source.frame(0)
+    with pytest.raises(PerceptionError, match="right camera delivered nothing"):
+        vo.process(FrameSet(0, 0, {"left": frame.left}))
+    vo.close()
+
+
 def test_wrong_image_size_is_a_clear_error(source: SyntheticStereoSource) -> None:
     vo = StereoVO(source.rig)
     small = np.zeros((10, 10), np.uint8)
     with pytest.raises(PerceptionError, match="rig expects"):
-        vo.process(StereoFrame(0, 0, small, small))
+        vo.process(StereoFrame(0, 0, small, small).as_frame_set())
     vo.close()
 
 
@@ -78,8 +86,15 @@ class _BrokenSource(StereoSource):
 
 
 def test_unreadable_frames_are_skipped_and_counted(source: SyntheticStereoSource) -> None:
-    run = run_stereo_vo(_BrokenSource(source, {2}))
+    broken = _BrokenSource(source, {2})
+    run = run_vo(stereo_frames(broken), StereoVO(broken.rig), broken.name)
     assert run.unreadable_frames == (2,)
-    assert len(run.trajectory) == 5
+    # the trajectory stays aligned with the frames: the unreadable one is bridged, at its own time
+    truth = source.ground_truth()
+    assert len(run.trajectory) == 6
+    np.testing.assert_allclose(run.trajectory.stamps_s, truth.stamps_s[:6], atol=1e-6)
+    error = np.linalg.norm(run.trajectory.positions - truth.positions[:6], axis=1)
+    print(f"position error per frame, frame 2 unreadable: {np.round(error, 4)} m")
+    assert error.max() < 0.03
     with pytest.raises(DataError, match="none of the 6 frames"):
-        run_stereo_vo(_BrokenSource(source, set(range(6))))
+        run_vo(stereo_frames(_BrokenSource(source, set(range(6)))), StereoVO(source.rig), "broken")

@@ -19,9 +19,11 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.trajectory import Trajectory, read_trajectory, write_trajectory
 from kartpilot.eval.disparity import bad_pixel_rate, disparity_search_range_px, load_middlebury_pair
 from kartpilot.eval.plots import plot_trajectories
-from kartpilot.eval.trajectory_metrics import TrajectoryMetrics, evaluate_trajectory
-from kartpilot.odometry.run import OdometryRun, run_mono_vo, run_stereo_vo
-from kartpilot.odometry.stereo_vo import StereoVOConfig
+from kartpilot.eval.trajectory_metrics import evaluate_trajectory
+from kartpilot.odometry.mono_vo import MonoVO
+from kartpilot.odometry.run import run_vo, stereo_frames
+from kartpilot.odometry.stereo_vo import StereoVO
+from kartpilot.odometry.vo import VisualOdometry
 from kartpilot.perception.lanes import LaneStages, detect_lanes, draw_lanes
 from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
 from kartpilot.record.recording import RecordingStereoSource
@@ -39,7 +41,7 @@ from kartpilot.sim.referee import RunResult
 from kartpilot.sim.simulator import SimConfig
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
 
-__all__ = ["add_parsers", "demo", "disparity", "evaluate", "lanes", "odometry", "run_and_report", "simulate",
+__all__ = ["add_parsers", "demo", "disparity", "evaluate", "lanes", "odometry", "simulate",
            "steer_agreement"]
 
 
@@ -68,53 +70,26 @@ def _write_json(path: str | Path, data: dict[str, Any]) -> None:
     Path(path).write_text(json.dumps(clean(data), indent=2) + "\n")
 
 
-def run_and_report(source: StereoSource, config: StereoVOConfig, out: str | Path | None, fmt: str | None,
-                   plot: str | Path | None, progress: bool) -> tuple[OdometryRun, TrajectoryMetrics | None]:
-    """Run VO, write the trajectory, print the summary and (with ground truth) the metrics."""
-    with tqdm(total=len(source), desc=f"VO {source.name}", unit="frame", disable=not progress or None,
-              leave=False) as bar:
-        run = run_stereo_vo(source, config, on_frame=lambda _: bar.update(1))
-    if out is not None:
-        Path(out).parent.mkdir(parents=True, exist_ok=True)
-        write_trajectory(out, run.trajectory, fmt)  # type: ignore[arg-type]
-    print(run.summary())
-    print("stage ms: " + ", ".join(f"{k} {v:.1f}" for k, v in run.stage_ms().items()))
-    ground_truth = source.ground_truth()
-    metrics = None
-    if ground_truth is not None and len(ground_truth) >= 2:
-        metrics = evaluate_trajectory(ground_truth, run.trajectory)
-        print(metrics.table())
-    if plot is not None:
-        plot_trajectories(ground_truth, run.trajectory, plot, title=source.name)
-    return run, metrics
-
-
-def odometry(args: argparse.Namespace) -> int:
-    if getattr(args, "mono", False):
-        return _mono_odometry(args)
-    config = load_stack_config(args.config).stereo_vo
-    source = _open_source(args)
-    run, metrics = run_and_report(source, config, args.out, args.format, args.plot, not args.no_progress)
-    print(f"trajectory written to {args.out}")
-    if args.json:
-        _write_json(args.json, {
-            "source": source.name, "frames": len(run.estimates), "bridged_frames": run.bridged_frames,
-            "unreadable_frames": list(run.unreadable_frames), "frames_per_second": run.frames_per_second,
-            "stage_ms": run.stage_ms(), "metrics": metrics.as_dict() if metrics else None})
-    return 0
-
-
-def _mono_odometry(args: argparse.Namespace) -> int:
-    """Monocular VO on the left camera, scaled by the ground plane under the given camera height."""
+def _vo_for(args: argparse.Namespace, source: StereoSource) -> VisualOdometry:
+    """Stereo VO, or with ``--mono`` monocular VO on the left camera scaled by the given camera height."""
+    stack = load_stack_config(args.config)
+    if not getattr(args, "mono", False):
+        return StereoVO(source.rig, stack.stereo_vo)
     if args.camera_height is None:
         raise ConfigError("--mono needs --camera-height METRES (the camera's height above the road; 1.65 on KITTI): "
                           "the metric scale comes from the ground plane, never from the ground truth")
-    config = load_stack_config(args.config).mono_vo
-    config = replace(config, ground=replace(config.ground, camera_height_m=args.camera_height))
+    config = replace(stack.mono_vo, ground=replace(stack.mono_vo.ground, camera_height_m=args.camera_height))
+    return MonoVO(source.rig.camera, config)
+
+
+def odometry(args: argparse.Namespace) -> int:
+    """VO over a source: write the trajectory, print the summary and (with ground truth) the metrics."""
     source = _open_source(args)
-    with tqdm(total=len(source), desc=f"mono VO {source.name}", unit="frame", disable=args.no_progress or None,
+    vo = _vo_for(args, source)
+    mode = "mono" if isinstance(vo, MonoVO) else "stereo"
+    with tqdm(total=len(source), desc=f"{mode} VO {source.name}", unit="frame", disable=args.no_progress or None,
               leave=False) as bar:
-        run = run_mono_vo(source, config, on_frame=lambda _: bar.update(1))
+        run = run_vo(stereo_frames(source), vo, source.name, on_frame=lambda _: bar.update(1))
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     write_trajectory(args.out, run.trajectory, args.format)
     print(run.summary())
@@ -125,13 +100,14 @@ def _mono_odometry(args: argparse.Namespace) -> int:
         metrics = evaluate_trajectory(ground_truth, run.trajectory)
         print(metrics.table())
     if args.plot:
-        plot_trajectories(ground_truth, run.trajectory, args.plot, title=f"{source.name} (mono)")
-    print(f"trajectory written to {args.out} (metric scale from the {run.scale_source})")
+        plot_trajectories(ground_truth, run.trajectory, args.plot, title=f"{source.name} ({mode})")
+    print(f"trajectory written to {args.out}")
     if args.json:
         _write_json(args.json, {
-            "source": source.name, "mode": "mono", "scale_source": run.scale_source, "frames": len(run.estimates),
+            "source": source.name, "mode": mode, "scale_source": run.scale_source, "frames": len(run.trajectory),
             "bridged_frames": run.bridged_frames, "unreadable_frames": list(run.unreadable_frames),
-            "stage_ms": run.timing_ms, "metrics": metrics.as_dict() if metrics else None})
+            "frames_per_second": run.frames_per_second, "stage_ms": run.timing_ms,
+            "metrics": metrics.as_dict() if metrics else None})
     return 0
 
 

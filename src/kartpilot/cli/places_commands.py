@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import csv
 import time
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
@@ -13,10 +14,12 @@ from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import write_json_atomic
 from kartpilot.core.geometry import invert_pose
 from kartpilot.core.trajectory import Trajectory, read_trajectory
-from kartpilot.core.types import Image
+from kartpilot.core.types import FrameSet, Image
 from kartpilot.eval.places import evaluate_places
+from kartpilot.odometry.mono_vo import MonoVO
 from kartpilot.odometry.places import PlaceFix, build_places, load_places
-from kartpilot.odometry.run import run_mono_vo_frames, run_stereo_vo
+from kartpilot.odometry.run import run_vo, stereo_frames
+from kartpilot.odometry.stereo_vo import StereoVO
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
 from kartpilot.runtime.config import StackConfig, load_stack_config
 from kartpilot.sensors.base import read_gray
@@ -69,7 +72,7 @@ def _positions(reader: RecordingReader, camera: str, args: argparse.Namespace, s
                         f"{camera} camera's trajectory, or --positions-from stereo-vo or mono-vo")
     if wanted == "stereo-vo":
         stereo = RecordingStereoSource(reader.folder)
-        run = run_stereo_vo(stereo, stack.stereo_vo)
+        run = run_vo(stereo_frames(stereo), StereoVO(stereo.rig, stack.stereo_vo), str(reader.folder))
         # the rectified left camera's poses, moved onto the database's camera by the two mounts
         to_camera = invert_pose(stereo.pose_body_left) @ reader.cameras[camera].pose_body_cam_array
         print(run.summary())
@@ -82,9 +85,17 @@ def _positions(reader: RecordingReader, camera: str, args: argparse.Namespace, s
         raise ConfigError(f"monocular VO's scale comes from the {camera!r} camera's height above the road, and "
                           "its mount in the recording does not give one")
     config = replace(stack.mono_vo, ground=replace(stack.mono_vo.ground, camera_height_m=height))
-    frames = ((k, stamp, lens(read_gray(path)) if lens is not None else read_gray(path))
-              for k, (stamp, path) in enumerate(reader.frames(camera)))
-    mono = run_mono_vo_frames(frames, pinhole, str(reader.folder), config)
+
+    def frames() -> Iterator[FrameSet | int]:
+        for k, (stamp, path) in enumerate(reader.frames(camera)):
+            try:
+                image = read_gray(path)
+            except DataError:
+                yield k
+                continue
+            yield FrameSet(k, stamp, {camera: lens(image) if lens is not None else image})
+
+    mono = run_vo(frames(), MonoVO(pinhole, config, camera), str(reader.folder))
     print(mono.summary())
     return mono.trajectory, f"monocular VO over the recording (scale from the {mono.scale_source})"
 

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 from kartpilot.core.errors import DataError
 from kartpilot.core.geometry import Array, pose_from_quaternion, quaternion_xyzw_from_pose
@@ -65,6 +66,23 @@ class Trajectory:
     @property
     def path_length_m(self) -> float:
         return float(np.linalg.norm(np.diff(self.positions, axis=0), axis=1).sum())
+
+    def at(self, stamps_s: Array) -> Trajectory:
+        """The poses at ``stamps_s``: positions interpolated linearly, rotations spherically; a stamp outside
+        the trajectory's time span takes the nearest end's pose. The stamps must increase."""
+        stamps = np.asarray(stamps_s, dtype=np.float64)
+        if len(self) == 0:
+            raise DataError("cannot interpolate an empty trajectory")
+        if len(self) == 1 or not np.all(np.diff(self.stamps_s) > 0):
+            if len(self) > 1:
+                raise DataError("the trajectory's timestamps do not increase: it cannot be interpolated")
+            return Trajectory(stamps, np.repeat(self.poses, len(stamps), axis=0))
+        clipped = np.clip(stamps, self.stamps_s[0], self.stamps_s[-1])
+        poses = np.repeat(np.eye(4)[None], len(stamps), axis=0)
+        poses[:, :3, :3] = Slerp(self.stamps_s, Rotation.from_matrix(self.poses[:, :3, :3]))(clipped).as_matrix()
+        for axis in range(3):
+            poses[:, axis, 3] = np.interp(clipped, self.stamps_s, self.poses[:, axis, 3])
+        return Trajectory(stamps, poses)
 
 
 def _read_rows(path: Path, columns: int) -> Array:

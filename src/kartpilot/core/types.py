@@ -44,6 +44,10 @@ class StereoFrame:
     def stamp_s(self) -> float:
         return self.stamp_ns * 1e-9
 
+    def as_frame_set(self, left: str = "left", right: str = "right") -> FrameSet:
+        """The pair as a frame set of two cameras with these names."""
+        return FrameSet(self.index, self.stamp_ns, {left: self.left, right: self.right})
+
 
 @dataclass(frozen=True)
 class FrameSet:

@@ -20,13 +20,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
 from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.errors import ConfigError, OdometryError, PerceptionError
 from kartpilot.core.geometry import Array, Pose2D, between_2d, compose_2d, vo_ground_pose
-from kartpilot.core.types import FrameSet, Image, StereoFrame, VehiclePose
+from kartpilot.core.types import FrameSet, Image, VehiclePose
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
 from kartpilot.odometry.visual_map import RelocConfig, VisualMap, relocalize
 from kartpilot.sensors.health import HealthConfig, frame_problem
@@ -56,10 +55,6 @@ class LocalizerConfig:
     def __post_init__(self) -> None:
         if self.max_bridge_s < 0 or self.speed_time_constant_s < 0:
             raise ConfigError("localizer.max_bridge_s and speed_time_constant_s must not be negative")
-
-
-def _gray(image: Image) -> Image:
-    return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
 
 
 
@@ -141,7 +136,7 @@ class StereoVOLocalizer(PoseTracker):
         """``wrap_vo`` is the seam fault injection wraps the VO at (``vo-failure``)."""
         self.config = config or LocalizerConfig()
         super().__init__(self.config.max_bridge_s, self.config.speed_time_constant_s)
-        vo = StereoVO(rig, vo_config)
+        vo = StereoVO(rig, vo_config, (self.config.left_camera, self.config.right_camera))
         self.vo = wrap_vo(vo) if wrap_vo is not None else vo
         self.rig = rig
         self.map = visual_map if self.config.reloc.enabled else None
@@ -171,7 +166,7 @@ class StereoVOLocalizer(PoseTracker):
             if problem:
                 return self._bridge(frames.stamp_ns, f"the {name} camera's frame is {problem}")
         try:
-            estimate = self.vo.process(StereoFrame(frames.index, frames.stamp_ns, _gray(left), _gray(right)))
+            estimate = self.vo.process(frames)
         except (PerceptionError, OdometryError) as exc:
             return self._bridge(frames.stamp_ns, str(exc))
         for stage, ms in estimate.diagnostics.timing_ms.items():

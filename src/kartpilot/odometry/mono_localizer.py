@@ -33,7 +33,6 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
-import cv2
 import numpy as np
 
 from kartpilot.core.camera import PinholeCamera
@@ -197,7 +196,7 @@ class MonoLocalizer(PoseTracker):
         height = float(camera.pose_body_cam_array[2, 3])
         if height > 0:  # the mount knows the camera's height above the road better than a default
             vo_config = replace(vo_config, ground=replace(vo_config.ground, camera_height_m=height))
-        vo = MonoVO(camera, vo_config)
+        vo = MonoVO(camera, vo_config, self.config.camera)
         self.vo = wrap_vo(vo) if wrap_vo is not None else vo
         self._camera = camera
         self.places = places
@@ -237,10 +236,9 @@ class MonoLocalizer(PoseTracker):
         self._previous_image = image
         if problem:
             return self._bridge(frames.stamp_ns, f"the {self.config.camera} camera's frame is {problem}")
-        gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
         t0 = time.perf_counter()
         try:
-            estimate = self.vo.process(frames.index, frames.stamp_ns, gray)
+            estimate = self.vo.process(frames)
         except (PerceptionError, OdometryError) as exc:
             return self._bridge(frames.stamp_ns, str(exc))
         t1 = time.perf_counter()
@@ -266,7 +264,7 @@ class MonoLocalizer(PoseTracker):
                 self.filter.correct_distance(vo_length, abs(wheel) * dt, sigma)
         fixed = False
         if self._since_query_m >= self.config.place_every_m or self.filter.state is None:
-            fixed = self._fix(self.places.locate(gray, frames.stamp_ns))
+            fixed = self._fix(self.places.locate(image, frames.stamp_ns))
         t2 = time.perf_counter()
         self.timing_ms["vo"] = self.timing_ms.get("vo", 0.0) + (t1 - t0) * 1e3
         self.timing_ms["places"] = self.timing_ms.get("places", 0.0) + (t2 - t1) * 1e3

@@ -50,7 +50,8 @@ from numpy.typing import NDArray
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array, mount_pose
-from kartpilot.core.types import Image
+from kartpilot.core.types import FrameSet, Image
+from kartpilot.odometry.vo import grey_images
 from kartpilot.perception.tracking import KltConfig, track_klt
 
 __all__ = ["GroundConfig", "MonoEstimate", "MonoVO", "MonoVOConfig", "align_road_arc", "arc_step", "beyond_ground_mask",
@@ -371,8 +372,10 @@ def fit_ground_homography(p0: F32, p1: F32, rotation: Array, t: Array, camera_ma
 class MonoVO:
     """Holds the previous image, the pose, and the recent scales and plane normals."""
 
-    def __init__(self, camera: PinholeCamera, config: MonoVOConfig | None = None) -> None:
+    def __init__(self, camera: PinholeCamera, config: MonoVOConfig | None = None, camera_name: str = "left") -> None:
+        """``camera_name`` is the camera :meth:`process` reads in each frame set."""
         self.camera = camera
+        self.cameras = (camera_name,)
         self.config = config or MonoVOConfig()
         self.k = camera.matrix
         self.k_inv = np.linalg.inv(self.k)
@@ -410,12 +413,20 @@ class MonoVO:
                   inliers: int = 0, road: int = 0) -> MonoEstimate:
         if status == "bridged":
             self.bridged += 1
-        return MonoEstimate(index, stamp_ns, self._pose.copy(), status, reason, self.scale_m,
-                            f"ground plane (camera {self.config.ground.camera_height_m:g} m above the road)", inliers,
-                            road)
+        return MonoEstimate(index, stamp_ns, self._pose.copy(), status, reason, self.scale_m, self.scale_source,
+                            inliers, road)
 
-    def process(self, index: int, stamp_ns: int, image: Image) -> MonoEstimate:
-        gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+    def close(self) -> None:
+        """Nothing to release (the interface's counterpart of stereo VO's thread)."""
+
+    @property
+    def scale_source(self) -> str:
+        return f"ground plane (camera {self.config.ground.camera_height_m:g} m above the road)"
+
+    def process(self, frames: FrameSet) -> MonoEstimate:
+        """Consume the frame set's image of this VO's camera and return the updated pose."""
+        (gray,) = grey_images(frames, self.cameras)
+        index, stamp_ns = frames.index, frames.stamp_ns
         self.frames += 1
         previous, self._previous = self._previous, gray
         if previous is None:

@@ -33,9 +33,10 @@ from numpy.typing import NDArray
 from kartpilot.core.camera import StereoRig
 from kartpilot.core.errors import ConfigError, PerceptionError
 from kartpilot.core.geometry import Array, invert_pose, pose_from_rotvec, rotvec_from_pose
-from kartpilot.core.types import Image, StereoFrame
+from kartpilot.core.types import FrameSet, Image, StereoFrame
 from kartpilot.odometry.pnp import PnpConfig, check_motion, estimate_motion_pnp
 from kartpilot.odometry.stereo_refine import refine_pose_and_depths
+from kartpilot.odometry.vo import grey_images
 from kartpilot.perception.features import FeatureConfig, Features, create_detector, detect_features
 from kartpilot.perception.matching import MatchConfig, match_descriptors, match_in_band
 from kartpilot.perception.stereo import (
@@ -130,6 +131,10 @@ class VOEstimate:
     lost: bool
     diagnostics: VODiagnostics
 
+    @property
+    def inliers(self) -> int:
+        return self.diagnostics.inliers
+
 
 @dataclass
 class _Keyframe:
@@ -155,9 +160,13 @@ class _Timer:
 class StereoVO:
     """Frame-to-frame stereo VO. Holds only what must persist between frames."""
 
-    def __init__(self, rig: StereoRig, config: StereoVOConfig | None = None) -> None:
+    def __init__(self, rig: StereoRig, config: StereoVOConfig | None = None,
+                 cameras: tuple[str, str] = ("left", "right")) -> None:
+        """``cameras`` names the left and right cameras in the frame sets :meth:`process` takes."""
         self.rig = rig
         self.config = config or StereoVOConfig()
+        self.cameras = cameras
+        self.timing_ms: dict[str, float] = {}
         self._detector, self._binary = create_detector(self.config.features)
         # OpenCV releases the GIL: the right image is detected on a second thread
         self._right_detector, _ = create_detector(self.config.features)
@@ -183,8 +192,19 @@ class StereoVO:
             return None
         return self._previous.features, self._previous.points_m
 
-    def process(self, frame: StereoFrame) -> VOEstimate:
-        """Consume one rectified stereo frame and return the updated pose."""
+    @property
+    def scale_source(self) -> str:
+        return f"stereo baseline ({self.rig.baseline_m:g} m)"
+
+    def process(self, frames: FrameSet) -> VOEstimate:
+        """Consume one rectified stereo pair (the ``cameras`` of ``frames``) and return the updated pose."""
+        left, right = grey_images(frames, self.cameras)
+        estimate = self._process(StereoFrame(frames.index, frames.stamp_ns, left, right))
+        for stage, ms in estimate.diagnostics.timing_ms.items():
+            self.timing_ms[stage] = self.timing_ms.get(stage, 0.0) + ms
+        return estimate
+
+    def _process(self, frame: StereoFrame) -> VOEstimate:
         expected = (self.rig.camera.height_px, self.rig.camera.width_px)
         if frame.left.shape != expected or frame.right.shape != expected:
             raise PerceptionError(

@@ -26,11 +26,12 @@ import numpy as np
 
 from kartpilot.core.errors import ConfigError, OdometryError
 from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource
+from kartpilot.odometry.vo import VisualOdometry, VOStep
 
 __all__ = ["BUS_OFF_S", "KINDS", "FailingVO", "FaultyBus", "InjectedSource", "Injection", "RaisingPipeline",
            "failing_vo", "parse_injection"]
 
-T = TypeVar("T")
+V = TypeVar("V", bound=VisualOdometry)
 
 KINDS = ("camera-freeze", "black-frame", "vo-failure", "can-bus-off", "heartbeat-loss", "ecu-error",
          "steering-sensor-loss", "steering-sensor-range", "loop-stall", "gamepad-unplug", "stage-exception")
@@ -115,26 +116,24 @@ class FaultyBus(can.BusABC):
 
 
 class FailingVO:
-    """A VO that fails on every frame from the injection's time (``vo-failure``); otherwise the VO itself. Stereo
-    VO's ``process`` takes a frame (with its ``stamp_ns``), mono VO's takes ``(index, stamp_ns, image)``."""
+    """A VO that fails on every frame set from the injection's time (``vo-failure``); otherwise the VO itself."""
 
-    def __init__(self, vo: Any, injection: Injection) -> None:
+    def __init__(self, vo: VisualOdometry, injection: Injection) -> None:
         self.vo, self.injection = vo, injection
 
-    def process(self, *args: Any) -> Any:
-        stamp_ns = args[0].stamp_ns if len(args) == 1 else args[1]
-        if self.injection.active(stamp_ns):
+    def process(self, frames: FrameSet) -> VOStep:
+        if self.injection.active(frames.stamp_ns):
             raise OdometryError("visual odometry failed (injected)")
-        return self.vo.process(*args)
+        return self.vo.process(frames)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.vo, name)
 
 
-def failing_vo(injection: Injection) -> Callable[[T], T]:
+def failing_vo(injection: Injection) -> Callable[[V], V]:
     """The ``wrap_vo`` seam of a localiser for the ``vo-failure`` injection."""
-    def wrap(vo: T) -> T:
-        return cast(T, FailingVO(vo, injection))
+    def wrap(vo: V) -> V:
+        return cast(V, FailingVO(vo, injection))
 
     return wrap
 
