@@ -24,6 +24,7 @@ __all__ = [
     "ground_poses",
     "invert_pose",
     "mount_pose",
+    "planar_pose",
     "pose_from_quaternion",
     "pose_from_rotvec",
     "pose_from_rt",
@@ -135,6 +136,15 @@ def vo_ground_pose(pose_world_cam: Array, pose_body_cam: Array) -> tuple[float, 
     odometry frame; the first body pose is ``inverse(pose_body_cam)`` in that world."""
     relative = pose_body_cam @ pose_world_cam @ invert_pose(pose_body_cam)
     return float(relative[0, 3]), float(relative[1, 3]), math.atan2(relative[1, 0], relative[0, 0])
+
+
+def planar_pose(x_m: float, y_m: float, yaw_rad: float) -> Array:
+    """The 4x4 pose of a planar ``x, y, yaw`` (z up), such as a :data:`Pose2D` on the road."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    pose = np.eye(4)
+    pose[:2, :2] = [[c, -s], [s, c]]
+    pose[:2, 3] = x_m, y_m
+    return pose
 
 
 def compose_2d(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:

@@ -58,7 +58,9 @@ class MonoLocalizerConfig:
         health: when a frame counts as black, blank or frozen (bridged, not used).
         max_bridge_s: how long the motion model may stand in before the pose is ``lost``.
         speed_time_constant_s: low-pass time constant of the speed and yaw-rate estimates.
-        place_every_m: query the place database after driving this far (and on every frame until the first fix).
+        place_every_m: query the place database after driving this far; and on every frame until the first fix,
+            and while the position's standard deviation is above ``settled_sigma_m`` (after a start on
+            ambiguous fixes, the first unambiguous one comes sooner).
         cross_track_sigma_m: an unregistered fix's least standard deviation across the track.
         vo_sigma_per_m: VO's position error per metre driven (standard deviation); ``vo_yaw_sigma_per_m`` likewise.
         scale_sigma: the initial standard deviation of VO's scale error (relative).
@@ -71,6 +73,7 @@ class MonoLocalizerConfig:
     max_bridge_s: float = 0.5
     speed_time_constant_s: float = 0.15
     place_every_m: float = 1.0
+    settled_sigma_m: float = 0.3
     cross_track_sigma_m: float = 1.0
     vo_sigma_per_m: float = 0.05
     vo_yaw_sigma_per_m: float = 0.02
@@ -79,8 +82,8 @@ class MonoLocalizerConfig:
     wheel_sigma_mps: float = 0.15
 
     def __post_init__(self) -> None:
-        if not (self.place_every_m > 0 and self.cross_track_sigma_m > 0):
-            raise ConfigError("mono_localizer.place_every_m and cross_track_sigma_m must be positive")
+        if not (self.place_every_m > 0 and self.cross_track_sigma_m > 0 and self.settled_sigma_m > 0):
+            raise ConfigError("mono_localizer.place_every_m, cross_track_sigma_m and settled_sigma_m must be positive")
         if not all(v > 0 for v in (self.vo_sigma_per_m, self.vo_yaw_sigma_per_m, self.scale_sigma,
                                    self.scale_sigma_per_m, self.wheel_sigma_mps)):  # NaN too
             raise ConfigError("mono_localizer.vo_sigma_per_m, vo_yaw_sigma_per_m, scale_sigma, scale_sigma_per_m and "
@@ -119,6 +122,13 @@ class FixFilter:
     @property
     def scale(self) -> float:
         return 1.0 if self.state is None else float(self.state[3])
+
+    @property
+    def position_sigma_m(self) -> float:
+        """The position's standard deviation along its least certain direction (inf before the first fix)."""
+        if self.state is None:
+            return math.inf
+        return math.sqrt(max(float(np.linalg.eigvalsh(self.covariance[:2, :2])[-1]), 0.0))
 
     def place(self, measured: Array, noise: Array) -> None:
         """Start at a fix (``x, y, yaw`` and its 3x3 covariance), with the scale factor 1 and ``scale_sigma``."""
@@ -263,7 +273,8 @@ class MonoLocalizer(PoseTracker):
                 sigma = math.hypot(self.config.wheel_sigma_mps * dt, self.config.vo_sigma_per_m * vo_length * scale)
                 self.filter.correct_distance(vo_length, abs(wheel) * dt, sigma)
         fixed = False
-        if self._since_query_m >= self.config.place_every_m or self.filter.state is None:
+        if (self._since_query_m >= self.config.place_every_m or self.filter.state is None
+                or self.filter.position_sigma_m > self.config.settled_sigma_m):
             fixed = self._fix(self.places.locate(image, frames.stamp_ns))
         t2 = time.perf_counter()
         self.timing_ms["vo"] = self.timing_ms.get("vo", 0.0) + (t1 - t0) * 1e3

@@ -21,8 +21,12 @@ truth), it answers "where was the image most like this one taken?" for a new ima
    top view of the road ahead of each place (:mod:`kartpilot.perception.birdseye`), and the query's
    top view is registered on the best place's. That gives the query's offset across the track and its
    heading relative to the place to a few centimetres and a fraction of a degree, where the
-   retrieval alone only says "near this place" (the reference drive's line). The along-track part
-   stays the retrieval's: on a straight, streaked road the registration's is the weakest.
+   retrieval alone only says "near this place" (the reference drive's line).
+6. Along the track one registration cannot be trusted: beyond its reach (about a metre), and on a
+   straight, streaked road, it still finds a peak, at the wrong offset. So the query is registered on
+   the places before and after the best one too; where two of them put it at the same point, the fix
+   takes that position along the track with ``road_along_sigma_m``. Where none agree, the fix keeps the
+   retrieval's position with the retrieval's spread as its uncertainty: it says it is ambiguous.
 
 The database is written as one versioned NumPy archive (no pickles) and loads back
 identically: the same arrays, the same BallTree, the same answers.
@@ -50,7 +54,7 @@ from kartpilot.core.camera import PinholeCamera, camera_from_dict, camera_to_dic
 from kartpilot.core.config import config_to_dict, merge_config
 from kartpilot.core.errors import ConfigError, DataError, KartpilotError, PerceptionError
 from kartpilot.core.files import write_atomic
-from kartpilot.core.geometry import Array
+from kartpilot.core.geometry import Array, planar_pose
 from kartpilot.core.types import Image
 from kartpilot.odometry.mono_vo import beyond_ground_mask, has_mount
 from kartpilot.perception.birdseye import (
@@ -93,6 +97,12 @@ class PlacesConfig:
         road: the top view and its registration.
         road_cross_track_sigma_m, road_heading_sigma_rad: a registered fix's standard deviations across the
             track and in heading (measured in the simulator: 99 % of the errors within 5 cm and 1.4 degrees).
+        road_along_agree_m, road_along_sigma_m: along the track, the query is registered on the places before
+            and after the best one in the drive too. Where two of the three put it within ``road_along_agree_m``
+            of each other, the fix's position along the track is theirs, with ``road_along_sigma_m``. Where none
+            agree (a streaked or repeating road, typically on a straight, matches at the wrong offset), the
+            position along the track stays the retrieval's, with its wider ``sigma_m``: the fix says it is
+            ambiguous instead of claiming the registration's precision.
     """
 
     vlad: VladConfig = field(default_factory=VladConfig)
@@ -111,6 +121,8 @@ class PlacesConfig:
     road: BirdseyeConfig = field(default_factory=BirdseyeConfig)
     road_cross_track_sigma_m: float = 0.05
     road_heading_sigma_rad: float = 0.01
+    road_along_agree_m: float = 0.2
+    road_along_sigma_m: float = 0.1
 
     def __post_init__(self) -> None:
         if self.spacing_m <= 0:
@@ -119,9 +131,10 @@ class PlacesConfig:
             raise ConfigError("places.top_k and places.verify_candidates must be at least 1")
         if self.ignore_ground_heights < 0 or self.min_inliers < 5:
             raise ConfigError("places.ignore_ground_heights must not be negative and min_inliers at least 5")
-        if min(self.check_heading_sigma_rad, self.road_cross_track_sigma_m, self.road_heading_sigma_rad) <= 0:
-            raise ConfigError("places.check_heading_sigma_rad, road_cross_track_sigma_m and road_heading_sigma_rad "
-                              "must be positive")
+        if not min(self.check_heading_sigma_rad, self.road_cross_track_sigma_m, self.road_heading_sigma_rad,
+                   self.road_along_agree_m, self.road_along_sigma_m) > 0:  # NaN too
+            raise ConfigError("places.check_heading_sigma_rad, road_cross_track_sigma_m, road_heading_sigma_rad, "
+                              "road_along_agree_m and road_along_sigma_m must be positive")
 
 
 @dataclass(frozen=True)
@@ -341,8 +354,9 @@ class PlaceDatabase:
         if rotation is not None:  # x_place = R x_query: the query camera's orientation is R_world_place @ R
             pose[:3, :3] = pose[:3, :3] @ rotation
         pose[:3, 3] = mean
-        # the weighted mean's standard error (Kish's effective count), and half the spacing of the places
-        sigma = math.hypot(spread / math.sqrt(1.0 / float((w * w).sum())), cfg.spacing_m / 2)
+        # the top places' spread itself, and half the spacing of the places: not the weighted mean's standard
+        # error, since neighbouring places look alike together (on a straight, all of them along it)
+        sigma = math.hypot(spread, cfg.spacing_m / 2)
         heading_sigma = cfg.check_heading_sigma_rad if rotation is not None else math.inf
         body_cam = self.camera.pose_body_cam_array
         turn = body_cam[:3, :3] @ rotation @ body_cam[:3, :3].T if rotation is not None else np.eye(3)
@@ -350,16 +364,43 @@ class PlaceDatabase:
         if road is None:
             return PlaceFix(stamp_ns, True, "", pose, sigma, best, candidates, vlad, inliers, False, sigma,
                             heading_sigma)
-        # across the track and in heading the registration's pose; along it the retrieval's: the query camera
-        # lies as far along the place's heading as the places' mean
+        # across the track and in heading the registration's pose; along it the two nearest places' agreed
+        # registrations, or else the retrieval's: the query camera lies as far along the place's heading as the
+        # places' mean
         world_body = self.poses_world_cam[best] @ np.linalg.inv(body_cam)
         along = float((np.linalg.inv(world_body) @ np.r_[mean, 1.0])[0])
         relative = np.eye(4)
         relative[:2, :2] = planar_transform(0.0, 0.0, road.yaw_rad)[:2, :2]
-        camera_along = relative[0, :2] @ body_cam[:2, 3]  # the camera's lever arm, turned, along the place's heading
-        relative[:2, 3] = along - camera_along, road.y_m
+        # the camera's lever arm, turned, along the place's heading
+        camera_along = float(relative[0, :2] @ body_cam[:2, 3])
+        body_along = self._along_by_road(image, best, road)
+        if body_along is None:
+            body_along = along - camera_along
+        else:
+            sigma = cfg.road_along_sigma_m
+        relative[:2, 3] = body_along, road.y_m
         return PlaceFix(stamp_ns, True, "", world_body @ relative @ body_cam, sigma, best, candidates, vlad, inliers,
                         True, cfg.road_cross_track_sigma_m, cfg.road_heading_sigma_rad)
+
+    def _along_by_road(self, image: Image, best: int, road: RoadRegistration) -> float | None:
+        """Where the query's body lies along the best place's heading (metres ahead of it), from its road
+        registered on the best place (``road``) and on the places before and after it in the drive. A
+        registration beyond its reach (about a metre) still finds a peak, typically at the place itself, so
+        one registration alone cannot be trusted along the track; two places that put the query at the same
+        point, within ``road_along_agree_m``, can. None when no two agree."""
+        body_cam = self.camera.pose_body_cam_array
+        to_best = body_cam @ np.linalg.inv(self.poses_world_cam[best])
+        found = [road.x_m]
+        for place in (best - 1, best + 1):
+            if not 0 <= place < len(self.poses_world_cam):
+                continue
+            best_place = to_best @ self.poses_world_cam[place] @ np.linalg.inv(body_cam)  # in the best's body frame
+            other = self.register(image, place, road.yaw_rad - math.atan2(best_place[1, 0], best_place[0, 0]))
+            if other is not None:
+                found.append(float((best_place @ planar_pose(other.x_m, other.y_m, other.yaw_rad))[0, 3]))
+        pairs = [(abs(a - b), (a + b) / 2) for a, b in itertools.combinations(found, 2)]
+        closest = min(pairs, default=(math.inf, 0.0))
+        return closest[1] if closest[0] <= self.config.road_along_agree_m else None
 
     def save(self, path: str | Path) -> Path:
         """Write the database (atomically: a crash leaves the old file or none, never half of one)."""
