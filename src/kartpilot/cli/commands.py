@@ -6,6 +6,7 @@ import argparse
 import csv
 import json
 import math
+import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -15,12 +16,15 @@ import numpy as np
 from tqdm import tqdm
 
 from kartpilot.control.lane_follow import LaneFollowState, lane_follow_step
-from kartpilot.core.errors import ConfigError
+from kartpilot.core.errors import ConfigError, DataError
+from kartpilot.core.geometry import invert_pose, mount_pose, planar_pose
 from kartpilot.core.trajectory import Trajectory, read_trajectory, write_trajectory
 from kartpilot.eval.disparity import bad_pixel_rate, disparity_search_range_px, load_middlebury_pair
 from kartpilot.eval.plots import plot_trajectories
 from kartpilot.eval.trajectory_metrics import evaluate_trajectory
+from kartpilot.odometry.mono_localizer import MonoLocalizer
 from kartpilot.odometry.mono_vo import MonoVO
+from kartpilot.odometry.places import load_places
 from kartpilot.odometry.run import run_vo, stereo_frames
 from kartpilot.odometry.stereo_vo import StereoVO
 from kartpilot.odometry.vo import VisualOdometry
@@ -82,32 +86,73 @@ def _vo_for(args: argparse.Namespace, source: StereoSource) -> VisualOdometry:
     return MonoVO(source.rig.camera, config)
 
 
+def _place_localised(args: argparse.Namespace, source: StereoSource) -> tuple[Trajectory, dict[str, Any]]:
+    """The one-camera localiser (monocular VO fused with place fixes from ``--places``) over the left camera,
+    mounted ``--camera-height`` above the road and pitched ``--camera-pitch-down``: the camera's poses in the
+    database's frame, one per frame (before the first fix, the motion model's), and a summary."""
+    if not getattr(args, "mono", False) or args.camera_height is None:
+        raise ConfigError("--places needs --mono and --camera-height METRES (the camera's mount on the kart)")
+    stack = load_stack_config(args.config)
+    database = load_places(args.places)
+    mount = mount_pose(z_m=args.camera_height, pitch_down_deg=args.camera_pitch_down)
+    camera = replace(source.rig.camera, pose_body_cam=tuple(tuple(float(v) for v in row) for row in mount))
+    localizer = MonoLocalizer(camera, database, stack.mono_vo, replace(stack.drive.mono, camera=database.camera_name))
+    origin_world_body = database.poses_world_cam[0] @ invert_pose(mount)
+    poses, stamps_s, placed, unreadable = [], [], 0, 0
+    start = time.perf_counter()
+    for item in tqdm(stereo_frames(source, (database.camera_name, "right")), total=len(source), unit="frame",
+                     desc=f"mono VO + places {source.name}", disable=args.no_progress or None, leave=False):
+        if isinstance(item, int):
+            unreadable += 1
+            continue
+        pose = localizer.update(item)
+        placed += localizer.filter.state is not None
+        poses.append(origin_world_body @ planar_pose(pose.x_m, pose.y_m, pose.yaw_rad) @ mount)
+        stamps_s.append(item.stamp_ns * 1e-9)
+    localizer.close()
+    wall = time.perf_counter() - start
+    if not poses:
+        raise DataError(f"none of the {len(source)} frames of {source.name} could be read")
+    print(f"{len(poses)} frames, {placed} placed on the database, {localizer.relocalisations} place fixes used, "
+          f"{localizer.rejected_fixes} rejected, {unreadable} unreadable, {len(poses) / wall:.1f} frames/s; scale "
+          f"from the ground plane and the place fixes")
+    return Trajectory.from_poses(poses, stamps_s), {
+        "mode": "mono+places", "places": str(args.places), "placed_frames": placed,
+        "place_fixes": localizer.relocalisations, "rejected_fixes": localizer.rejected_fixes,
+        "unreadable_frames": unreadable, "frames_per_second": len(poses) / wall}
+
+
 def odometry(args: argparse.Namespace) -> int:
     """VO over a source: write the trajectory, print the summary and (with ground truth) the metrics."""
     source = _open_source(args)
-    vo = _vo_for(args, source)
-    mode = "mono" if isinstance(vo, MonoVO) else "stereo"
-    with tqdm(total=len(source), desc=f"{mode} VO {source.name}", unit="frame", disable=args.no_progress or None,
-              leave=False) as bar:
-        run = run_vo(stereo_frames(source), vo, source.name, on_frame=lambda _: bar.update(1))
+    if getattr(args, "places", None):
+        trajectory, summary = _place_localised(args, source)
+        mode = "mono+places"
+    else:
+        vo = _vo_for(args, source)
+        mode = "mono" if isinstance(vo, MonoVO) else "stereo"
+        with tqdm(total=len(source), desc=f"{mode} VO {source.name}", unit="frame",
+                  disable=args.no_progress or None, leave=False) as bar:
+            run = run_vo(stereo_frames(source), vo, source.name, on_frame=lambda _: bar.update(1))
+        print(run.summary())
+        print("stage ms: " + ", ".join(f"{k} {v:.1f}" for k, v in run.timing_ms.items()))
+        trajectory = run.trajectory
+        summary = {"mode": mode, "scale_source": run.scale_source, "bridged_frames": run.bridged_frames,
+                   "unreadable_frames": list(run.unreadable_frames), "frames_per_second": run.frames_per_second,
+                   "stage_ms": run.timing_ms}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    write_trajectory(args.out, run.trajectory, args.format)
-    print(run.summary())
-    print("stage ms: " + ", ".join(f"{k} {v:.1f}" for k, v in run.timing_ms.items()))
+    write_trajectory(args.out, trajectory, args.format)
     ground_truth = source.ground_truth()
     metrics = None
     if ground_truth is not None and len(ground_truth) >= 2:
-        metrics = evaluate_trajectory(ground_truth, run.trajectory)
+        metrics = evaluate_trajectory(ground_truth, trajectory)
         print(metrics.table())
     if args.plot:
-        plot_trajectories(ground_truth, run.trajectory, args.plot, title=f"{source.name} ({mode})")
+        plot_trajectories(ground_truth, trajectory, args.plot, title=f"{source.name} ({mode})")
     print(f"trajectory written to {args.out}")
     if args.json:
-        _write_json(args.json, {
-            "source": source.name, "mode": mode, "scale_source": run.scale_source, "frames": len(run.trajectory),
-            "bridged_frames": run.bridged_frames, "unreadable_frames": list(run.unreadable_frames),
-            "frames_per_second": run.frames_per_second, "stage_ms": run.timing_ms,
-            "metrics": metrics.as_dict() if metrics else None})
+        _write_json(args.json, {"source": source.name, "frames": len(trajectory), **summary,
+                                "metrics": metrics.as_dict() if metrics else None})
     return 0
 
 
@@ -292,6 +337,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         sub_parser.add_argument("--camera-height", type=float,
                                 help="--mono: the camera's height above the road, m (1.65 on KITTI, 0.6 on the "
                                      "SDC kart)")
+        sub_parser.add_argument("--camera-pitch-down", type=float, default=0.0,
+                                help="--places: the camera's pitch below level, deg")
+        sub_parser.add_argument("--places", help="--mono: fuse place fixes from this place database "
+                                                 "(kartpilot places build) into the metres and the position")
     for sub_parser in (kitti, euroc, recording, synthetic):
         sub_parser.add_argument("--out", required=True, help="trajectory file (.txt = KITTI, .tum = TUM)")
         sub_parser.add_argument("--format", choices=("kitti", "tum"), help="override the format guessed from --out")

@@ -8,14 +8,17 @@ import math
 from dataclasses import asdict
 
 from kartpilot.calibration.rig import apply_camera_maps, load_rig
-from kartpilot.record.convert import export_recording, import_donkey_tub
+from kartpilot.core.geometry import mount_pose
+from kartpilot.record.convert import export_recording, import_donkey_tub, import_stereo_source
 from kartpilot.record.info import recording_info
 from kartpilot.record.live import record_live
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.sensors.capture import LiveFrameSource
+from kartpilot.sensors.kitti import KittiOdometrySource
 
-__all__ = ["add_parsers", "record", "recordings_export", "recordings_import_tub", "recordings_info"]
+__all__ = ["add_parsers", "record", "recordings_export", "recordings_import_kitti", "recordings_import_tub",
+           "recordings_info"]
 
 RECORD_QUEUE_FRAMES = 16  # per camera: half a second at 30 fps before frames are dropped (and counted)
 
@@ -95,6 +98,17 @@ def recordings_import_tub(args: argparse.Namespace) -> int:
     return 0
 
 
+def recordings_import_kitti(args: argparse.Namespace) -> int:
+    """A KITTI odometry sequence as a kartpilot recording, the left camera at the given mount."""
+    source = KittiOdometrySource(args.root, args.sequence)
+    mount = mount_pose(z_m=args.camera_height, pitch_down_deg=args.camera_pitch_down)
+    frames = import_stereo_source(source, args.out, mount)
+    skipped = f", {len(source) - frames} unreadable frames left out" if frames < len(source) else ""
+    print(f"imported {frames} stereo frames of {source.name} into {args.out} (left camera "
+          f"{args.camera_height:g} m above the road, pitched {args.camera_pitch_down:g} deg down{skipped})")
+    return 0
+
+
 def recordings_export(args: argparse.Namespace) -> int:
     """A recording as a folder of images plus one CSV."""
     rows = export_recording(args.recording, args.out, args.cameras.split(",") if args.cameras else None)
@@ -132,6 +146,15 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     tub.add_argument("--fov-deg", type=float, default=120.0, help="horizontal field of view to guess intrinsics from")
     tub.add_argument("--max-steer-deg", type=float, default=25.0, help="the steer that user/angle 1 stands for")
     tub.set_defaults(handler=recordings_import_tub)
+    kitti = rec_sub.add_parser("import-kitti", help="a KITTI odometry sequence (stereo, ground truth) as a recording")
+    kitti.add_argument("root", help="the KITTI odometry folder (sequences/, poses/)")
+    kitti.add_argument("--sequence", required=True)
+    kitti.add_argument("--out", required=True)
+    kitti.add_argument("--camera-height", type=float, required=True,
+                       help="the left camera's height above the road, m (1.65 on KITTI's car)")
+    kitti.add_argument("--camera-pitch-down", type=float, default=0.0, help="its pitch below level, deg")
+    kitti.set_defaults(handler=recordings_import_kitti)
+
     export = rec_sub.add_parser("export", help="a recording as a folder of images plus one CSV")
     export.add_argument("recording")
     export.add_argument("--out", required=True)

@@ -4,6 +4,9 @@
   the human's ``user/angle`` and ``user/throttle`` as commands, and both raw values kept as the
   ``donkey`` output. A tub has no calibration: give the camera (from a rig file) or accept one
   guessed from a horizontal field of view, which the manifest says.
+* :func:`import_stereo_source`: a stereo sequence (KITTI, EuRoC) as a recording: its rectified pair as
+  cameras ``left`` and ``right`` on the kart at a given mount, and its ground truth, so the place
+  database, the one-camera pipeline and replay run on it as on the kart's own drives.
 * :func:`export_recording`: a recording as a folder of images plus one CSV row per set, with the
   command in force at that set (what image-to-steering trainers and spreadsheets read).
 """
@@ -14,6 +17,7 @@ import csv
 import math
 import shutil
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -21,12 +25,13 @@ import numpy as np
 
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import DataError, RecordingError
-from kartpilot.core.geometry import mount_pose
+from kartpilot.core.geometry import Array, mount_pose
 from kartpilot.core.types import ActuatorCommand
 from kartpilot.record.recording import RecordingReader, RecordingWriter
+from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.donkeycar import DonkeyTub
 
-__all__ = ["export_recording", "guessed_camera", "import_donkey_tub"]
+__all__ = ["export_recording", "guessed_camera", "import_donkey_tub", "import_stereo_source"]
 
 
 def guessed_camera(width_px: int, height_px: int, horizontal_fov_deg: float, height_m: float = 0.15) -> PinholeCamera:
@@ -72,6 +77,38 @@ def import_donkey_tub(tub_folder: str | Path, out: str | Path, camera: PinholeCa
             writer.write_output("donkey", frames.stamp_ns, {"index": record.index, "user_angle": record.angle,
                                                              "user_throttle": record.throttle})
     return len(tub)
+
+
+def import_stereo_source(source: StereoSource, out: str | Path, pose_body_left: Array) -> int:
+    """Write ``source`` as a recording at ``out``, the left camera at ``pose_body_left`` on the body (the right
+    one beside it, the baseline to its right); returns the number of frames written. A frame that cannot be
+    read is left out."""
+    left = replace(source.rig.camera, pose_body_cam=_rows(pose_body_left))
+    right_on_left = np.eye(4)
+    right_on_left[0, 3] = source.rig.baseline_m
+    right = replace(source.rig.camera, pose_body_cam=_rows(pose_body_left @ right_on_left))
+    truth = source.ground_truth()
+    metadata: dict[str, object] = {"source": source.name, "groundtruth_camera": "left",
+                                   "mount": "given on import (the source has no body frame)"}
+    written = 0
+    with RecordingWriter(out, {"left": left, "right": right}, stereo_pair=("left", "right"),
+                         metadata=metadata) as writer:
+        for index in range(len(source)):
+            try:
+                frame = source.frame(index)
+            except DataError:
+                continue
+            writer.write_frames(frame.as_frame_set())
+            written += 1
+        if truth is not None:
+            writer.write_groundtruth(truth)
+    if written == 0:
+        raise DataError(f"none of the {len(source)} frames of {source.name} could be read")
+    return written
+
+
+def _rows(pose: Array) -> tuple[tuple[float, ...], ...]:
+    return tuple(tuple(float(v) for v in row) for row in np.asarray(pose, float))
 
 
 def export_recording(folder: str | Path, out: str | Path, cameras: Sequence[str] | None = None) -> int:
