@@ -6,12 +6,12 @@ import json
 
 import numpy as np
 import pytest
+from tests.conftest import data_path
 
 from kartpilot.cli.main import main
 from kartpilot.odometry.places import PlacesConfig, build_places
 from kartpilot.perception.birdseye import BirdseyeConfig
 from kartpilot.record.recording import RecordingReader
-from tests.conftest import data_path
 
 
 @pytest.mark.slow
@@ -22,7 +22,8 @@ def test_kitti_imported_with_its_mount_localises_on_its_places(tmp_path, capsys)
     reader = RecordingReader(tmp_path / "rec")
     assert reader.stereo_pair == ("left", "right") and len(reader.frames("left")) == 51
     left, right = (reader.cameras[name].pose_body_cam_array for name in ("left", "right"))
-    assert left[2, 3] == pytest.approx(1.65) and np.linalg.norm(right[:3, 3] - left[:3, 3]) == pytest.approx(0.54, abs=0.01)
+    assert left[2, 3] == pytest.approx(1.65)
+    assert np.linalg.norm(right[:3, 3] - left[:3, 3]) == pytest.approx(0.54, abs=0.01)
     truth = reader.camera_poses("left")
     assert truth is not None and len(truth) == 51
 
