@@ -26,6 +26,7 @@ def test_vo_follows_the_synthetic_drive(source: SyntheticStereoSource) -> None:
 
 @pytest.mark.parametrize("overrides", [{"temporal_matching": "klt"}, {"joint_depth_refinement": True},
                                        {"features": {"detector": "akaze"}}, {"stereo_matching": "dense"},
+                                       {"window_ba": {"enabled": True}},
                                        {"stereo_matching": "dense", "block_match": {"method": "bm"}}])
 def test_alternative_configurations_also_track(source: SyntheticStereoSource, overrides: dict) -> None:
     from kartpilot.core.config import merge_config

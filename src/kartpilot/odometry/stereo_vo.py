@@ -37,6 +37,7 @@ from kartpilot.core.types import FrameSet, Image, StereoFrame
 from kartpilot.odometry.pnp import PnpConfig, check_motion, estimate_motion_pnp
 from kartpilot.odometry.stereo_refine import refine_pose_and_depths
 from kartpilot.odometry.vo import grey_images
+from kartpilot.odometry.window_ba import WindowBAConfig, WindowObservations, bundle_adjust_window
 from kartpilot.perception.features import FeatureConfig, Features, create_detector, detect_features
 from kartpilot.perception.matching import MatchConfig, match_descriptors, match_in_band
 from kartpilot.perception.stereo import (
@@ -67,6 +68,8 @@ class StereoVOConfig:
         subpixel: refine descriptor matches to sub-pixel positions with KLT.
         joint_depth_refinement: after PnP, refine the pose jointly with each inlier's inverse
             depth, observed through its disparity (see ``stereo_refine``).
+        window_ba: after PnP, refine the last frames' poses and the points tracked through them together
+            (see ``window_ba``; descriptor temporal matching only).
         max_speed_mps, max_yaw_rate_dps: the vehicle's limits for the motion sanity check.
         max_bridged_frames: consecutive bridged frames after which the estimate is reported lost.
     """
@@ -81,6 +84,7 @@ class StereoVOConfig:
     temporal_matching: Literal["descriptor", "klt"] = "descriptor"
     subpixel: bool = True
     joint_depth_refinement: bool = False
+    window_ba: WindowBAConfig = field(default_factory=WindowBAConfig)
     max_speed_mps: float = 40.0
     max_yaw_rate_dps: float = 180.0
     max_bridged_frames: int = 10
@@ -146,6 +150,16 @@ class _Keyframe:
     stamp_ns: int
 
 
+@dataclass
+class _WindowFrame:
+    """A frame of the bundle adjustment's window: its pose, and per left feature its track and disparity."""
+
+    pose_world_cam: Array
+    tracks: NDArray[np.intp]  # (N,) the track each feature belongs to
+    pixels_px: Array  # (N, 2)
+    disparities_px: Array  # (N,), NaN where stereo gave no depth
+
+
 class _Timer:
     def __init__(self) -> None:
         self.timing: dict[str, float] = {}
@@ -176,6 +190,8 @@ class StereoVO:
         self._velocity_cur_prev: Array = np.eye(4)  # last accepted motion, for bridging
         self._velocity_dt_s = 0.1
         self._bridged_in_row = 0
+        self._window: list[_WindowFrame] = []
+        self._next_track = 0
 
     def close(self) -> None:
         """Stop the detection thread."""
@@ -216,10 +232,12 @@ class StereoVO:
         current = _Keyframe(frame.left, features, points_m, frame.stamp_ns)
         previous, self._previous = self._previous, current
         if previous is None:
+            if self.config.window_ba.enabled:
+                self._adjust_window(current, None)
             return VOEstimate(frame.index, frame.stamp_ns, self.pose_world_cam, "init", "", False,
                               replace(counts, timing_ms=timer.timing))
         dt_s = max((frame.stamp_ns - previous.stamp_ns) * 1e-9, 1e-3)
-        prev_points, cur_pixels, prev_pixels = self._temporal_correspondences(previous, current, timer)
+        prev_points, cur_pixels, prev_pixels, pairs = self._temporal_correspondences(previous, current, timer)
         disparities = self.rig.camera.fx_px * self.rig.baseline_m / prev_points[:, 2]
         motion = estimate_motion_pnp(prev_points, cur_pixels, self.rig.camera.matrix, self.config.pnp,
                                      disparities)
@@ -248,6 +266,9 @@ class StereoVO:
             self._bridged_in_row += 1
             logger.info("frame %d bridged with constant velocity: %s", frame.index, reason)
         self._pose_world_cam = self._pose_world_cam @ invert_pose(pose_cur_prev)
+        if self.config.window_ba.enabled:
+            self._adjust_window(current, pairs[:, motion.inliers] if status == "ok" else None)
+            timer.lap("window_ba")
         lost = self._bridged_in_row > self.config.max_bridged_frames
         return VOEstimate(frame.index, frame.stamp_ns, self.pose_world_cam, status, reason, lost, diagnostics)
 
@@ -316,9 +337,10 @@ class StereoVO:
         timer.lap("triangulate")
         return left, points_m, counts
 
-    def _temporal_correspondences(self, previous: _Keyframe, current: _Keyframe,
-                                  timer: _Timer) -> tuple[Array, NDArray[np.float32], NDArray[np.float32]]:
-        """(M, 3) previous-frame points, their (M, 2) current pixels and (M, 2) previous pixels."""
+    def _temporal_correspondences(self, previous: _Keyframe, current: _Keyframe, timer: _Timer
+                                  ) -> tuple[Array, NDArray[np.float32], NDArray[np.float32], NDArray[np.intp]]:
+        """(M, 3) previous-frame points, their (M, 2) current pixels and (M, 2) previous pixels, and (2, M) the
+        previous and current feature indices (-1 for the current one where KLT tracked the point)."""
         config = self.config
         with_depth = np.flatnonzero(np.isfinite(previous.points_m[:, 2]))
         prev_px = previous.features.points_px[with_depth]
@@ -326,17 +348,85 @@ class StereoVO:
             matches = match_descriptors(previous.features.descriptors[with_depth], current.features.descriptors,
                                         self._binary, config.matching)
             prev_index = with_depth[matches.index_a]
+            cur_index = matches.index_b
             prev_px = prev_px[matches.index_a]
             cur_px = current.features.points_px[matches.index_b]
             if config.subpixel and len(prev_index):
                 cur_px, tracked = track_klt(previous.image, current.image, prev_px, _stereo_klt(config.klt),
                                             initial_px=cur_px)
                 prev_index, prev_px, cur_px = prev_index[tracked], prev_px[tracked], cur_px[tracked]
+                cur_index = cur_index[tracked]
         else:
             cur_px, tracked = track_klt(previous.image, current.image, prev_px, config.klt)
             prev_index, prev_px, cur_px = with_depth[tracked], prev_px[tracked], cur_px[tracked]
+            cur_index = np.full(len(prev_index), -1, np.intp)
         timer.lap("temporal_match")
-        return previous.points_m[prev_index], cur_px, prev_px
+        return previous.points_m[prev_index], cur_px, prev_px, np.vstack([prev_index, cur_index])
+
+    def _adjust_window(self, current: _Keyframe, pairs: NDArray[np.intp] | None) -> None:
+        """Add the current frame to the window, its features continuing the previous frame's tracks where
+        ``pairs`` (previous and current feature indices, the motion's inliers) link them, and refine the
+        window (:func:`bundle_adjust_window`). Without pairs (the first frame, a bridged one) the window starts
+        again at the current frame."""
+        count = len(current.features)
+        tracks = self._next_track + np.arange(count)
+        self._next_track += count
+        if pairs is None:
+            self._window.clear()
+        else:
+            linked = pairs[1] >= 0
+            tracks[pairs[1, linked]] = self._window[-1].tracks[pairs[0, linked]]
+        disparities = self.rig.camera.fx_px * self.rig.baseline_m / current.points_m[:, 2]
+        self._window.append(_WindowFrame(self.pose_world_cam, tracks, current.features.points_px.astype(float),
+                                         disparities))
+        config = self.config.window_ba
+        del self._window[:-config.frames]
+        if len(self._window) < 3:
+            return
+        problem = window_problem(self._window, self.rig, config.min_observations)
+        if problem is None:
+            return
+        points, observations = problem
+        poses = np.array([f.pose_world_cam for f in self._window])
+        refined, _ = bundle_adjust_window(poses, points, observations, self.rig.camera.matrix, self.rig.baseline_m,
+                                          config)
+        for frame, pose in zip(self._window, refined, strict=True):
+            frame.pose_world_cam = pose
+        self._pose_world_cam = refined[-1].copy()
+
+
+def window_problem(window: list[_WindowFrame], rig: StereoRig, min_observations: int
+                   ) -> tuple[Array, WindowObservations] | None:
+    """The window's points (triangulated where first seen with a disparity, in the world frame) and their
+    observations, for the tracks seen in at least ``min_observations`` frames; None when there are none."""
+    frame_of = np.concatenate([np.full(len(f.tracks), i, np.intp) for i, f in enumerate(window)])
+    tracks = np.concatenate([f.tracks for f in window])
+    pixels = np.concatenate([f.pixels_px for f in window])
+    disparities = np.concatenate([f.disparities_px for f in window])
+    ids, inverse, counts = np.unique(tracks, return_inverse=True, return_counts=True)
+    keep = counts[inverse] >= min_observations
+    if not keep.any():
+        return None
+    frame_of, pixels, disparities, inverse = frame_of[keep], pixels[keep], disparities[keep], inverse[keep]
+    seen = np.isfinite(disparities) & (disparities > 0)
+    # each point from its first observation with a disparity (the observations are in frame order)
+    with_disparity = np.flatnonzero(seen)
+    point_ids, first = np.unique(inverse[with_disparity], return_index=True)
+    if len(point_ids) == 0:
+        return None
+    used = np.isin(inverse, point_ids)
+    index_of = np.full(len(ids), -1, np.intp)
+    index_of[point_ids] = np.arange(len(point_ids))
+    k = rig.camera.matrix
+    anchors = with_disparity[first]
+    z = k[0, 0] * rig.baseline_m / disparities[anchors]
+    cam = np.column_stack([(pixels[anchors, 0] - k[0, 2]) * z / k[0, 0], (pixels[anchors, 1] - k[1, 2]) * z / k[1, 1],
+                           z, np.ones_like(z)])
+    poses = np.array([f.pose_world_cam for f in window])
+    world = np.einsum("mij,mj->mi", poses[frame_of[anchors]], cam)[:, :3]
+    observations = WindowObservations(frame_of[used], index_of[inverse[used]], pixels[used],
+                                      np.where(seen[used], disparities[used], np.nan))
+    return world, observations
 
 
 def _stereo_klt(config: KltConfig) -> KltConfig:
