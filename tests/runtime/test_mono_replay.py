@@ -49,8 +49,10 @@ def test_a_second_drive_replayed_on_one_camera_stays_on_the_truth(drives, tmp_pa
                             "center")
     database.save(tmp_path / "places.npz")
     assert database.info["undistorted"] == list(LENS) and database.camera.distortion == ()
+    # a replay can afford a place query on every frame until the position has settled
+    (tmp_path / "stack.yaml").write_text("drive:\n  mono:\n    settle_at_start: true\n")
     assert main(["replay", str(drives / "second"), "--pipeline", "mono-vo", "--places", str(tmp_path / "places.npz"),
-                 "--out", str(tmp_path / "replayed")]) == 0
+                 "--out", str(tmp_path / "replayed"), "--config", str(tmp_path / "stack.yaml")]) == 0
 
     second = RecordingReader(drives / "second")
     truth = second.groundtruth()
@@ -89,8 +91,10 @@ def test_places_from_monocular_vo_need_no_ground_truth(drives, tmp_path, capsys)
     true_length = Trajectory.from_poses(truth.poses[:: max(len(truth) // len(database), 1)]).path_length_m
     print(f"\nplaces from mono VO: {len(database)} over {vo_length:.1f} m (the truth: {true_length:.1f} m)")
     assert vo_length == pytest.approx(true_length, rel=0.1)
+    # a replay can afford a place query on every frame until the position has settled
+    (tmp_path / "stack.yaml").write_text("drive:\n  mono:\n    settle_at_start: true\n")
     assert main(["replay", str(drives / "second"), "--pipeline", "mono-vo", "--places", str(tmp_path / "places.npz"),
-                 "--out", str(tmp_path / "replayed")]) == 0
+                 "--out", str(tmp_path / "replayed"), "--config", str(tmp_path / "stack.yaml")]) == 0
     poses = RecordingReader(tmp_path / "replayed").outputs("pose")
     ok = [row for row in poses if row["status"] == "ok"]
     print(f"replayed against them: {len(ok)} of {len(poses)} poses ok, {poses[-1]['relocalisations']} place fixes")
