@@ -103,7 +103,8 @@ def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(p
             executed.append(ecus.step())
             time.sleep(0.005)
 
-    threading.Thread(target=ecu_loop, daemon=True).start()
+    ecu_thread = threading.Thread(target=ecu_loop, daemon=True)
+    ecu_thread.start()
 
     # the person: arms autonomy from the page, holds for a second, then closes the page
     port = _free_port()
@@ -132,6 +133,8 @@ def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(p
         summary = run_live_drive(setup, replace(StackConfig(), can=can_config))
     finally:
         stop.set()
+        ecu_thread.join(timeout=2.0)
+        ecu_bus.shutdown()
     assert SessionResult.from_json(summary).backend == "live"
     assert SessionResult.from_json(json.loads((tmp_path / "live" / "result.json").read_text())).steps > 20
     states = [(t["state"], t["reason"]) for t in summary["transitions"]]
