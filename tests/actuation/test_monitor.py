@@ -51,8 +51,8 @@ def test_the_monitor_listens_live_for_its_duration(capsys):
     out = capsys.readouterr().out
     print(out)
     assert "0x440 rx Speed" in out and "Speed=33" in out
-    assert main(["can", "monitor", "--bus", "virtual", "--channel", channel, "--duration", "nan"]) == 1
-    assert main(["can", "monitor", "--bus", "virtual", "--channel", channel, "--every", "-1"]) == 1
+    assert main(["can", "monitor", "--bus", "virtual", "--channel", channel, "--duration", "nan"]) == 2
+    assert main(["can", "monitor", "--bus", "virtual", "--channel", channel, "--every", "-1"]) == 2
     assert main(["can", "monitor", "--bus", "virtual", "--channel", channel, "--duration", "0.1", "--json",
-                 "/nonexistent/traffic.json"]) == 1
-    assert "its folder does not exist" in capsys.readouterr().err
+                 "/nonexistent/traffic.json"]) == 2
+    assert "the folder /nonexistent does not exist" in capsys.readouterr().err

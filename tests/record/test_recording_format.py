@@ -191,5 +191,5 @@ def test_a_donkey_tub_imports_as_a_recording_and_exports_to_images_and_csv(tmp_p
     assert len(rows) == 3 and float(rows[2]["brake"]) == 0.3
     image = cv2.imread(str(tmp_path / "export" / rows[1]["center_image"]))
     np.testing.assert_array_equal(image, cv2.imread(str(reader.frames("center")[1][1])))
-    assert main(["recordings", "export", str(tmp_path / "rec"), "--out", str(tmp_path / "export")]) == 1
+    assert main(["recordings", "export", str(tmp_path / "rec"), "--out", str(tmp_path / "export")]) == 2
     assert "not empty" in capsys.readouterr().err

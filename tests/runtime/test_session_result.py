@@ -75,10 +75,10 @@ def test_an_output_that_could_only_fail_at_the_end_is_refused_before_the_drive(t
 
     (tmp_path / "a_folder").mkdir()
     (tmp_path / "a_file").write_text("")
-    for target, message in ((tmp_path / "a_folder", "which is a folder"),
-                            (tmp_path / "a_file" / "result.json", "is a file")):
+    for target, message in ((tmp_path / "a_folder", "is a folder, not a file to write"),
+                            (tmp_path / "a_file" / "result.json", "is a file, not a folder")):
         assert main(["drive", "--sim", "sdc-assen", "--vehicle", "sdc-kart", "--pipeline", "lanes", "--duration",
-                     "60", "--result", str(target), "--record", str(tmp_path / "rec"), "--no-progress"]) == 1
+                     "60", "--result", str(target), "--record", str(tmp_path / "rec"), "--no-progress"]) == 2
         error = capsys.readouterr().err
         assert error.startswith("kartpilot: ") and message in error and len(error.strip().splitlines()) == 1
         assert not (tmp_path / "rec").exists()

@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +35,7 @@ __all__ = [
     "calibrate_mono",
     "calibrate_stereo",
     "find_board",
+    "pair_names",
     "read_views",
     "rectified_row_error_px",
 ]
@@ -196,37 +198,58 @@ class StereoCalibration:
 
 
 def calibrate_stereo(left_views: Sequence[BoardView], right_views: Sequence[BoardView], size_wh: tuple[int, int],
-                     min_pairs: int = 3) -> StereoCalibration:
-    """Both cameras alone, then their relative pose from the views where both see the board (paired by
-    order of appearance among the names given: the i-th left with the i-th right)."""
+                     min_pairs: int = 3, pairs: Sequence[tuple[str, str]] | None = None) -> StereoCalibration:
+    """Both cameras alone, then their relative pose from the views where both see the board. ``pairs`` names
+    which left image goes with which right one (:func:`pair_names` of the images given); by default the
+    views' own names are paired."""
     left_cal = calibrate_mono(left_views, size_wh)
     right_cal = calibrate_mono(right_views, size_wh)
-    right_by_key = {_pair_key(v.name): v for v in right_views}
-    pairs = [(lv, right_by_key[_pair_key(lv.name)]) for lv in left_views if _pair_key(lv.name) in right_by_key]
-    pairs = [(lv, rv) for lv, rv in pairs if len(lv.ids) == len(rv.ids) and np.array_equal(lv.ids, rv.ids)]
-    if len(pairs) < min_pairs:
-        raise CalibrationError(f"only {len(pairs)} pairs show the whole board in both images; need {min_pairs}")
+    if pairs is None:
+        pairs = pair_names([v.name for v in left_views], [v.name for v in right_views])
+    left_by_name, right_by_name = {v.name: v for v in left_views}, {v.name: v for v in right_views}
+    both = [(left_by_name[a], right_by_name[b]) for a, b in pairs if a in left_by_name and b in right_by_name]
+    pairs_seen = [(lv, rv) for lv, rv in both if len(lv.ids) == len(rv.ids) and np.array_equal(lv.ids, rv.ids)]
+    if len(pairs_seen) < min_pairs:
+        raise CalibrationError(f"only {len(pairs_seen)} of the {len(pairs)} pairs show the whole board in both "
+                               f"images; need {min_pairs}")
     K1, d1 = left_cal.camera.matrix, left_cal.camera.distortion_array
     K2, d2 = right_cal.camera.matrix, right_cal.camera.distortion_array
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-6)
     rms, *_, R, T, _, _ = cv2.stereoCalibrate(
-        [lv.points_m.astype(np.float32) for lv, _ in pairs], [lv.pixels.astype(np.float32) for lv, _ in pairs],
-        [rv.pixels.astype(np.float32) for _, rv in pairs], K1, d1, K2, d2, size_wh, criteria=criteria,
-        flags=cv2.CALIB_FIX_INTRINSIC)
+        [lv.points_m.astype(np.float32) for lv, _ in pairs_seen],
+        [lv.pixels.astype(np.float32) for lv, _ in pairs_seen], [rv.pixels.astype(np.float32) for _, rv in pairs_seen],
+        K1, d1, K2, d2, size_wh, criteria=criteria, flags=cv2.CALIB_FIX_INTRINSIC)
     pose = pose_from_rt(R, T.ravel())
     rectification = rectify_stereo(left_cal.camera, right_cal.camera, pose)
     rows = {lv.name: float(np.median(np.abs(rectified_row_error_px(rectification, left_cal.camera, right_cal.camera,
-                                                                    lv.pixels, rv.pixels)))) for lv, rv in pairs}
-    return StereoCalibration(left_cal, right_cal, pose, float(rms), tuple(lv.name for lv, _ in pairs), rectification,
-                             rows)
+                                                                    lv.pixels, rv.pixels)))) for lv, rv in pairs_seen}
+    return StereoCalibration(left_cal, right_cal, pose, float(rms), tuple(lv.name for lv, _ in pairs_seen),
+                             rectification, rows)
+
+
+_SIDE = re.compile(r"(?i)left|right|cam0|cam1|(?<![a-z])[lr](?![a-z])|[LR](?=[_\-.]?\d)")
 
 
 def _pair_key(name: str) -> str:
-    """``left03.jpg`` and ``right03.jpg`` (or ``cam0/03.png`` and ``cam1/03.png``) share a key."""
-    stem = Path(name).stem.lower()
-    for word in ("left", "right", "cam0", "cam1", "l_", "r_"):
-        stem = stem.replace(word, "")
-    return stem
+    """``left03.jpg`` and ``right03.jpg``, ``imageL0.png`` and ``imageR0.png``, ``cam0/03.png`` and
+    ``cam1/03.png`` share a key: the name without the word that says which side."""
+    return _SIDE.sub("", Path(name).stem)
+
+
+def pair_names(left: Sequence[str], right: Sequence[str]) -> list[tuple[str, str]]:
+    """Which left image goes with which right one: by a name pattern both lists follow (``left03``/``right03``,
+    ``imageL0``/``imageR0``), else by the order given when both lists are as long. Lists that cannot be
+    paired one to one raise CalibrationError saying so."""
+    left_keys, right_keys = [_pair_key(n) for n in left], [_pair_key(n) for n in right]
+    unique = len(set(left_keys)) == len(left_keys) and len(set(right_keys)) == len(right_keys)
+    if unique and set(left_keys) == set(right_keys):
+        by_key = dict(zip(right_keys, right, strict=True))
+        return [(name, by_key[key]) for name, key in zip(left, left_keys, strict=True)]
+    if len(left) == len(right):
+        return list(zip(left, right, strict=True))
+    common = len(set(left_keys) & set(right_keys))
+    raise CalibrationError(f"the {len(left)} left and {len(right)} right images cannot be paired one to one: "
+                           f"their names pair {common} of them, and by order the counts differ")
 
 
 def rectified_row_error_px(rectification: StereoRectification, left: PinholeCamera, right: PinholeCamera,

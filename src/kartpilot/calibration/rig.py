@@ -49,7 +49,7 @@ import yaml
 from kartpilot.core.camera import CaptureSettings, PinholeCamera
 from kartpilot.core.config import config_to_dict, merge_config
 from kartpilot.core.errors import CalibrationError, ConfigError
-from kartpilot.core.files import write_text_atomic
+from kartpilot.core.files import read_text_file, write_text_atomic
 from kartpilot.core.geometry import mount_pose
 from kartpilot.core.vehicle import SteeringCalibration
 
@@ -134,7 +134,7 @@ def load_rig(path: str | Path) -> Rig:
     if not path.is_file():
         raise CalibrationError(f"{path}: no such rig file")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(read_text_file(path))
     except yaml.YAMLError as exc:
         raise CalibrationError(f"{path}: not valid YAML ({exc})") from exc
     if not isinstance(data, dict) or not isinstance(data.get("cameras"), dict) or not data["cameras"]:
@@ -166,7 +166,7 @@ def load_rig(path: str | Path) -> Rig:
 def _read_camera_map(path: Path) -> dict[str, str]:
     """One organiser camera-mapping file: our camera name -> device path."""
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(read_text_file(path))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CalibrationError(f"camera map {path}: cannot read it as JSON ({exc})") from exc
     if not isinstance(data, dict) or not data or not all(isinstance(v, str) for v in data.values()):

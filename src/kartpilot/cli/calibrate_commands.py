@@ -14,8 +14,16 @@ import numpy as np
 
 from kartpilot.actuation.can_bus import open_bus
 from kartpilot.actuation.steering_calibration import calibrate_steering, steer_of_turning_circle, sweep_values
-from kartpilot.calibration.board import BoardConfig, MonoCalibration, calibrate_mono, calibrate_stereo, read_views
+from kartpilot.calibration.board import (
+    BoardConfig,
+    MonoCalibration,
+    calibrate_mono,
+    calibrate_stereo,
+    pair_names,
+    read_views,
+)
 from kartpilot.calibration.rig import Rig, load_rig, save_rig
+from kartpilot.cli.values import number, output_file
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import invert_pose, mount_pose
@@ -79,7 +87,8 @@ def calibrate(args: argparse.Namespace) -> int:
         right_views, right_skipped, right_size = read_views(args.right, board)
         if size != right_size:
             raise ConfigError(f"the left images are {size[0]}x{size[1]}, the right {right_size[0]}x{right_size[1]}")
-        stereo = calibrate_stereo(left_views, right_views, size)
+        pairs = pair_names([Path(p).name for p in args.left], [Path(p).name for p in args.right])
+        stereo = calibrate_stereo(left_views, right_views, size, pairs=pairs)
         pose_left = _mount(args.mount)
         pose_right = pose_left @ invert_pose(stereo.pose_right_left)
         rig = Rig({"left": _with_pose(stereo.left.camera, pose_left),
@@ -154,12 +163,12 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     stereo.add_argument("--right", nargs="+", required=True)
     for cal in (mono, stereo):
         cal.add_argument("--board", default="9x6", help="inner corners COLUMNSxROWS (ChArUco: squares)")
-        cal.add_argument("--square", type=float, default=0.025, help="square side, m")
+        cal.add_argument("--square", type=number(above=0), default=0.025, help="square side, m")
         cal.add_argument("--charuco", action="store_true", help="a ChArUco board instead of a chessboard")
-        cal.add_argument("--marker", type=float, help="ChArUco marker side, m (default 0.75 of a square)")
+        cal.add_argument("--marker", type=number(above=0), help="ChArUco marker side, m (default 0.75 of a square)")
         cal.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco dictionary")
         cal.add_argument("--mount", help="the (left) camera's pose on the kart: X,Y,Z[,YAW_DEG,PITCH_DOWN_DEG]")
-        cal.add_argument("--out", required=True, help="the rig file to write (YAML)")
+        cal.add_argument("--out", required=True, type=output_file, help="the rig file to write (YAML)")
         cal.add_argument("--json", action="store_true", help="print a machine-readable summary")
         cal.set_defaults(handler=calibrate)
 
@@ -170,14 +179,16 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     steering.add_argument("--bus", choices=("socketcan", "virtual"), help="default: the config's can.interface")
     steering.add_argument("--channel", help="the CAN channel (can0)")
     scale = steering.add_mutually_exclusive_group()
-    scale.add_argument("--turning-circle", type=float, metavar="DIAMETER_M",
+    scale.add_argument("--turning-circle", type=number(above=0), metavar="DIAMETER_M",
                        help="the rear axle's turning circle at full lock (--at-value), measured driving slowly")
-    scale.add_argument("--rad-per-value", type=float, help="road-wheel radians per unit of the ECU's value, by hand")
-    steering.add_argument("--at-value", type=float, default=1.25, help="the value the turning circle was driven at")
+    scale.add_argument("--rad-per-value", type=number(), help="road-wheel radians per unit of the ECU's value, by hand")
+    steering.add_argument("--at-value", type=number(), default=1.25, help="the value the turning circle was driven at")
     steering.add_argument("--positive-steers", choices=("right", "left"), default="right",
                           help="which way a positive value turns the wheels (right on the RDW kart)")
-    steering.add_argument("--max-value", type=float, default=1.0, help="sweep from -this to this (at most 1.25)")
-    steering.add_argument("--steps", type=int, default=9)
-    steering.add_argument("--settle", type=float, default=1.0, help="seconds for the wheels to settle at each step")
+    steering.add_argument("--max-value", type=number(above=0, maximum=1.25), default=1.0,
+                          help="sweep from -this to this (at most 1.25)")
+    steering.add_argument("--steps", type=number(int, minimum=2), default=9)
+    steering.add_argument("--settle", type=number(minimum=0), default=1.0,
+                          help="seconds for the wheels to settle at each step")
     steering.add_argument("--config", help="YAML file merged over the defaults (section can)")
     steering.set_defaults(handler=calibrate_steering_command)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from kartpilot.actuation.can_bus import open_bus
 from kartpilot.actuation.monitor import TrafficRow, format_traffic, summarise_traffic
+from kartpilot.cli.values import number, output_file
 from kartpilot.core.errors import ConfigError, RecordingError
 from kartpilot.core.files import write_json_atomic
 from kartpilot.core.vehicle import get_vehicle
@@ -84,8 +85,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     monitor.add_argument("--channel", help="live: the CAN channel (can0)")
     monitor.add_argument("--protocol", choices=("rdw", "kartpilot"),
                          help="how to decode (default: the recording's kart's, live rdw)")
-    monitor.add_argument("--duration", type=float, help="live: seconds to listen (default: until Ctrl-C)")
-    monitor.add_argument("--every", type=float, default=1.0, help="live: print the table this often, s")
-    monitor.add_argument("--json", help="write the last table here (JSON)")
+    monitor.add_argument("--duration", type=number(above=0), help="live: seconds to listen (default: until Ctrl-C)")
+    monitor.add_argument("--every", type=number(above=0), default=1.0, help="live: print the table this often, s")
+    monitor.add_argument("--json", type=output_file, help="write the last table here (JSON)")
     monitor.add_argument("--config", help="YAML file merged over the defaults (section can)")
     monitor.set_defaults(handler=can_monitor)

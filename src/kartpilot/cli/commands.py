@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import time
@@ -15,8 +14,10 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from kartpilot.cli.values import file_or_new_folder, new_folder, number, output_file
 from kartpilot.control.lane_follow import LaneFollowState, lane_follow_step
 from kartpilot.core.errors import ConfigError, DataError
+from kartpilot.core.files import write_csv_atomic, write_text_atomic
 from kartpilot.core.geometry import invert_pose, mount_pose, planar_pose
 from kartpilot.core.trajectory import Trajectory, read_trajectory, write_trajectory
 from kartpilot.eval.disparity import bad_pixel_rate, disparity_search_range_px, load_middlebury_pair
@@ -71,7 +72,7 @@ def _write_json(path: str | Path, data: dict[str, Any]) -> None:
             return clean(value.item())
         return value
 
-    Path(path).write_text(json.dumps(clean(data), indent=2) + "\n")
+    write_text_atomic(path, json.dumps(clean(data), indent=2) + "\n")
 
 
 def _vo_for(args: argparse.Namespace, source: StereoSource) -> VisualOdometry:
@@ -161,11 +162,12 @@ def evaluate(args: argparse.Namespace) -> int:
     estimate = read_trajectory(args.est, args.format)
     untimed = reference.stamps_s[-1] == len(reference) - 1 and estimate.stamps_s[-1] == len(estimate) - 1
     if len(reference) != len(estimate) and untimed:
-        # KITTI pose files carry no timestamps: compare the common prefix frame by frame
-        count = min(len(reference), len(estimate))
-        reference = Trajectory(reference.stamps_s[:count], reference.poses[:count])
-        estimate = Trajectory(estimate.stamps_s[:count], estimate.poses[:count])
+        raise DataError(f"the estimate has {len(estimate)} poses and the ground truth {len(reference)}, and KITTI pose "
+                        "files carry no timestamps to pair them by: give one pose per frame in both (kartpilot "
+                        "odometry bridges unreadable frames), or TUM files with timestamps")
     metrics = evaluate_trajectory(reference, estimate)
+    if metrics.poses < max(len(reference), len(estimate)):
+        print(f"paired {metrics.poses} poses by timestamp, of {len(estimate)} estimated and {len(reference)} true")
     print(metrics.table())
     if args.plot:
         plot_trajectories(reference, estimate, args.plot)
@@ -234,10 +236,8 @@ def lanes(args: argparse.Namespace) -> int:
     state = LaneFollowState()
     overlay = _Overlay(args.overlay) if args.overlay else None
     steers: list[float] = []
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    with Path(args.out).open("w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(LANE_COLUMNS)
+    rows: list[list[object]] = []
+    try:
         for frame_set in frames:
             image = frame_set.images["center"]
             stages = LaneStages() if args.stages else None
@@ -250,11 +250,13 @@ def lanes(args: argparse.Namespace) -> int:
                 row += [f"{v:.1f}" for v in line.as_tuple()] if source == "detected" else ["", "", "", ""]
             row += [observation.left_source, observation.right_source, f"{decision.steer_rad:.5f}",
                     f"{observation.confidence:.3f}"]
-            writer.writerow(row)
+            rows.append(row)
             if overlay is not None:
                 overlay.write(frame_set.index, draw_lanes(image, observation, decision.steer_rad, stages))
-    if overlay is not None:
-        overlay.close()
+    finally:
+        if overlay is not None:
+            overlay.close()
+    write_csv_atomic(args.out, LANE_COLUMNS, rows)
     print(f"{len(steers)} frames ({kind}) -> {args.out}")
     if kind == "donkeycar-tub":
         angles = np.array([r.angle for r in DonkeyTub(args.input).records])
@@ -329,24 +331,25 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     recording = odo_sub.add_parser("recording", help="a kartpilot recording folder")
     recording.add_argument("root")
     synthetic = odo_sub.add_parser("synthetic", help="the built-in synthetic stereo sequence")
-    synthetic.add_argument("--frames", type=int, default=40)
-    synthetic.add_argument("--seed", type=int, default=0)
+    synthetic.add_argument("--frames", type=number(int, minimum=2, maximum=100_000), default=40)
+    synthetic.add_argument("--seed", type=number(int, minimum=0), default=0)
     for sub_parser in (kitti, euroc, recording):
         sub_parser.add_argument("--mono", action="store_true",
                                 help="monocular VO on the left camera, metric scale from the ground plane")
-        sub_parser.add_argument("--camera-height", type=float,
+        sub_parser.add_argument("--camera-height", type=number(above=0),
                                 help="--mono: the camera's height above the road, m (1.65 on KITTI, 0.6 on the "
                                      "SDC kart)")
-        sub_parser.add_argument("--camera-pitch-down", type=float, default=0.0,
+        sub_parser.add_argument("--camera-pitch-down", type=number(minimum=-90, maximum=90), default=0.0,
                                 help="--places: the camera's pitch below level, deg")
         sub_parser.add_argument("--places", help="--mono: fuse place fixes from this place database "
                                                  "(kartpilot places build) into the metres and the position")
     for sub_parser in (kitti, euroc, recording, synthetic):
-        sub_parser.add_argument("--out", required=True, help="trajectory file (.txt = KITTI, .tum = TUM)")
+        sub_parser.add_argument("--out", required=True, type=output_file,
+                                help="trajectory file (.txt = KITTI, .tum = TUM)")
         sub_parser.add_argument("--format", choices=("kitti", "tum"), help="override the format guessed from --out")
         sub_parser.add_argument("--config", help="YAML file merged over the defaults")
-        sub_parser.add_argument("--plot", help="write the top-view plot here (PNG)")
-        sub_parser.add_argument("--json", help="write the summary and metrics here")
+        sub_parser.add_argument("--plot", type=output_file, help="write the top-view plot here (PNG)")
+        sub_parser.add_argument("--json", type=output_file, help="write the summary and metrics here")
         sub_parser.add_argument("--no-progress", action="store_true")
         sub_parser.set_defaults(handler=odometry)
 
@@ -354,15 +357,16 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     evaluate_parser.add_argument("--gt", required=True)
     evaluate_parser.add_argument("--est", required=True)
     evaluate_parser.add_argument("--format", choices=("kitti", "tum"), help="format of both files (default: guessed)")
-    evaluate_parser.add_argument("--plot", help="write the paths and the error over distance here (PNG)")
-    evaluate_parser.add_argument("--json", help="write the metrics here")
+    evaluate_parser.add_argument("--plot", type=output_file,
+                                 help="write the paths and the error over distance here (PNG)")
+    evaluate_parser.add_argument("--json", type=output_file, help="write the metrics here")
     evaluate_parser.set_defaults(handler=evaluate)
 
     disparity_parser = sub.add_parser("disparity", help="dense block matching scored against Middlebury ground truth")
     disparity_parser.add_argument("pair", help="folder with a Middlebury pair and its ground truth")
     disparity_parser.add_argument("--method", choices=("bm", "sgbm"), default="sgbm")
     disparity_parser.add_argument("--wls", action="store_true", help="apply the WLS post-filter")
-    disparity_parser.add_argument("--threshold", type=float, default=2.0)
+    disparity_parser.add_argument("--threshold", type=number(above=0), default=2.0)
     disparity_parser.set_defaults(handler=disparity)
 
     sim = sub.add_parser("sim", help="drive a simulated kart on a track, judged by the referee")
@@ -370,20 +374,22 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     sim.add_argument("--vehicle", choices=("rc-kart", "sdc-kart"))
     sim.add_argument("--driver", choices=("centerline", "commands", "lanes"), default="centerline",
                      help="lanes: the lane-following pipeline on the rendered cameras (sdc-kart)")
-    sim.add_argument("--speed-mode", type=float, help="cap the top speed, km/h (the SDC kart's 5/15/30/60 modes)")
+    sim.add_argument("--speed-mode", type=number(above=0),
+                     help="cap the top speed, km/h (the SDC kart's 5/15/30/60 modes)")
     sim.add_argument("--commands", help="recording (or its commands.csv) whose commands the commands driver replays")
-    sim.add_argument("--laps", type=int)
-    sim.add_argument("--speed", type=float, help="target speed of the centerline driver, m/s")
-    sim.add_argument("--weave", type=float, help="zig-zag amplitude of the centerline driver, m")
-    sim.add_argument("--edge-offset", type=float, help="drive this far left (+) or right (-) of the centre, m")
-    sim.add_argument("--seed", type=int)
-    sim.add_argument("--rate", type=float, help="camera and control rate, Hz")
+    sim.add_argument("--laps", type=number(int, minimum=1))
+    sim.add_argument("--speed", type=number(above=0), help="target speed of the centerline driver, m/s")
+    sim.add_argument("--weave", type=number(minimum=0), help="zig-zag amplitude of the centerline driver, m")
+    sim.add_argument("--edge-offset", type=number(), help="drive this far left (+) or right (-) of the centre, m")
+    sim.add_argument("--seed", type=number(int, minimum=0))
+    sim.add_argument("--rate", type=number(above=0, maximum=1000), help="camera and control rate, Hz")
     sim.add_argument("--cameras", help="comma-separated cameras to render (default: all of the vehicle's)")
     sim.add_argument("--no-cones", action="store_true", help="remove the cones (scene and referee)")
     sim.add_argument("--no-render", action="store_true", help="physics and referee only (no images)")
-    sim.add_argument("--record", help="write a recording (frames, commands, ground truth, result.json) here")
-    sim.add_argument("--video", help="write the camera view with the referee's state here (MP4)")
-    sim.add_argument("--result", help="write the referee's result JSON here")
+    sim.add_argument("--record", type=new_folder,
+                     help="write a recording (frames, commands, ground truth, result.json) here")
+    sim.add_argument("--video", type=output_file, help="write the camera view with the referee's state here (MP4)")
+    sim.add_argument("--result", type=output_file, help="write the referee's result JSON here")
     sim.add_argument("--config", help="YAML file merged over the defaults (sections sim, centerline_driver)")
     sim.add_argument("--no-progress", action="store_true")
     sim.set_defaults(handler=simulate)
@@ -391,8 +397,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     lanes_parser = sub.add_parser("lanes", help="lane boundaries and steer for an image, folder, video, recording or "
                                                 "tub")
     lanes_parser.add_argument("input")
-    lanes_parser.add_argument("--out", required=True, help="CSV, one row per frame")
-    lanes_parser.add_argument("--overlay", help="write the frames with the lanes drawn: a .mp4 file or a folder")
+    lanes_parser.add_argument("--out", required=True, type=output_file, help="CSV, one row per frame")
+    lanes_parser.add_argument("--overlay", type=file_or_new_folder,
+                              help="write the frames with the lanes drawn: a .mp4 file or a folder")
     lanes_parser.add_argument("--stages", action="store_true", help="draw the raw and clustered lines too")
     lanes_parser.add_argument("--preset", choices=tuple(LANE_PRESETS), default="kart",
                               help="the detector's settings: kart (a camera close to the ground, the lane pipeline's "
@@ -403,5 +410,5 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
     demo_parser = sub.add_parser("demo", help="the main job on an embedded default (see README)")
     demo_parser.add_argument("--out", default="demo_out")
-    demo_parser.add_argument("--vo-speed", type=float, default=2.0, help="speed of the utrack lap, m/s")
+    demo_parser.add_argument("--vo-speed", type=number(above=0), default=2.0, help="speed of the utrack lap, m/s")
     demo_parser.set_defaults(handler=demo)

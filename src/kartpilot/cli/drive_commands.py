@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from kartpilot.calibration.rig import load_rig
+from kartpilot.cli.values import new_folder, number, output_file
 from kartpilot.control.path_follow import steer_bias_of_drive
 from kartpilot.core.errors import ConfigError, KartpilotError, RecordingError
 from kartpilot.core.geometry import ground_poses
@@ -235,13 +236,14 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     """This module's subcommands, each with its arguments and handler."""
     ref = sub.add_parser("reference", help="a reference path (and visual map) from a recorded drive")
     ref.add_argument("recording", help="a kartpilot recording with a stereo pair")
-    ref.add_argument("--out", required=True, help="the path file (.csv or .yaml); the map goes beside it")
+    ref.add_argument("--out", required=True, type=output_file,
+                     help="the path file (.csv or .yaml); the map goes beside it")
     ref.add_argument("--from", dest="source", choices=("vo", "groundtruth"), default="vo",
                      help="vo: stereo VO over the recording, with a visual map (default); groundtruth: the "
                           "simulator's poses")
     ref.add_argument("--vehicle", default="rc-kart", help="the kart (its wheelbase); camera mounts come from the "
                      "recording's rig")
-    ref.add_argument("--speed", type=float, help="cruise speed of the path's speed profile, m/s")
+    ref.add_argument("--speed", type=number(above=0), help="cruise speed of the path's speed profile, m/s")
     ref.add_argument("--config", help="YAML file merged over the defaults (sections stereo_vo, drive)")
     ref.set_defaults(handler=reference)
 
@@ -268,23 +270,30 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                                    "paths); the first whose paths all exist wins (default: the rig file's camera_maps)")
     drive_parser.add_argument("--gamepad", metavar="DEVICE", help="--live: the gamepad's joystick device "
                                                                   "(/dev/input/js0)")
-    drive_parser.add_argument("--web", metavar="PORT", type=int, help="--live: serve the kart's web page on this port")
-    drive_parser.add_argument("--duration", type=float, help="--sim, --live: seconds to drive at most")
+    drive_parser.add_argument("--web", metavar="PORT", type=number(int, minimum=1, maximum=65535),
+                              help="--live: serve the kart's web page on this port")
+    drive_parser.add_argument("--duration", type=number(above=0), help="--sim, --live: seconds to drive at most")
     drive_parser.add_argument("--inject", action="append", metavar="KIND@SECONDS",
                               help="--sim: inject a fault (camera-freeze, black-frame, vo-failure, can-bus-off, "
                                    "heartbeat-loss, ecu-error, steering-sensor-loss, steering-sensor-range, "
                                    "loop-stall, gamepad-unplug, stage-exception); repeatable")
     drive_parser.add_argument("--map", help="the visual map (default: the reference's .map.npz, if there)")
     drive_parser.add_argument("--no-map", action="store_true", help="localise with VO alone")
-    drive_parser.add_argument("--speed", type=float, help="stereo-vo: cap the path's speed profile, m/s")
-    drive_parser.add_argument("--speed-mode", type=float, help="--sim: cap the top speed, km/h (the SDC kart's modes)")
-    drive_parser.add_argument("--seed", type=int)
-    drive_parser.add_argument("--rate", type=float, help="camera and control rate, Hz (--sim; a replay keeps its own)")
-    drive_parser.add_argument("--steer-bias", type=float, help="the simulated kart's drag to one side, rad (+ left)")
-    drive_parser.add_argument("--record", help="record the drive here (frames, commands, outputs, CAN)")
-    drive_parser.add_argument("--video", help="write the camera view with the referee's state here (MP4)")
-    drive_parser.add_argument("--result", help="write the result JSON here (transitions, fault_to_stop_s, timing)")
-    drive_parser.add_argument("--log", help="stereo-vo, mono-vo: write the pipeline's per-step log here (CSV)")
+    drive_parser.add_argument("--speed", type=number(above=0), help="stereo-vo: cap the path's speed profile, m/s")
+    drive_parser.add_argument("--speed-mode", type=number(above=0),
+                              help="--sim: cap the top speed, km/h (the SDC kart's modes)")
+    drive_parser.add_argument("--seed", type=number(int, minimum=0))
+    drive_parser.add_argument("--rate", type=number(above=0, maximum=1000),
+                              help="camera and control rate, Hz (--sim; a replay keeps its own)")
+    drive_parser.add_argument("--steer-bias", type=number(), help="the simulated kart's drag to one side, rad (+ left)")
+    drive_parser.add_argument("--record", type=new_folder,
+                              help="record the drive here (frames, commands, outputs, CAN)")
+    drive_parser.add_argument("--video", type=output_file,
+                              help="write the camera view with the referee's state here (MP4)")
+    drive_parser.add_argument("--result", type=output_file,
+                              help="write the result JSON here (transitions, fault_to_stop_s, timing)")
+    drive_parser.add_argument("--log", type=output_file,
+                              help="stereo-vo, mono-vo: write the pipeline's per-step log here (CSV)")
     drive_parser.add_argument("--config", help="YAML file merged over the defaults (sections sim, lane_policy, "
                                                "stereo_vo, drive, can, watchdogs, supervisor)")
     drive_parser.add_argument("--no-progress", action="store_true")
@@ -293,13 +302,13 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     rep = sub.add_parser("replay", help="push a recording through a pipeline; write its outputs as a recording")
     rep.add_argument("recording")
     rep.add_argument("--pipeline", choices=tuple(PIPELINES), required=True)
-    rep.add_argument("--out", help="the new recording: commands, the pipeline's outputs, replay.json")
+    rep.add_argument("--out", type=new_folder, help="the new recording: commands, the pipeline's outputs, replay.json")
     rep.add_argument("--realtime", action="store_true", help="at the recorded pace (default: as fast as possible)")
     rep.add_argument("--with-frames", action="store_true", help="copy the frames into the new recording too")
     rep.add_argument("--reference", help="stereo-vo, mono-vo: the path to follow (written by 'kartpilot reference'; "
                                          "mono-vo: default the place database's drive)")
     rep.add_argument("--places", help="mono-vo: the place database of the reference drive (kartpilot places build)")
-    rep.add_argument("--log", help="stereo-vo, mono-vo: write the pipeline's per-step log here (CSV)")
+    rep.add_argument("--log", type=output_file, help="stereo-vo, mono-vo: write the pipeline's per-step log here (CSV)")
     rep.add_argument("--map", help="stereo-vo: the visual map (default: the reference's .map.npz, if there)")
     rep.add_argument("--no-map", action="store_true", help="stereo-vo: localise with VO alone")
     rep.add_argument("--vehicle", help="the kart (wheelbase, steering range; default: the one the recording was made "
@@ -313,10 +322,11 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     experiment_parser.add_argument("name", choices=("teach-repeat",),
                                    help="teach-repeat: teach, build the reference with stereo VO, repeat, score")
     experiment_parser.add_argument("--track", default="straight20")
-    experiment_parser.add_argument("--speed", type=float, default=0.62, help="m/s")
-    experiment_parser.add_argument("--seed", type=int, default=1)
-    experiment_parser.add_argument("--rate", type=float, default=15.0, help="camera and control rate, Hz")
-    experiment_parser.add_argument("--steer-bias", type=float, default=0.03, help="the kart's drag to one side, rad")
+    experiment_parser.add_argument("--speed", type=number(above=0), default=0.62, help="m/s")
+    experiment_parser.add_argument("--seed", type=number(int, minimum=0), default=1)
+    experiment_parser.add_argument("--rate", type=number(above=0, maximum=1000), default=15.0,
+                                   help="camera and control rate, Hz")
+    experiment_parser.add_argument("--steer-bias", type=number(), default=0.03, help="the kart's drag to one side, rad")
     experiment_parser.add_argument("--no-map", action="store_true", help="localise with VO alone, as the thesis did")
     experiment_parser.add_argument("--controller", choices=("tuned", "plain_stanley"), default="tuned",
                                    help="plain_stanley: the pipeline as the thesis ran it, for comparison")

@@ -1,7 +1,8 @@
 """``kartpilot``: one command, thin subcommands.
 
-A known error (:class:`KartpilotError`) prints one line and exits 1; a usage
-error exits 2 (argparse); anything else is a bug and keeps its traceback.
+A known error (:class:`KartpilotError`) prints one line and exits 1; so does an operating-system error
+(a full disk, a file that vanished: it names the file). A usage error, checked before any work by
+:mod:`kartpilot.cli.values`, prints one line and exits 2. Anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -20,13 +21,14 @@ from kartpilot.cli import (
     places_commands,
     record_commands,
 )
+from kartpilot.cli.values import OneLineParser
 from kartpilot.core.errors import KartpilotError
 
 __all__ = ["build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="kartpilot", description="Camera-only self-driving stack for karts.")
+    parser = OneLineParser(prog="kartpilot", description="Camera-only self-driving stack for karts.")
     parser.add_argument("--version", action="version", version=f"kartpilot {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log each stage's decisions")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -40,12 +42,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or a usage error (already printed on one line)
+        return exc.code if isinstance(exc.code, int) else 0
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:
         return int(args.handler(args))
     except KartpilotError as exc:
+        print(f"kartpilot: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
         print(f"kartpilot: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

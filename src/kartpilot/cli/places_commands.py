@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import csv
 import time
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
 from kartpilot.calibration.lens import undistortion
+from kartpilot.cli.values import number, output_file
 from kartpilot.core.errors import ConfigError, DataError
-from kartpilot.core.files import write_json_atomic
+from kartpilot.core.files import write_csv_atomic, write_json_atomic
 from kartpilot.core.geometry import invert_pose
 from kartpilot.core.trajectory import Trajectory, read_trajectory
 from kartpilot.core.types import FrameSet, Image
@@ -147,16 +147,12 @@ def _describe(fix: PlaceFix) -> str:
 
 
 def _write_fixes(fixes: list[PlaceFix], path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(["stamp_ns", "accepted", "x_m", "y_m", "z_m", "sigma_m", "place", "inliers", "registered",
-                         "cross_track_sigma_m", "heading_sigma_rad", "reason"])
-        for fix in fixes:
-            x, y, z = fix.position_m
-            writer.writerow([fix.stamp_ns, int(fix.accepted), f"{x:.4f}", f"{y:.4f}", f"{z:.4f}", f"{fix.sigma_m:.4f}",
-                             fix.place, fix.inliers, int(fix.registered), f"{fix.cross_track_sigma_m:.4f}",
-                             f"{fix.heading_sigma_rad:.4f}", fix.reason])
+    header = ["stamp_ns", "accepted", "x_m", "y_m", "z_m", "sigma_m", "place", "inliers", "registered",
+              "cross_track_sigma_m", "heading_sigma_rad", "reason"]
+    write_csv_atomic(path, header, ([fix.stamp_ns, int(fix.accepted), *(f"{v:.4f}" for v in fix.position_m),
+                                     f"{fix.sigma_m:.4f}", fix.place, fix.inliers, int(fix.registered),
+                                     f"{fix.cross_track_sigma_m:.4f}", f"{fix.heading_sigma_rad:.4f}", fix.reason]
+                                    for fix in fixes))
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
@@ -165,7 +161,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     places_sub = places.add_subparsers(dest="action", required=True, metavar="ACTION")
     build = places_sub.add_parser("build", help="a place database from a recording with positions")
     build.add_argument("recording")
-    build.add_argument("--out", required=True, help="the database file (places.db)")
+    build.add_argument("--out", required=True, type=output_file, help="the database file (places.db)")
     build.add_argument("--camera", help="the camera (default: center, else the stereo pair's left, else the first)")
     build.add_argument("--positions-from", choices=("truth", "stereo-vo", "mono-vo"),
                        help="tag the places with the recording's ground truth (the default, where it has one), or "
@@ -178,7 +174,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     query.add_argument("database")
     query.add_argument("query", help="an image file or a recording folder")
     query.add_argument("--camera", help="the recording's camera (default: the database's)")
-    query.add_argument("--radius", type=float, default=2.0, help="Recall@K counts places within this, m")
-    query.add_argument("--out", help="write each frame's fix here (CSV)")
-    query.add_argument("--json", help="write the recall figures here")
+    query.add_argument("--radius", type=number(above=0), default=2.0, help="Recall@K counts places within this, m")
+    query.add_argument("--out", type=output_file, help="write each frame's fix here (CSV)")
+    query.add_argument("--json", type=output_file, help="write the recall figures here")
     query.set_defaults(handler=places_query)

@@ -8,6 +8,7 @@ import math
 from dataclasses import asdict
 
 from kartpilot.calibration.rig import apply_camera_maps, load_rig
+from kartpilot.cli.values import new_folder, number
 from kartpilot.core.geometry import mount_pose
 from kartpilot.record.convert import export_recording, import_donkey_tub, import_stereo_source
 from kartpilot.record.info import recording_info
@@ -120,8 +121,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     """This module's subcommands, each with its arguments and handler."""
     rec = sub.add_parser("record", help="record the live cameras of a rig file")
     rec.add_argument("--rig", required=True, help="rig file: each camera's calibration and capture settings")
-    rec.add_argument("--out", required=True, help="the recording folder to create")
-    rec.add_argument("--duration", type=float, help="seconds to record (default: until Ctrl-C)")
+    rec.add_argument("--out", required=True, type=new_folder, help="the recording folder to create")
+    rec.add_argument("--duration", type=number(above=0), help="seconds to record (default: until Ctrl-C)")
     rec.add_argument("--cameras", help="comma-separated cameras (default: every camera with capture settings)")
     rec.add_argument("--cameras-json", nargs="+", metavar="JSON",
                      help="the organiser's camera-mapping files; the first whose paths all exist wins (default: the "
@@ -140,23 +141,26 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     info.set_defaults(handler=recordings_info)
     tub = rec_sub.add_parser("import-tub", help="a Donkey Car tub as a recording")
     tub.add_argument("tub")
-    tub.add_argument("--out", required=True)
+    tub.add_argument("--out", required=True, type=new_folder)
     tub.add_argument("--rig", help="a rig file with the tub camera's calibration (default: guessed from --fov-deg)")
     tub.add_argument("--camera", help="which camera of the rig file (default: its first)")
-    tub.add_argument("--fov-deg", type=float, default=120.0, help="horizontal field of view to guess intrinsics from")
-    tub.add_argument("--max-steer-deg", type=float, default=25.0, help="the steer that user/angle 1 stands for")
+    tub.add_argument("--fov-deg", type=number(above=0, maximum=179), default=120.0,
+                     help="horizontal field of view to guess intrinsics from")
+    tub.add_argument("--max-steer-deg", type=number(above=0, maximum=90), default=25.0,
+                     help="the steer that user/angle 1 stands for")
     tub.set_defaults(handler=recordings_import_tub)
     kitti = rec_sub.add_parser("import-kitti", help="a KITTI odometry sequence (stereo, ground truth) as a recording")
     kitti.add_argument("root", help="the KITTI odometry folder (sequences/, poses/)")
     kitti.add_argument("--sequence", required=True)
-    kitti.add_argument("--out", required=True)
-    kitti.add_argument("--camera-height", type=float, required=True,
+    kitti.add_argument("--out", required=True, type=new_folder)
+    kitti.add_argument("--camera-height", type=number(above=0), required=True,
                        help="the left camera's height above the road, m (1.65 on KITTI's car)")
-    kitti.add_argument("--camera-pitch-down", type=float, default=0.0, help="its pitch below level, deg")
+    kitti.add_argument("--camera-pitch-down", type=number(minimum=-90, maximum=90), default=0.0,
+                       help="its pitch below level, deg")
     kitti.set_defaults(handler=recordings_import_kitti)
 
     export = rec_sub.add_parser("export", help="a recording as a folder of images plus one CSV")
     export.add_argument("recording")
-    export.add_argument("--out", required=True)
+    export.add_argument("--out", required=True, type=new_folder)
     export.add_argument("--cameras", help="comma-separated cameras (default: all)")
     export.set_defaults(handler=recordings_export)

@@ -20,6 +20,7 @@ Example:
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from collections.abc import Mapping
@@ -29,11 +30,14 @@ from typing import Any, TypeVar
 import yaml
 
 from kartpilot.core.errors import ConfigError
+from kartpilot.core.files import read_text_file
 
 __all__ = ["config_to_dict", "load_yaml_mapping", "merge_config"]
 
 T = TypeVar("T")
 
+
+INT_LIMIT = 2**31 - 1
 
 def load_yaml_mapping(path: str | Path) -> dict[str, Any]:
     """Read a YAML file whose top level is a mapping (an empty file gives ``{}``)."""
@@ -41,7 +45,7 @@ def load_yaml_mapping(path: str | Path) -> dict[str, Any]:
     if not path.is_file():
         raise ConfigError(f"config file not found: {path}")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(read_text_file(path))
     except yaml.YAMLError as exc:
         raise ConfigError(f"config file {path} is not valid YAML: {exc}") from exc
     if data is None:
@@ -139,10 +143,14 @@ def _coerce(value: Any, tp: Any, dotted: str) -> Any:
         raise bad
     if tp is int:
         if isinstance(value, int) and not isinstance(value, bool):
+            if abs(value) > INT_LIMIT:  # beyond what OpenCV and NumPy's fixed-width integers hold
+                raise ConfigError(f"config key '{dotted}' is out of range: {value}")
             return value
         raise bad
     if tp is float:
         if isinstance(value, (int, float)) and not isinstance(value, bool):
+            if not math.isfinite(value):
+                raise ConfigError(f"config key '{dotted}' must be a finite number, got {value!r}")
             return float(value)
         raise bad
     if tp is str:

@@ -4,13 +4,28 @@ goes through here."""
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, BinaryIO
 
-__all__ = ["write_atomic", "write_bytes_atomic", "write_json_atomic", "write_text_atomic"]
+from kartpilot.core.errors import DataError
+
+__all__ = ["read_text_file", "write_atomic", "write_bytes_atomic", "write_csv_atomic", "write_json_atomic",
+           "write_text_atomic"]
+
+
+def read_text_file(path: str | Path) -> str:
+    """A text file's contents; a file that cannot be read, or is not UTF-8 text, raises DataError naming it."""
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{path} is not a UTF-8 text file (byte {exc.start}: {exc.reason})") from None
+    except OSError as exc:
+        raise DataError(f"cannot read {path}: {exc.strerror or exc}") from None
 
 
 def write_atomic(path: str | Path, write: Callable[[BinaryIO], object]) -> Path:
@@ -35,6 +50,15 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
 
 def write_text_atomic(path: str | Path, text: str) -> Path:
     return write_bytes_atomic(path, text.encode())
+
+
+def write_csv_atomic(path: str | Path, header: Sequence[object], rows: Iterable[Sequence[object]]) -> Path:
+    """A CSV file with ``header`` and ``rows``, written whole or not at all."""
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(header)
+    writer.writerows(rows)
+    return write_text_atomic(path, text.getvalue())
 
 
 def write_json_atomic(path: str | Path, payload: Any) -> Path:

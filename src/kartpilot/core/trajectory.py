@@ -7,6 +7,8 @@ TUM: ``timestamp tx ty tz qx qy qz qw`` per line, ``#`` comments allowed.
 
 from __future__ import annotations
 
+import logging
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,6 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from kartpilot.core.errors import DataError
+from kartpilot.core.files import read_text_file, write_text_atomic
 from kartpilot.core.geometry import Array, pose_from_quaternion, quaternion_xyzw_from_pose
 
 __all__ = [
@@ -31,6 +34,8 @@ __all__ = [
 ]
 
 TrajectoryFormat = Literal["kitti", "tum"]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -85,21 +90,37 @@ class Trajectory:
         return Trajectory(stamps, poses)
 
 
+def _row(text: str, columns: int, where: str) -> list[float]:
+    parts = text.replace(",", " ").split()
+    if len(parts) != columns:
+        raise DataError(f"{where}: expected {columns} numbers, found {len(parts)}")
+    try:
+        values = [float(p) for p in parts]
+    except ValueError as exc:
+        raise DataError(f"{where}: not a number ({exc})") from None
+    if not all(math.isfinite(v) for v in values):
+        raise DataError(f"{where}: a value is not finite (NaN or infinity)")
+    return values
+
+
 def _read_rows(path: Path, columns: int) -> Array:
     if not path.is_file():
         raise DataError(f"trajectory file not found: {path}")
     rows = []
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
+    content = read_text_file(path)
+    lines = content.splitlines()
+    for number, line in enumerate(lines, start=1):
         text = line.strip()
         if not text or text.startswith("#"):
             continue
-        parts = text.replace(",", " ").split()
-        if len(parts) != columns:
-            raise DataError(f"{path}:{number}: expected {columns} numbers, found {len(parts)}")
         try:
-            rows.append([float(p) for p in parts])
-        except ValueError as exc:
-            raise DataError(f"{path}:{number}: not a number ({exc})") from exc
+            rows.append(_row(text, columns, f"{path}:{number}"))
+        except DataError:
+            if number == len(lines) and not content.endswith("\n"):
+                # a file cut off mid-write (a recording whose writer was killed): its last line is torn
+                log.warning("%s:%d: skipped the last line, cut off mid-write", path, number)
+                continue
+            raise
     if not rows:
         raise DataError(f"trajectory file {path} holds no poses")
     return np.asarray(rows, dtype=np.float64)
@@ -117,7 +138,7 @@ def read_kitti_poses(path: str | Path, stamps_s: Array | None = None) -> Traject
 
 def write_kitti_poses(path: str | Path, trajectory: Trajectory) -> None:
     lines = [" ".join(f"{v:.9e}" for v in pose[:3, :4].ravel()) for pose in trajectory.poses]
-    Path(path).write_text("\n".join(lines) + "\n")
+    write_text_atomic(path, "\n".join(lines) + "\n")
 
 
 def read_tum(path: str | Path) -> Trajectory:
@@ -132,7 +153,7 @@ def write_tum(path: str | Path, trajectory: Trajectory) -> None:
         quat = quaternion_xyzw_from_pose(pose)
         values = [*pose[:3, 3], *quat]
         lines.append(f"{stamp:.9f} " + " ".join(f"{v:.9f}" for v in values))
-    Path(path).write_text("\n".join(lines) + "\n")
+    write_text_atomic(path, "\n".join(lines) + "\n")
 
 
 def guess_format(path: str | Path) -> TrajectoryFormat:
@@ -141,7 +162,7 @@ def guess_format(path: str | Path) -> TrajectoryFormat:
     if path.suffix.lower() in (".tum", ".csv"):
         return "tum"
     if path.is_file():
-        for line in path.read_text().splitlines():
+        for line in read_text_file(path).splitlines():
             if line.strip() and not line.startswith("#"):
                 return "tum" if len(line.split()) == 8 else "kitti"
     return "kitti"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import matplotlib
@@ -9,7 +10,9 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
+from kartpilot.core.files import write_bytes_atomic
 from kartpilot.core.trajectory import Trajectory
 
 __all__ = ["plot_path_following", "plot_steering", "plot_trajectories"]
@@ -40,7 +43,7 @@ def plot_trajectories(reference: Trajectory | None, estimate: Trajectory, path: 
         side.grid(True, alpha=0.3)
         side.set_title("position error over distance")
     figure.tight_layout()
-    figure.savefig(str(path), dpi=110)
+    _save(figure, path)
     plt.close(figure)
 
 
@@ -73,7 +76,7 @@ def plot_path_following(taught_xy: np.ndarray, reference_xy: np.ndarray, driven_
     side.grid(True, alpha=0.3)
     side.set_title("tracking error (truth)")
     figure.tight_layout()
-    figure.savefig(str(path), dpi=110)
+    _save(figure, path)
     plt.close(figure)
 
 
@@ -90,5 +93,12 @@ def plot_steering(t_s: np.ndarray, steer_rad: np.ndarray, cross_track_m: np.ndar
     axes[1].set_xlabel("time (s)")
     axes[1].grid(True, alpha=0.3)
     figure.tight_layout()
-    figure.savefig(str(path), dpi=110)
+    _save(figure, path)
     plt.close(figure)
+
+
+def _save(figure: Figure, path: str | Path) -> None:
+    """The figure as an image file, written whole or not at all; the format from the file's suffix."""
+    buffer = io.BytesIO()
+    figure.savefig(buffer, dpi=110, format=Path(path).suffix.lstrip(".").lower() or "png")
+    write_bytes_atomic(path, buffer.getvalue())

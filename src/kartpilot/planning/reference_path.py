@@ -24,6 +24,7 @@ import yaml
 from scipy.ndimage import gaussian_filter1d
 
 from kartpilot.core.errors import ConfigError, PlanningError
+from kartpilot.core.files import read_text_file, write_csv_atomic, write_text_atomic
 from kartpilot.core.geometry import Array
 
 __all__ = [
@@ -216,17 +217,14 @@ def save_reference_path(path: ReferencePath, target: str | Path) -> Path:
     target.parent.mkdir(parents=True, exist_ok=True)
     rows = np.column_stack([getattr(path, name) for name in COLUMNS])
     if target.suffix.lower() == ".csv":
-        with target.open("w", newline="") as f:
-            writer = csv.writer(f)
-            writer.writerow(COLUMNS)
-            writer.writerows([[f"{v:.6f}" for v in row] for row in rows])
+        write_csv_atomic(target, COLUMNS, [[f"{v:.6f}" for v in row] for row in rows])
     elif target.suffix.lower() in (".yaml", ".yml"):
         data = {
             "frame": "rear axle at the start of the recorded drive: x forward, y left",
             "columns": list(COLUMNS),
             "waypoints": [[round(float(v), 6) for v in row] for row in rows],
         }
-        target.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+        write_text_atomic(target, yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
     else:
         raise PlanningError(f"{target}: a reference path is saved as .csv or .yaml")
     return target
@@ -244,7 +242,7 @@ def load_reference_path(source: str | Path) -> ReferencePath:
                 header = tuple(next(reader, ()))
                 rows = [row for row in reader if row]
         elif source.suffix.lower() in (".yaml", ".yml"):
-            data = yaml.safe_load(source.read_text())
+            data = yaml.safe_load(read_text_file(source))
             if not isinstance(data, dict):
                 raise PlanningError(f"{source}: expected a mapping with 'columns' and 'waypoints'")
             header = tuple(data.get("columns", ()))

@@ -24,7 +24,10 @@ a recording without them reads as one with none.
 from __future__ import annotations
 
 import csv
+import io
 import json
+import logging
+import math
 import queue
 import re
 import threading
@@ -39,7 +42,7 @@ import numpy as np
 from kartpilot.calibration.rectify import stereo_setup
 from kartpilot.core.camera import PinholeCamera, StereoRig, camera_from_dict, camera_to_dict
 from kartpilot.core.errors import RecordingError
-from kartpilot.core.files import write_json_atomic
+from kartpilot.core.files import read_text_file, write_json_atomic
 from kartpilot.core.geometry import Array, invert_pose
 from kartpilot.core.trajectory import Trajectory, read_tum, write_tum
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image, StereoFrame
@@ -53,6 +56,8 @@ __all__ = [
     "RecordingStereoSource",
     "RecordingWriter",
 ]
+
+log = logging.getLogger(__name__)
 
 FORMAT_NAME = "kartpilot-recording"
 FORMAT_VERSION = 1
@@ -320,7 +325,7 @@ class RecordingReader:
         if not manifest_path.is_file():
             raise RecordingError(f"{self.folder} is not a kartpilot recording (no manifest.json)")
         try:
-            manifest = json.loads(manifest_path.read_text())
+            manifest = json.loads(read_text_file(manifest_path))
         except json.JSONDecodeError as exc:
             raise RecordingError(f"{manifest_path} is not valid JSON: {exc}") from exc
         if manifest.get("format") != FORMAT_NAME:
@@ -350,20 +355,25 @@ class RecordingReader:
         if not csv_path.is_file():
             raise RecordingError(f"missing frame list {csv_path}")
         rows = []
-        with csv_path.open(newline="") as handle:
-            for row in csv.DictReader(handle):
-                try:
-                    path = csv_path.parent / row["file"]
-                    stamp = int(row["stamp_ns"])
-                    capture = int(row["capture_ns"]) if row.get("capture_ns") else stamp
-                except (KeyError, TypeError, ValueError):
-                    continue  # a line cut off by a crash
-                if path.is_file():
-                    rows.append((stamp, path, capture))
+        content = read_text_file(csv_path)
+        listed = list(csv.DictReader(io.StringIO(content)))
+        for number, row in enumerate(listed, start=2):
+            try:
+                path = csv_path.parent / row["file"]
+                stamp = int(row["stamp_ns"])
+                capture = int(row["capture_ns"]) if row.get("capture_ns") else stamp
+            except (KeyError, TypeError, ValueError) as exc:
+                if number == len(listed) + 1 and not content.endswith("\n"):
+                    continue  # the last line, cut off by a crash
+                raise RecordingError(f"{csv_path}:{number}: not a frame (stamp_ns, file): {exc}") from None
+            # a listed frame whose image is gone stays listed: reading it fails, and the reader counts it as
+            # unreadable (VO bridges it) instead of the frame silently vanishing
+            rows.append((stamp, path, capture))
         return rows
 
     def frames(self, camera: str) -> list[tuple[int, Path]]:
-        """(stamp_ns, image path) of every complete frame of a camera, in order."""
+        """(stamp_ns, image path) of every frame of a camera, in order (an image may have gone missing since:
+        reading it raises DataError)."""
         return [(stamp, path) for stamp, path, _ in self._frame_rows(camera)]
 
     def capture_stamps(self, camera: str) -> list[int]:
@@ -375,13 +385,21 @@ class RecordingReader:
         if not path.is_file():
             return []
         result = []
-        with path.open(newline="") as handle:
-            for row in csv.DictReader(handle):
-                try:
-                    result.append(ActuatorCommand(int(row["stamp_ns"]), float(row["steer_rad"]),
-                                                  float(row["throttle"]), float(row["brake"])))
-                except (KeyError, TypeError, ValueError):
+        content = read_text_file(path)
+        rows = list(csv.DictReader(io.StringIO(content)))
+        for number, row in enumerate(rows, start=2):
+            try:
+                values = (float(row["steer_rad"]), float(row["throttle"]), float(row["brake"]))
+                stamp_ns = int(row["stamp_ns"])
+                if not all(math.isfinite(v) for v in values):
+                    raise ValueError("a value is not finite")
+            except (KeyError, TypeError, ValueError) as exc:
+                if number == len(rows) + 1 and not content.endswith("\n"):
+                    log.warning("%s:%d: skipped the last line, cut off mid-write", path, number)
                     continue
+                raise RecordingError(f"{path}:{number}: not a command (stamp_ns, steer_rad, throttle, brake): "
+                                     f"{exc}") from None
+            result.append(ActuatorCommand(stamp_ns, *values))
         return result
 
     def output_topics(self) -> list[str]:

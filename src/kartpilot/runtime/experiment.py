@@ -15,7 +15,6 @@ The kart's drag to one side and the track's cross-slope are switched on in both 
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import shutil
@@ -29,6 +28,7 @@ from scipy.spatial import cKDTree
 from kartpilot.control.path_follow import BiasConfig, PathFollowConfig, steer_bias_of_drive
 from kartpilot.control.stanley import StanleyConfig
 from kartpilot.core.errors import ConfigError
+from kartpilot.core.files import write_json_atomic
 from kartpilot.core.geometry import Array, ground_poses
 from kartpilot.core.vehicle import VehicleParams, get_vehicle
 from kartpilot.eval.plots import plot_path_following, plot_steering
@@ -208,7 +208,7 @@ def score(config: TeachRepeatConfig, out: Path, teach: SimRun, repeat: SimRun, r
         **{k: v for k, v in repeat.extra.items() if k != "stop_reason"},
         "stage_ms": {k: round(v, 3) for k, v in repeat.stage_ms.items()},
     }
-    (out / "result.json").write_text(json.dumps(result, indent=2))
+    write_json_atomic(out / "result.json", result)
     plot_path_following(teach_truth[:, :2], reference.xy_m, repeat_truth[:, :2],
                         np.array([[s.x_m, s.y_m] for s in samples]), distance, out / "path.png",
                         title=f"{config.track} at {config.speed_mps} m/s, {config.controller} pipeline")

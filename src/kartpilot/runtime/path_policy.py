@@ -9,7 +9,6 @@ spent in each stage is accumulated for the profile.
 
 from __future__ import annotations
 
-import csv
 import logging
 import math
 import time
@@ -22,6 +21,7 @@ import numpy as np
 
 from kartpilot.control.path_follow import PathFollowConfig, PathFollowState, path_follow_step
 from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.files import write_csv_atomic
 from kartpilot.core.geometry import Array, invert_pose, transform_points
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image, VehicleFeedback, VehiclePose
 from kartpilot.odometry.localizer import LocalizerConfig
@@ -224,11 +224,5 @@ def places_reference(places: PlaceDatabase, pose_body_cam: Array, config: PathCo
 
 def write_drive_log(samples: list[DriveSample], target: str | Path) -> Path:
     """The drive's samples as CSV, one row per step, columns named with units."""
-    target = Path(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    with target.open("w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow([f.name for f in fields(DriveSample)])
-        for sample in samples:
-            writer.writerow([f"{v:.6f}" if isinstance(v, float) else v for v in astuple(sample)])
-    return target
+    rows = ([f"{v:.6f}" if isinstance(v, float) else v for v in astuple(sample)] for sample in samples)
+    return write_csv_atomic(target, [f.name for f in fields(DriveSample)], rows)

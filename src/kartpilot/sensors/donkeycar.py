@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 
 from kartpilot.core.errors import DataError
+from kartpilot.core.files import read_text_file
 from kartpilot.core.types import FrameSet
 
 __all__ = ["DonkeyTub", "TubRecord", "is_donkey_tub"]
@@ -44,7 +45,7 @@ class DonkeyTub:
         if not manifest.is_file():
             raise DataError(f"not a Donkey Car tub (no manifest.json): {self.folder}")
         try:
-            documents = [json.loads(line) for line in manifest.read_text().splitlines() if line.strip()]
+            documents = [json.loads(line) for line in read_text_file(manifest).splitlines() if line.strip()]
         except json.JSONDecodeError as exc:
             raise DataError(f"the tub's manifest {manifest} is not JSON lines: {exc}") from exc
         book = next((d for d in documents if isinstance(d, dict) and "paths" in d), None)
@@ -56,7 +57,7 @@ class DonkeyTub:
             path = self.folder / name
             if not path.is_file():
                 raise DataError(f"the tub's catalog {path} is missing")
-            for number, line in enumerate(path.read_text().splitlines(), 1):
+            for number, line in enumerate(read_text_file(path).splitlines(), 1):
                 if not line.strip():
                     continue
                 try:

@@ -18,6 +18,7 @@ import yaml
 from kartpilot.calibration.rectify import StereoRectification, rectify_stereo
 from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.errors import CalibrationError, DataError
+from kartpilot.core.files import read_text_file
 from kartpilot.core.geometry import invert_pose
 from kartpilot.core.types import StereoFrame
 from kartpilot.sensors.base import StereoSource, read_gray
@@ -28,7 +29,7 @@ __all__ = ["EurocSource", "read_euroc_camera"]
 def _load_opencv_yaml(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise CalibrationError(f"camera calibration not found: {path}")
-    text = "\n".join(line for line in path.read_text().splitlines() if not line.startswith("%YAML"))
+    text = "\n".join(line for line in read_text_file(path).splitlines() if not line.startswith("%YAML"))
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -58,7 +59,7 @@ def _read_stamps(csv_path: Path) -> dict[int, Path]:
     if not csv_path.is_file():
         raise DataError(f"frame list not found: {csv_path}")
     frames: dict[int, Path] = {}
-    for line in csv_path.read_text().splitlines():
+    for line in read_text_file(csv_path).splitlines():
         if not line.strip() or line.startswith("#"):
             continue
         stamp, _, name = line.partition(",")

@@ -14,6 +14,7 @@ import numpy as np
 
 from kartpilot.core.camera import StereoRig
 from kartpilot.core.errors import CalibrationError, DataError
+from kartpilot.core.files import read_text_file
 from kartpilot.core.trajectory import Trajectory, read_kitti_poses
 from kartpilot.core.types import StereoFrame
 from kartpilot.sensors.base import StereoSource, read_gray
@@ -26,7 +27,7 @@ def read_kitti_calib(path: Path) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise CalibrationError(f"calibration file not found: {path}")
     matrices: dict[str, np.ndarray] = {}
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
+    for number, line in enumerate(read_text_file(path).splitlines(), start=1):
         if ":" not in line:
             continue
         key, values = line.split(":", 1)
