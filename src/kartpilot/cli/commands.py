@@ -277,7 +277,7 @@ def steer_agreement(steer_right: np.ndarray, human_right: np.ndarray, deadband: 
 
 
 class _Overlay:
-    def __init__(self, target: str) -> None:
+    def __init__(self, target: str | Path) -> None:
         self.path = Path(target)
         self.video: cv2.VideoWriter | None = None
         if self.path.suffix.lower() not in VIDEO_SUFFIXES:

@@ -1,5 +1,6 @@
-"""Where the command line's values are checked, for every command: numbers (finite, in range), input paths
-(they exist), output paths (they can be written, before any work is done), and usage errors (one line).
+"""Where the command line's values are checked, for every command: numbers (finite, in range), output paths
+(they can be written, before any work is done), and usage errors (one line). Inputs are checked by the
+readers that open them, which name the file.
 
 A value that fails is a usage error: one line starting with ``kartpilot:``, naming the option, exit code 2.
 Config files are checked where they are merged (:mod:`kartpilot.core.config`).
@@ -15,7 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
-__all__ = ["OneLineParser", "existing_path", "file_or_new_folder", "new_folder", "number", "output_file"]
+__all__ = ["OneLineParser", "file_or_new_folder", "new_folder", "number", "output_file"]
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -50,14 +51,6 @@ def number(kind: type[int] | type[float] = float, *, minimum: float | None = Non
 
     parse.__name__ = kind.__name__  # argparse names the type in its messages
     return parse
-
-
-def existing_path(text: str) -> Path:
-    """An input that must exist (a file or a folder)."""
-    path = Path(text)
-    if not path.exists():
-        raise argparse.ArgumentTypeError(f"{text} does not exist")
-    return path
 
 
 def output_file(text: str) -> Path:
