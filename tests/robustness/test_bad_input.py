@@ -21,6 +21,7 @@ CASES: list[tuple[str, list[str], int]] = [
     ("speed infinite", ["sim", "--speed", "inf"], 2),
     ("speed negative", ["sim", "--speed", "-1"], 2),
     ("speed not a number", ["sim", "--speed", "fast"], 2),
+    ("speed above the kart's top speed", ["sim", "--vehicle", "sdc-kart", "--speed", "1000"], 1),
     ("rate zero", ["sim", "--rate", "0"], 2),
     ("laps zero", ["sim", "--laps", "0"], 2),
     ("seed negative", ["sim", "--seed", "-3"], 2),
@@ -89,6 +90,11 @@ CASES: list[tuple[str, list[str], int]] = [
     ("eval trajectory with NaN", ["eval", "--gt", "{d}/gt.txt", "--est", "{d}/nan.txt"], 1),
     ("places database missing", ["places", "query", "{d}/missing.npz", "{d}/keep.png"], 1),
     ("places database not one", ["places", "query", "{d}/keep.txt", "{d}/keep.png"], 1),
+    ("fault after the drive's end", ["drive", "--sim", "sdc-assen", "--pipeline", "lanes", "--duration", "5",
+                                     "--inject", "camera-freeze@30"], 1),
+    ("fault injected into a replay", ["drive", "--replay", "{d}", "--pipeline", "lanes", "--inject",
+                                      "camera-freeze@3"], 1),
+    ("track with a negative width", ["sim", "--track", "{d}/track.yaml", "--no-render"], 1),
     ("unknown subcommand", ["fly"], 2),
     ("unknown option", ["sim", "--warp", "9"], 2),
 ]
@@ -101,6 +107,7 @@ def _workspace(folder: Path) -> None:
     (folder / "nan.yaml").write_text("stereo_vo:\n  max_speed_mps: .nan\n")
     (folder / "inf.yaml").write_text("stereo_vo:\n  max_speed_mps: .inf\n")
     (folder / "huge.yaml").write_text("stereo_vo:\n  features:\n    max_features: 99999999999999999999\n")
+    (folder / "track.yaml").write_text("name: bad\nwidth_m: -3\n")
     (folder / "typo.yaml").write_text("stereo_vo:\n  max_sped_mps: 3\n")
     (folder / "type.yaml").write_text("stereo_vo:\n  max_speed_mps: fast\n")
     row = " ".join(f"{v:g}" for v in np.eye(4)[:3].ravel())

@@ -55,3 +55,14 @@ def test_calibration_images_pair_by_name_or_order_or_say_why_not():
     assert pair_names(["a.png", "b.png"], ["c.png", "d.png"]) == [("a.png", "c.png"), ("b.png", "d.png")]
     with pytest.raises(CalibrationError, match="13 left and 3 right images cannot be paired one to one"):
         pair_names([f"left{i:02d}.jpg" for i in range(13)], [f"right{i:02d}.jpg" for i in range(3)])
+
+
+def test_positions_that_cover_part_of_the_drive_are_refused(recording, tmp_path, capsys):
+    from kartpilot.core.trajectory import Trajectory, read_tum, write_tum
+
+    truth = read_tum(recording / "groundtruth.tum")
+    write_tum(tmp_path / "half.tum", Trajectory(truth.stamps_s[:4], truth.poses[:4]))
+    assert main(["places", "build", str(recording), "--camera", "left", "--positions", str(tmp_path / "half.tum"),
+                 "--out", str(tmp_path / "places.npz")]) == 1
+    err = capsys.readouterr().err
+    assert "a pose for 4 of the 8 frames" in err and not (tmp_path / "places.npz").exists()

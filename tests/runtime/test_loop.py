@@ -80,3 +80,17 @@ def test_a_policy_s_outputs_are_recorded_beside_its_commands(tmp_path):
     assert [row["steps"] for row in reader.outputs("diagnostics")] == [1, 2, 3, 4]
     assert len(reader.commands()) == 4
     assert reader.manifest["missing_frames"] == {"center": 4}  # the source delivered no images
+
+
+def test_ctrl_c_commands_a_stop_and_logs_no_error(caplog):
+    sink = ListSink()
+
+    def policy(frames: FrameSet) -> ActuatorCommand:
+        if frames.index == 2:
+            raise KeyboardInterrupt
+        return ActuatorCommand(frames.stamp_ns, 0.2, 0.8, 0.0)
+
+    with pytest.raises(KeyboardInterrupt):
+        run_loop(ListSource(10), policy, sink)
+    assert sink.commands[-1] == ActuatorCommand.stop(2000)
+    assert not [r for r in caplog.records if r.levelname == "ERROR"]

@@ -20,6 +20,7 @@ from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import write_csv_atomic, write_text_atomic
 from kartpilot.core.geometry import invert_pose, mount_pose, planar_pose
 from kartpilot.core.trajectory import Trajectory, read_trajectory, write_trajectory
+from kartpilot.core.vehicle import get_vehicle
 from kartpilot.eval.disparity import bad_pixel_rate, disparity_search_range_px, load_middlebury_pair
 from kartpilot.eval.plots import plot_trajectories
 from kartpilot.eval.trajectory_metrics import evaluate_trajectory
@@ -214,6 +215,9 @@ def simulate(args: argparse.Namespace) -> int:
     driver = replace(driver, **{k: v for k, v in driver_overrides.items() if v is not None})
     if args.speed_mode is not None:
         config = replace(config, speed_mode_mps=args.speed_mode / 3.6)
+    top = get_vehicle(config.vehicle).top_speed_mps
+    if args.speed is not None and args.speed > top:
+        raise ConfigError(f"--speed {args.speed:g} m/s is above the {config.vehicle}'s top speed, {top:.1f} m/s")
     run = run_simulation(config, args.driver, driver, args.commands, stack, outputs=SessionOutputs(
         args.record, args.result, args.video, progress=not args.no_progress))
     _print_result(run.result, run)

@@ -122,6 +122,8 @@ def drive(args: argparse.Namespace) -> int:
     route = Route(path, visual_map, places)
     follow = stack.drive.follow if args.speed is None else replace(stack.drive.follow, max_speed_mps=args.speed)
     drive_config = replace(stack.drive, follow=follow)
+    if args.inject and not args.sim:
+        raise ConfigError("--inject works with --sim only: a replay or a live drive has no fault to inject")
     if args.sim:
         cameras = {"stereo-vo": vehicle.stereo_pair or (), "mono-vo": (stack.drive.mono.camera,)}.get(
             args.pipeline, stack.sim.cameras)
@@ -179,8 +181,11 @@ def drive_summary(payload: dict[str, Any]) -> str:
         lines.append(f"  {transition['t_s']:7.2f} s  {transition['state']:<10} {transition['reason']}")
     if payload["injections"]:
         stop = payload["fault_to_stop_s"]
-        lines.append(f"fault to stop: {stop:.3f} s (by {payload['stop_by']})" if stop is not None
-                     else "fault to stop: no stop after the fault")
+        if not payload.get("fault_injected", True):
+            lines.append("fault to stop: the drive ended before the fault was injected")
+        else:
+            lines.append(f"fault to stop: {stop:.3f} s (by {payload['stop_by']})" if stop is not None
+                         else "fault to stop: no stop after the fault")
     lines.append(stage_lines(SessionResult.from_json(payload)))
     return "\n".join(lines)
 

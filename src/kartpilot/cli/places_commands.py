@@ -8,6 +8,8 @@ from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from kartpilot.calibration.lens import undistortion
 from kartpilot.cli.values import number, output_file
 from kartpilot.core.errors import ConfigError, DataError
@@ -45,6 +47,7 @@ def places_build(args: argparse.Namespace) -> int:
     if camera not in reader.cameras:
         raise ConfigError(f"the recording has no camera {camera!r} (it has {', '.join(reader.cameras)})")
     poses, source = _positions(reader, camera, args, stack)
+    _check_coverage(reader, camera, poses, source)
     start = time.perf_counter()
     database = build_places(reader.posed_frames(camera, poses), reader.cameras[camera], camera, config,
                             {"recording": str(args.recording), "positions": source})
@@ -54,6 +57,22 @@ def places_build(args: argparse.Namespace) -> int:
           f"{config.vlad.words} words, {database.vectors.shape[1]}-dimensional vectors; "
           f"{path.stat().st_size / 1e6:.1f} MB in {time.perf_counter() - start:.0f} s -> {path}")
     return 0
+
+
+def _check_coverage(reader: RecordingReader, camera: str, poses: Trajectory, source: str) -> None:
+    """Every frame needs a pose (within 50 ms, as the database is built): a trajectory that covers only part of
+    the drive would build a database of part of the track without a word."""
+    stamps = np.array([stamp for stamp, _ in reader.frames(camera)], np.int64)
+    known = np.sort(np.round(poses.stamps_s * 1e9).astype(np.int64))
+    if len(stamps) == 0 or len(known) == 0:
+        raise DataError(f"{len(stamps)} frames of {camera} and {len(known)} poses from {source}: nothing to build")
+    index = np.clip(np.searchsorted(known, stamps), 1, len(known) - 1) if len(known) > 1 else np.zeros_like(stamps)
+    gap = np.minimum(np.abs(known[index] - stamps), np.abs(known[np.maximum(index - 1, 0)] - stamps))
+    covered = int(np.count_nonzero(gap <= 50_000_000))
+    if covered < len(stamps):
+        raise DataError(f"{source} gives a pose for {covered} of the {len(stamps)} frames of the {camera} camera "
+                        "(within 50 ms of each frame's time): give one pose per frame, as TUM with the frames' "
+                        "times")
 
 
 def _positions(reader: RecordingReader, camera: str, args: argparse.Namespace, stack: StackConfig

@@ -115,8 +115,11 @@ def run_loop(source: FrameSource, policy: Policy, actuators: CommandSink, record
                     time.sleep(delay)
                 else:
                     next_tick = time.perf_counter()  # late: do not try to catch up
-    except BaseException:
-        log.error("the loop failed at step %d: commanding a stop", stats.steps)
+    except BaseException as exc:
+        if isinstance(exc, KeyboardInterrupt):  # the user's own Ctrl-C is not an error
+            log.info("interrupted at step %d: commanding a stop", stats.steps)
+        else:
+            log.error("the loop failed at step %d: commanding a stop", stats.steps)
         stop = ActuatorCommand.stop(last_stamp)
         for sink in (actuators, *recorders):
             try:

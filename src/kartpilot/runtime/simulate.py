@@ -420,6 +420,10 @@ def run_supervised_drive(config: SimConfig, pipeline: str, stack: StackConfig | 
     at = _check_injections(pipeline, bus, injections)
     if duration_s is not None:
         config = replace(config, max_time_s=duration_s)
+    late = [f"{i.kind}@{i.at_s:g}" for i in injections if 0 < config.max_time_s <= i.at_s]
+    if late:
+        raise ConfigError(f"{', '.join(late)} would come after the drive's end at {config.max_time_s:g} s: it would "
+                          "never be injected")
     if pipeline != "lanes":
         config = replace(config, referee=replace(config.referee, run_on_m=math.inf))
     with Simulator(config) as sim:
@@ -473,5 +477,6 @@ def _fault_to_stop(applied: Sequence[AppliedCommand], at: dict[str, float]) -> d
     """How long after the first injected fault the kart got its first stop, and from whom."""
     first = min(at.values()) if at else None
     stop = next((a for a in applied if first is not None and a.stamp_ns * 1e-9 >= first and a.command.is_stop), None)
+    injected = first is not None and bool(applied) and applied[-1].stamp_ns * 1e-9 >= first
     return {"fault_to_stop_s": round(stop.stamp_ns * 1e-9 - first, 4) if stop and first is not None else None,
-            "stop_by": stop.source if stop else None}
+            "stop_by": stop.source if stop else None, "fault_injected": injected}

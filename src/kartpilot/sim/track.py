@@ -94,6 +94,11 @@ class Marking:
     cone_base_m: float = 0.18
     cone_height_m: float = 0.30
 
+    def __post_init__(self) -> None:
+        if not min(self.line_width_m, self.cone_gap_m, self.cone_base_m, self.cone_height_m) > 0:
+            raise ConfigError("track marking: line_width_m, cone_gap_m, cone_base_m and cone_height_m must be "
+                              "positive")
+
 
 @dataclass(frozen=True)
 class Curb:
@@ -103,6 +108,10 @@ class Curb:
     from_s_m: float = 0.0
     to_s_m: float = 0.0
     width_m: float = 0.3
+
+    def __post_init__(self) -> None:
+        if not self.width_m > 0 or not self.from_s_m <= self.to_s_m:
+            raise ConfigError("track curb: width_m must be positive and from_s_m at most to_s_m")
 
 
 @dataclass(frozen=True)
@@ -140,6 +149,15 @@ class TrackSpec:
     finish_s_m: float | None = None
     branches: tuple[Branch, ...] = ()
     seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.width_m > 0 or any(not w > 0 for _, w in self.width_profile):
+            raise ConfigError(f"track {self.name!r}: width_m and every width in width_profile must be positive")
+        if min(*self.surface_margin_m, self.barrier_offset_m, self.barrier_height_m, self.tyre_marks) < 0:
+            raise ConfigError(f"track {self.name!r}: surface_margin_m, barrier_offset_m, barrier_height_m and "
+                              "tyre_marks must not be negative")
+        if not -45.0 <= self.cross_slope_deg <= 45.0:
+            raise ConfigError(f"track {self.name!r}: cross_slope_deg must lie within 45 degrees")
 
 
 @dataclass(frozen=True)
