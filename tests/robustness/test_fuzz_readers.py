@@ -13,6 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, seed, settings
 from hypothesis import strategies as st
 
+from kartpilot.actuation.kartpilot_protocol import load_dbc
 from kartpilot.calibration.rig import load_rig
 from kartpilot.core.errors import KartpilotError
 from kartpilot.core.trajectory import read_kitti_poses, read_tum
@@ -29,7 +30,8 @@ FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
 TOKENS = ["stereo_vo:", "  max_speed_mps: 3", "cameras:", "  left:", "    fx_px: 700", "P0: 1 0 0 0 1 0 0 0 1 0 0 0",
           "1 0 0 0 0 1 0 0 0 0 1 0", "0.1 0 0 0 0 0 0 1", "# comment", ".nan", "-.inf", "1e309", "[1, 2", "{a: }",
           "stamp_ns,steer_rad,throttle,brake", "10,0.1,0.2,0", "nan,x,,", "name: t", "width_m: -3", "\x00", "é",
-          "points:", "  - [0, 0]", "    - 1", "\t", ""]
+          "points:", "  - [0, 0]", "    - 1", "\t", "", 'VERSION ""', "BO_ 256 Command: 8 Vector__XXX",
+          ' SG_ Counter : 0|4@1+ (1,0) [0|15] "" Vector__XXX', "BU_: Kart"]
 TEXT = st.lists(st.sampled_from(TOKENS) | st.text(max_size=20), max_size=12).map("\n".join)
 BYTES = st.binary(max_size=300)
 
@@ -74,6 +76,7 @@ READERS: dict[str, tuple[Callable[[Path], Any], str]] = {
     "KITTI calib": (read_kitti_calib, "calib.txt"),
     "place database": (load_places, "places.npz"),
     "recording manifest": (_recording, "manifest.json"),
+    "DBC": (load_dbc, "kart.dbc"),
 }
 
 
