@@ -27,7 +27,7 @@ from kartpilot.eval.trajectory_metrics import evaluate_trajectory
 from kartpilot.odometry.mono_localizer import MonoLocalizer
 from kartpilot.odometry.mono_vo import MonoVO
 from kartpilot.odometry.places import load_places
-from kartpilot.odometry.run import run_vo, stereo_frames
+from kartpilot.odometry.run import bridge_unreadable, run_vo, stereo_frames
 from kartpilot.odometry.stereo_vo import StereoVO
 from kartpilot.odometry.vo import VisualOdometry
 from kartpilot.perception.lanes import LaneStages, detect_lanes, draw_lanes
@@ -100,13 +100,14 @@ def _place_localised(args: argparse.Namespace, source: StereoSource) -> tuple[Tr
     camera = replace(source.rig.camera, pose_body_cam=tuple(tuple(float(v) for v in row) for row in mount))
     localizer = MonoLocalizer(camera, database, stack.mono_vo, replace(stack.drive.mono, camera=database.camera_name))
     origin_world_body = database.poses_world_cam[0] @ invert_pose(mount)
-    poses, stamps_s, placed, unreadable = [], [], 0, 0
+    poses, stamps_s, read, everything, placed = [], [], [], [], 0
     start = time.perf_counter()
     for item in tqdm(stereo_frames(source, (database.camera_name, "right")), total=len(source), unit="frame",
                      desc=f"mono VO + places {source.name}", disable=args.no_progress or None, leave=False):
+        everything.append(item if isinstance(item, int) else item.index)
         if isinstance(item, int):
-            unreadable += 1
             continue
+        read.append(item.index)
         pose = localizer.update(item)
         placed += localizer.filter.state is not None
         poses.append(origin_world_body @ planar_pose(pose.x_m, pose.y_m, pose.yaw_rad) @ mount)
@@ -115,10 +116,12 @@ def _place_localised(args: argparse.Namespace, source: StereoSource) -> tuple[Tr
     wall = time.perf_counter() - start
     if not poses:
         raise DataError(f"none of the {len(source)} frames of {source.name} could be read")
-    print(f"{len(poses)} frames, {placed} placed on the database, {localizer.relocalisations} place fixes used, "
+    unreadable = len(everything) - len(read)
+    print(f"{len(everything)} frames, {placed} placed on the database, {localizer.relocalisations} place fixes used, "
           f"{localizer.rejected_fixes} rejected, {unreadable} unreadable, {len(poses) / wall:.1f} frames/s; scale "
           f"from the ground plane and the place fixes")
-    return Trajectory.from_poses(poses, stamps_s), {
+    trajectory = bridge_unreadable(Trajectory.from_poses(poses, stamps_s), read, everything)
+    return trajectory, {
         "mode": "mono+places", "places": str(args.places), "placed_frames": placed,
         "place_fixes": localizer.relocalisations, "rejected_fixes": localizer.rejected_fixes,
         "unreadable_frames": unreadable, "frames_per_second": len(poses) / wall}

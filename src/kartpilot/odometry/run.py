@@ -18,7 +18,7 @@ from kartpilot.odometry.visual_map import MapBuilder, MapConfig, VisualMap
 from kartpilot.odometry.vo import VisualOdometry, VOStep
 from kartpilot.sensors.base import StereoSource
 
-__all__ = ["VORun", "run_teach", "run_vo", "stereo_frames"]
+__all__ = ["VORun", "bridge_unreadable", "run_teach", "run_vo", "stereo_frames"]
 
 
 @dataclass(frozen=True)
@@ -105,16 +105,21 @@ def run_vo(frames: Iterable[FrameSet | int], vo: VisualOdometry, name: str,
 
 
 def _aligned_trajectory(order: Sequence[int | VOStep]) -> Trajectory:
-    """One pose per input frame: the estimates' own, and, for an unreadable frame, one interpolated at a time
-    interpolated from the frame indices."""
     known = [e for e in order if not isinstance(e, int)]
     read = Trajectory.from_poses([e.pose_world_cam for e in known], [e.stamp_ns * 1e-9 for e in known])
-    if len(known) == len(order):
+    return bridge_unreadable(read, [e.index for e in known], [e if isinstance(e, int) else e.index for e in order])
+
+
+def bridge_unreadable(read: Trajectory, read_indices: Sequence[int], all_indices: Sequence[int]) -> Trajectory:
+    """One pose per input frame (``all_indices``, in order): the read frames' own, and, for a frame that could
+    not be read, one interpolated at a time interpolated from the frame indices (beyond the first or last read
+    frame, the mean frame interval carried on)."""
+    if len(read_indices) == len(all_indices):
         return read
-    indices = np.array([e if isinstance(e, int) else e.index for e in order], dtype=np.float64)
-    known_indices = np.array([e.index for e in known], dtype=np.float64)
+    indices = np.asarray(all_indices, dtype=np.float64)
+    known_indices = np.asarray(read_indices, dtype=np.float64)
     stamps = np.interp(indices, known_indices, read.stamps_s)
-    if len(known) > 1:  # beyond the first or last readable frame, carry the mean frame interval on
+    if len(known_indices) > 1:
         period = (read.stamps_s[-1] - read.stamps_s[0]) / (known_indices[-1] - known_indices[0])
         stamps = np.where(indices < known_indices[0], read.stamps_s[0] - (known_indices[0] - indices) * period,
                           stamps)
