@@ -116,17 +116,21 @@ def run_loop(source: FrameSource, policy: Policy, actuators: CommandSink, record
                 else:
                     next_tick = time.perf_counter()  # late: do not try to catch up
     except BaseException as exc:
-        if isinstance(exc, KeyboardInterrupt):  # the user's own Ctrl-C is not an error
-            log.info("interrupted at step %d: commanding a stop", stats.steps)
-        else:
-            log.error("the loop failed at step %d: commanding a stop", stats.steps)
-        stop = ActuatorCommand.stop(last_stamp)
-        for sink in (actuators, *recorders):
-            try:
-                sink.send(stop)
-            except Exception:
-                log.exception("could not send the stop command to %r", sink)
+        _stop_all(exc, stats.steps, ActuatorCommand.stop(last_stamp), (actuators, *recorders))
         raise
     finally:
         stats.wall_time_s = time.perf_counter() - start
     return stats
+
+
+def _stop_all(exc: BaseException, step: int, stop: ActuatorCommand, sinks: Sequence[CommandSink]) -> None:
+    """Command a stop to every sink after the loop ended on ``exc`` (a user's Ctrl-C is not an error)."""
+    if isinstance(exc, KeyboardInterrupt):
+        log.info("interrupted at step %d: commanding a stop", step)
+    else:
+        log.error("the loop failed at step %d: commanding a stop", step)
+    for sink in sinks:
+        try:
+            sink.send(stop)
+        except Exception:
+            log.exception("could not send the stop command to %r", sink)
