@@ -24,7 +24,6 @@ from kartpilot.calibration.board import (
 )
 from kartpilot.calibration.rig import Rig, load_rig, save_rig
 from kartpilot.cli.values import number, output_file
-from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import invert_pose, mount_pose
 from kartpilot.core.vehicle import get_vehicle
@@ -54,10 +53,6 @@ def _mount(text: str | None) -> np.ndarray:
     return mount_pose(*values)
 
 
-def _with_pose(camera: PinholeCamera, pose: np.ndarray) -> PinholeCamera:
-    return replace(camera, pose_body_cam=tuple(tuple(float(v) for v in row) for row in pose))
-
-
 def _camera_json(calibration: MonoCalibration) -> dict[str, Any]:
     cam = calibration.camera
     return {"fx": cam.fx_px, "fy": cam.fy_px, "cx": cam.cx_px, "cy": cam.cy_px, "distortion": list(cam.distortion),
@@ -77,7 +72,7 @@ def calibrate(args: argparse.Namespace) -> int:
     if args.mode == "mono":
         views, skipped, size = read_views(args.images, board)
         result = calibrate_mono(views, size)
-        rig = Rig({args.name: _with_pose(result.camera, _mount(args.mount))})
+        rig = Rig({args.name: result.camera.on_body(_mount(args.mount))})
         summary: dict[str, Any] = {"rms_px": result.rms_px, "used": [v.name for v in views], "skipped": skipped,
                                    "cameras": {args.name: _camera_json(result)}}
         if not args.json:
@@ -91,8 +86,8 @@ def calibrate(args: argparse.Namespace) -> int:
         stereo = calibrate_stereo(left_views, right_views, size, pairs=pairs)
         pose_left = _mount(args.mount)
         pose_right = pose_left @ invert_pose(stereo.pose_right_left)
-        rig = Rig({"left": _with_pose(stereo.left.camera, pose_left),
-                   "right": _with_pose(stereo.right.camera, pose_right)}, ("left", "right"))
+        rig = Rig({"left": stereo.left.camera.on_body(pose_left),
+                   "right": stereo.right.camera.on_body(pose_right)}, ("left", "right"))
         rows = list(stereo.row_error_px.values())
         summary = {"rms_px": stereo.rms_px, "used": list(stereo.pairs), "skipped": left_skipped + right_skipped,
                    "cameras": {"left": _camera_json(stereo.left), "right": _camera_json(stereo.right)},

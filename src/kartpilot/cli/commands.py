@@ -97,7 +97,7 @@ def _place_localised(args: argparse.Namespace, source: StereoSource) -> tuple[Tr
     stack = load_stack_config(args.config)
     database = load_places(args.places)
     mount = mount_pose(z_m=args.camera_height, pitch_down_deg=args.camera_pitch_down)
-    camera = replace(source.rig.camera, pose_body_cam=tuple(tuple(float(v) for v in row) for row in mount))
+    camera = source.rig.camera.on_body(mount)
     localizer = MonoLocalizer(camera, database, stack.mono_vo, replace(stack.drive.mono, camera=database.camera_name))
     origin_world_body = database.poses_world_cam[0] @ invert_pose(mount)
     poses, stamps_s, read, everything, placed = [], [], [], [], 0

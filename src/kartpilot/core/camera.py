@@ -5,7 +5,7 @@ Pixel convention is OpenCV's: the centre of the top-left pixel is (0, 0).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -114,6 +114,10 @@ class PinholeCamera:
     @property
     def pose_body_cam_array(self) -> Array:
         return np.asarray(self.pose_body_cam, dtype=np.float64)
+
+    def on_body(self, pose_body_cam: Array) -> PinholeCamera:
+        """The same camera mounted at ``pose_body_cam`` (4x4) on the kart."""
+        return replace(self, pose_body_cam=tuple(tuple(float(v) for v in row) for row in np.asarray(pose_body_cam)))
 
     def project(self, points_cam: Array) -> Array:
         """Project (N, 3) points in the camera frame to (N, 2) pixels (no distortion)."""

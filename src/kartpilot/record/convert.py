@@ -17,7 +17,6 @@ import csv
 import math
 import shutil
 from collections.abc import Sequence
-from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -83,10 +82,10 @@ def import_stereo_source(source: StereoSource, out: str | Path, pose_body_left: 
     """Write ``source`` as a recording at ``out``, the left camera at ``pose_body_left`` on the body (the right
     one beside it, the baseline to its right); returns the number of frames written. A frame that cannot be
     read is left out."""
-    left = replace(source.rig.camera, pose_body_cam=_rows(pose_body_left))
+    left = source.rig.camera.on_body(pose_body_left)
     right_on_left = np.eye(4)
     right_on_left[0, 3] = source.rig.baseline_m
-    right = replace(source.rig.camera, pose_body_cam=_rows(pose_body_left @ right_on_left))
+    right = source.rig.camera.on_body(pose_body_left @ right_on_left)
     truth = source.ground_truth()
     metadata: dict[str, object] = {"source": source.name, "groundtruth_camera": "left",
                                    "mount": "given on import (the source has no body frame)"}
@@ -105,10 +104,6 @@ def import_stereo_source(source: StereoSource, out: str | Path, pose_body_left: 
     if written == 0:
         raise DataError(f"none of the {len(source)} frames of {source.name} could be read")
     return written
-
-
-def _rows(pose: Array) -> tuple[tuple[float, ...], ...]:
-    return tuple(tuple(float(v) for v in row) for row in np.asarray(pose, float))
 
 
 def export_recording(folder: str | Path, out: str | Path, cameras: Sequence[str] | None = None) -> int:
