@@ -8,8 +8,6 @@ from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from kartpilot.calibration.lens import undistortion
 from kartpilot.cli.values import number, output_file
 from kartpilot.core.errors import ConfigError, DataError
@@ -22,7 +20,7 @@ from kartpilot.odometry.mono_vo import MonoVO
 from kartpilot.odometry.places import PlaceFix, build_places, load_places
 from kartpilot.odometry.run import run_vo, stereo_frames
 from kartpilot.odometry.stereo_vo import StereoVO
-from kartpilot.record.recording import RecordingReader, RecordingStereoSource
+from kartpilot.record.recording import POSE_GAP_S, RecordingReader, RecordingStereoSource
 from kartpilot.runtime.config import StackConfig, load_stack_config
 from kartpilot.sensors.base import read_gray
 
@@ -60,19 +58,14 @@ def places_build(args: argparse.Namespace) -> int:
 
 
 def _check_coverage(reader: RecordingReader, camera: str, poses: Trajectory, source: str) -> None:
-    """Every frame needs a pose (within 50 ms, as the database is built): a trajectory that covers only part of
-    the drive would build a database of part of the track without a word."""
-    stamps = np.array([stamp for stamp, _ in reader.frames(camera)], np.int64)
-    known = np.sort(np.round(poses.stamps_s * 1e9).astype(np.int64))
-    if len(stamps) == 0 or len(known) == 0:
-        raise DataError(f"{len(stamps)} frames of {camera} and {len(known)} poses from {source}: nothing to build")
-    index = np.clip(np.searchsorted(known, stamps), 1, len(known) - 1) if len(known) > 1 else np.zeros_like(stamps)
-    gap = np.minimum(np.abs(known[index] - stamps), np.abs(known[np.maximum(index - 1, 0)] - stamps))
-    covered = int(np.count_nonzero(gap <= 50_000_000))
-    if covered < len(stamps):
-        raise DataError(f"{source} gives a pose for {covered} of the {len(stamps)} frames of the {camera} camera "
-                        "(within 50 ms of each frame's time): give one pose per frame, as TUM with the frames' "
-                        "times")
+    """Every frame needs a pose (as the database is built): a trajectory that covers only part of the drive
+    would build a database of part of the track without a word."""
+    indices = reader.pose_indices(camera, poses)
+    covered = sum(index is not None for index in indices)
+    if covered < len(indices) or not indices:
+        raise DataError(f"{source} gives a pose for {covered} of the {len(indices)} frames of the {camera} camera "
+                        f"(within {POSE_GAP_S * 1e3:g} ms of each frame's time): give one pose per frame, as TUM "
+                        "with the frames' times")
 
 
 def _positions(reader: RecordingReader, camera: str, args: argparse.Namespace, stack: StackConfig

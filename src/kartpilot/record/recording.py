@@ -52,12 +52,15 @@ from kartpilot.sensors.capture import nearest_within
 __all__ = [
     "FORMAT_NAME",
     "FORMAT_VERSION",
+    "POSE_GAP_S",
     "RecordingReader",
     "RecordingStereoSource",
     "RecordingWriter",
 ]
 
 log = logging.getLogger(__name__)
+
+POSE_GAP_S = 0.05  # a frame takes the pose nearest its time within this (posed_frames, pose_indices)
 
 FORMAT_NAME = "kartpilot-recording"
 FORMAT_VERSION = 1
@@ -453,15 +456,19 @@ class RecordingReader:
         cam_to_cam = invert_pose(self.cameras[measured].pose_body_cam_array) @ self.cameras[camera].pose_body_cam_array
         return Trajectory(truth.stamps_s, truth.poses @ cam_to_cam)
 
-    def posed_frames(self, camera: str, poses: Trajectory, max_gap_s: float = 0.05
+    def pose_indices(self, camera: str, poses: Trajectory, max_gap_s: float = POSE_GAP_S) -> list[int | None]:
+        """For each frame of ``camera``, the index of the pose within ``max_gap_s`` of its time (None: none)."""
+        stamps = np.round(poses.stamps_s * 1e9).astype(np.int64)  # once, not per frame
+        return [nearest_within(stamp_ns, stamps, round(max_gap_s * 1e9)) for stamp_ns, _ in self.frames(camera)]
+
+    def posed_frames(self, camera: str, poses: Trajectory, max_gap_s: float = POSE_GAP_S
                      ) -> Iterator[tuple[int, Image, Array]]:
         """(stamp_ns, grey image, pose_world_cam) of each frame of ``camera`` with a pose within ``max_gap_s``;
         frames without one are left out. An unreadable image raises DataError naming it."""
         if camera not in self.cameras:
             raise RecordingError(f"the recording has no camera {camera!r} (has {', '.join(self.cameras)})")
-        stamps = np.round(poses.stamps_s * 1e9).astype(np.int64)  # once, not per frame
-        for stamp_ns, path in self.frames(camera):
-            index = nearest_within(stamp_ns, stamps, round(max_gap_s * 1e9))
+        for (stamp_ns, path), index in zip(self.frames(camera), self.pose_indices(camera, poses, max_gap_s),
+                                           strict=True):
             if index is not None:
                 yield stamp_ns, read_gray(path), poses.poses[index]
 
