@@ -18,7 +18,6 @@ import cv2
 import numpy as np
 
 from common import write_json
-from kartpilot.odometry.run import stereo_frames
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
 from kartpilot.runtime.demo_source import default_stereo_source
 
@@ -32,7 +31,7 @@ def main() -> int:
     source, fallback = default_stereo_source(args.data)
     if fallback:
         print(fallback)
-    frames = [f for f in stereo_frames(source) if not isinstance(f, int)]
+    frames = [f for f in source.frame_sets() if not isinstance(f, int)]
     per_run_fps = []
     stage_samples: dict[str, list[float]] = {}
     for _ in range(args.repeats):

@@ -3,7 +3,7 @@
 import numpy as np
 
 from kartpilot.eval.trajectory_metrics import evaluate_trajectory
-from kartpilot.odometry.run import run_vo, stereo_frames
+from kartpilot.odometry.run import run_vo
 from kartpilot.odometry.stereo_vo import StereoVO
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
@@ -12,7 +12,7 @@ from tests.conftest import data_path
 
 def test_kitti_06_end_point_drift_at_most_1_percent() -> None:
     source = KittiOdometrySource(data_path("kitti-odometry"), "06")
-    run = run_vo(stereo_frames(source), StereoVO(source.rig), source.name)
+    run = run_vo(source.frame_sets(), StereoVO(source.rig), source.name)
     truth = source.ground_truth()
     assert truth is not None
     metrics = evaluate_trajectory(truth, run.trajectory)
@@ -24,7 +24,7 @@ def test_kitti_06_end_point_drift_at_most_1_percent() -> None:
 
 def test_euroc_static_platform_stays_within_5_cm() -> None:
     source = EurocSource(data_path("euroc-v101-static"))
-    run = run_vo(stereo_frames(source), StereoVO(source.rig), source.name)
+    run = run_vo(source.frame_sets(), StereoVO(source.rig), source.name)
     excursion = float(np.linalg.norm(run.trajectory.positions, axis=1).max())
     print(f"\nEuRoC V1_01 static: largest distance from the start {excursion * 100:.2f} cm over {len(source)} frames")
     assert excursion < 0.05
@@ -35,7 +35,7 @@ def test_kitti_06_monocular_vo_with_ground_plane_scale_drifts_at_most_5_percent(
 
     source = KittiOdometrySource(data_path("kitti-odometry"), "06")
     vo = MonoVO(source.rig.camera, MonoVOConfig(ground=GroundConfig(camera_height_m=1.65)))
-    run = run_vo(stereo_frames(source), vo, source.name)
+    run = run_vo(source.frame_sets(), vo, source.name)
     truth = source.ground_truth()
     assert truth is not None
     metrics = evaluate_trajectory(truth, run.trajectory)

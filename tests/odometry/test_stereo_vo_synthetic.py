@@ -4,7 +4,7 @@ import pytest
 from kartpilot.core.errors import DataError, PerceptionError
 from kartpilot.core.types import FrameSet, StereoFrame
 from kartpilot.eval.trajectory_metrics import evaluate_trajectory
-from kartpilot.odometry.run import run_vo, stereo_frames
+from kartpilot.odometry.run import run_vo
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
@@ -16,7 +16,7 @@ def source() -> SyntheticStereoSource:
 
 
 def test_vo_follows_the_synthetic_drive(source: SyntheticStereoSource) -> None:
-    run = run_vo(stereo_frames(source), StereoVO(source.rig), source.name)
+    run = run_vo(source.frame_sets(), StereoVO(source.rig), source.name)
     metrics = evaluate_trajectory(source.ground_truth(), run.trajectory)
     print(metrics.table())
     assert run.bridged_frames == 0
@@ -31,7 +31,7 @@ def test_vo_follows_the_synthetic_drive(source: SyntheticStereoSource) -> None:
 def test_alternative_configurations_also_track(source: SyntheticStereoSource, overrides: dict) -> None:
     from kartpilot.core.config import merge_config
 
-    run = run_vo(stereo_frames(source), StereoVO(source.rig, merge_config(StereoVOConfig(), overrides)), source.name)
+    run = run_vo(source.frame_sets(), StereoVO(source.rig, merge_config(StereoVOConfig(), overrides)), source.name)
     metrics = evaluate_trajectory(source.ground_truth(), run.trajectory)
     assert metrics.end_drift_percent < 2.0, overrides
 
@@ -88,7 +88,7 @@ class _BrokenSource(StereoSource):
 
 def test_unreadable_frames_are_skipped_and_counted(source: SyntheticStereoSource) -> None:
     broken = _BrokenSource(source, {2})
-    run = run_vo(stereo_frames(broken), StereoVO(broken.rig), broken.name)
+    run = run_vo(broken.frame_sets(), StereoVO(broken.rig), broken.name)
     assert run.unreadable_frames == (2,)
     # the trajectory stays aligned with the frames: the unreadable one is bridged, at its own time
     truth = source.ground_truth()
@@ -98,4 +98,4 @@ def test_unreadable_frames_are_skipped_and_counted(source: SyntheticStereoSource
     print(f"position error per frame, frame 2 unreadable: {np.round(error, 4)} m")
     assert error.max() < 0.03
     with pytest.raises(DataError, match="none of the 6 frames"):
-        run_vo(stereo_frames(_BrokenSource(source, set(range(6)))), StereoVO(source.rig), "broken")
+        run_vo(_BrokenSource(source, set(range(6))).frame_sets(), StereoVO(source.rig), "broken")

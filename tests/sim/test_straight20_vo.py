@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from kartpilot.eval.trajectory_metrics import evaluate_trajectory
-from kartpilot.odometry.run import run_vo, stereo_frames
+from kartpilot.odometry.run import run_vo
 from kartpilot.odometry.stereo_vo import StereoVO
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.runtime.session import SessionOutputs
@@ -29,7 +29,7 @@ def test_stereo_vo_on_a_recorded_straight20_drive(tmp_path):
                                outputs=SessionOutputs(record_dir=folder))
         assert drive.result.finished and not drive.result.disqualified
         source = RecordingStereoSource(folder)
-        results[cones] = (source, run_vo(stereo_frames(source), StereoVO(source.rig), source.name))
+        results[cones] = (source, run_vo(source.frame_sets(), StereoVO(source.rig), source.name))
     source, run = results[True]
     metrics = evaluate_trajectory(source.ground_truth(), run.trajectory)
     print(f"straight20 with cones: end-point drift {metrics.end_drift_percent:.2f} % "

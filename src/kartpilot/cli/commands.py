@@ -27,7 +27,7 @@ from kartpilot.eval.trajectory_metrics import evaluate_trajectory
 from kartpilot.odometry.mono_localizer import MonoLocalizer
 from kartpilot.odometry.mono_vo import MonoVO
 from kartpilot.odometry.places import load_places
-from kartpilot.odometry.run import bridge_unreadable, run_vo, stereo_frames
+from kartpilot.odometry.run import bridge_unreadable, run_vo
 from kartpilot.odometry.stereo_vo import StereoVO
 from kartpilot.odometry.vo import VisualOdometry
 from kartpilot.perception.lanes import LaneStages, detect_lanes, draw_lanes
@@ -102,7 +102,7 @@ def _place_localised(args: argparse.Namespace, source: StereoSource) -> tuple[Tr
     origin_world_body = database.poses_world_cam[0] @ invert_pose(mount)
     poses, stamps_s, read, everything, placed = [], [], [], [], 0
     start = time.perf_counter()
-    for item in tqdm(stereo_frames(source, (database.camera_name, "right")), total=len(source), unit="frame",
+    for item in tqdm(source.frame_sets((database.camera_name, "right")), total=len(source), unit="frame",
                      desc=f"mono VO + places {source.name}", disable=args.no_progress or None, leave=False):
         everything.append(item if isinstance(item, int) else item.index)
         if isinstance(item, int):
@@ -138,7 +138,7 @@ def odometry(args: argparse.Namespace) -> int:
         mode = "mono" if isinstance(vo, MonoVO) else "stereo"
         with tqdm(total=len(source), desc=f"{mode} VO {source.name}", unit="frame",
                   disable=args.no_progress or None, leave=False) as bar:
-            run = run_vo(stereo_frames(source), vo, source.name, on_frame=lambda _: bar.update(1))
+            run = run_vo(source.frame_sets(), vo, source.name, on_frame=lambda _: bar.update(1))
         print(run.summary())
         print("stage ms: " + ", ".join(f"{k} {v:.1f}" for k, v in run.timing_ms.items()))
         trajectory = run.trajectory

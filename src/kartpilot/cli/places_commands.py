@@ -18,7 +18,7 @@ from kartpilot.core.types import FrameSet, Image
 from kartpilot.eval.places import evaluate_places
 from kartpilot.odometry.mono_vo import MonoVO
 from kartpilot.odometry.places import PlaceFix, build_places, load_places
-from kartpilot.odometry.run import run_vo, stereo_frames
+from kartpilot.odometry.run import run_vo
 from kartpilot.odometry.stereo_vo import StereoVO
 from kartpilot.record.recording import POSE_GAP_S, RecordingReader, RecordingStereoSource
 from kartpilot.runtime.config import StackConfig, load_stack_config
@@ -84,7 +84,7 @@ def _positions(reader: RecordingReader, camera: str, args: argparse.Namespace, s
                         f"{camera} camera's trajectory, or --positions-from stereo-vo or mono-vo")
     if wanted == "stereo-vo":
         stereo = RecordingStereoSource(reader.folder)
-        run = run_vo(stereo_frames(stereo), StereoVO(stereo.rig, stack.stereo_vo), str(reader.folder))
+        run = run_vo(stereo.frame_sets(), StereoVO(stereo.rig, stack.stereo_vo), str(reader.folder))
         # the rectified left camera's poses, moved onto the database's camera by the two mounts
         to_camera = invert_pose(stereo.pose_body_left) @ reader.cameras[camera].pose_body_cam_array
         print(run.summary())

@@ -4,12 +4,12 @@ sequence and summarise the run."""
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from kartpilot.core.errors import DataError, KartpilotError
+from kartpilot.core.errors import DataError
 from kartpilot.core.geometry import Array, vo_ground_pose
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import FrameSet
@@ -18,7 +18,7 @@ from kartpilot.odometry.visual_map import MapBuilder, MapConfig, VisualMap
 from kartpilot.odometry.vo import VisualOdometry, VOStep
 from kartpilot.sensors.base import StereoSource
 
-__all__ = ["VORun", "bridge_unreadable", "run_teach", "run_vo", "stereo_frames"]
+__all__ = ["VORun", "bridge_unreadable", "run_teach", "run_vo"]
 
 
 @dataclass(frozen=True)
@@ -56,19 +56,6 @@ class VORun:
                 f"{len(self.unreadable_frames)} unreadable, median inliers "
                 f"{int(np.median(inliers)) if inliers else 0}, {self.frames_per_second:.1f} frames/s; "
                 f"scale from the {self.scale_source}")
-
-
-def stereo_frames(source: StereoSource, cameras: tuple[str, str] = ("left", "right")
-                  ) -> Iterator[FrameSet | int]:
-    """The source's frames as frame sets of the two named cameras; a frame that cannot be read is its bare
-    index."""
-    for index in range(len(source)):
-        try:
-            frame = source.frame(index)
-        except KartpilotError:
-            yield index
-            continue
-        yield frame.as_frame_set(*cameras)
 
 
 def run_vo(frames: Iterable[FrameSet | int], vo: VisualOdometry, name: str,
@@ -140,5 +127,5 @@ def run_teach(source: StereoSource, pose_body_cam: Array, config: StereoVOConfig
             ground = np.array(vo_ground_pose(estimate.pose_world_cam, pose_body_cam))
             builder.add(estimate.pose_world_cam, ground, *latest)
 
-    run = run_vo(stereo_frames(source), vo, source.name, on_frame=keep)
+    run = run_vo(source.frame_sets(), vo, source.name, on_frame=keep)
     return run, builder.build()

@@ -92,12 +92,10 @@ def import_stereo_source(source: StereoSource, out: str | Path, pose_body_left: 
     written = 0
     with RecordingWriter(out, {"left": left, "right": right}, stereo_pair=("left", "right"),
                          metadata=metadata) as writer:
-        for index in range(len(source)):
-            try:
-                frame = source.frame(index)
-            except DataError:
+        for frames in source.frame_sets():
+            if isinstance(frames, int):
                 continue
-            writer.write_frames(frame.as_frame_set())
+            writer.write_frames(frames)
             written += 1
         if truth is not None:
             writer.write_groundtruth(truth)

@@ -14,9 +14,9 @@ from pathlib import Path
 import cv2
 
 from kartpilot.core.camera import StereoRig
-from kartpilot.core.errors import DataError
+from kartpilot.core.errors import DataError, KartpilotError
 from kartpilot.core.trajectory import Trajectory
-from kartpilot.core.types import Image, StereoFrame
+from kartpilot.core.types import FrameSet, Image, StereoFrame
 
 __all__ = ["StereoSource", "read_gray"]
 
@@ -45,6 +45,17 @@ class StereoSource(abc.ABC):
     def __iter__(self) -> Iterator[StereoFrame]:
         for index in range(len(self)):
             yield self.frame(index)
+
+    def frame_sets(self, cameras: tuple[str, str] = ("left", "right")) -> Iterator[FrameSet | int]:
+        """Every frame as a frame set of the two named cameras; a frame that cannot be read is its bare index
+        (for VO to bridge and count, or an importer to leave out)."""
+        for index in range(len(self)):
+            try:
+                frame = self.frame(index)
+            except KartpilotError:
+                yield index
+                continue
+            yield frame.as_frame_set(*cameras)
 
 
 def read_gray(path: str | Path) -> Image:
