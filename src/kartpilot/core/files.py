@@ -14,8 +14,15 @@ from typing import Any, BinaryIO
 
 from kartpilot.core.errors import DataError
 
-__all__ = ["read_text_file", "write_atomic", "write_bytes_atomic", "write_csv_atomic", "write_json_atomic",
-           "write_text_atomic"]
+__all__ = ["is_torn_last_line", "read_text_file", "write_atomic", "write_bytes_atomic", "write_csv_atomic",
+           "write_json_atomic", "write_text_atomic"]
+
+
+def is_torn_last_line(content: str, line: int, last_line: int) -> bool:
+    """Whether ``line`` (numbered like ``last_line``) is the last line of a text file cut off mid-write: the
+    writer was killed inside it, so the file does not end with a newline. Readers skip such a line; any other
+    bad line is an error."""
+    return line == last_line and not content.endswith("\n")
 
 
 def read_text_file(path: str | Path) -> str:

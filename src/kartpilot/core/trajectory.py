@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from kartpilot.core.errors import DataError
-from kartpilot.core.files import read_text_file, write_text_atomic
+from kartpilot.core.files import is_torn_last_line, read_text_file, write_text_atomic
 from kartpilot.core.geometry import Array, pose_from_quaternion, quaternion_xyzw_from_pose
 
 __all__ = [
@@ -116,8 +116,7 @@ def _read_rows(path: Path, columns: int) -> Array:
         try:
             rows.append(_row(text, columns, f"{path}:{number}"))
         except DataError:
-            if number == len(lines) and not content.endswith("\n"):
-                # a file cut off mid-write (a recording whose writer was killed): its last line is torn
+            if is_torn_last_line(content, number, len(lines)):
                 log.warning("%s:%d: skipped the last line, cut off mid-write", path, number)
                 continue
             raise

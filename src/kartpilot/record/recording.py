@@ -42,7 +42,7 @@ import numpy as np
 from kartpilot.calibration.rectify import stereo_setup
 from kartpilot.core.camera import PinholeCamera, StereoRig, camera_from_dict, camera_to_dict
 from kartpilot.core.errors import RecordingError
-from kartpilot.core.files import read_text_file, write_json_atomic
+from kartpilot.core.files import is_torn_last_line, read_text_file, write_json_atomic
 from kartpilot.core.geometry import Array, invert_pose
 from kartpilot.core.trajectory import Trajectory, read_tum, write_tum
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image, StereoFrame
@@ -366,8 +366,8 @@ class RecordingReader:
                 stamp = int(row["stamp_ns"])
                 capture = int(row["capture_ns"]) if row.get("capture_ns") else stamp
             except (KeyError, TypeError, ValueError) as exc:
-                if number == len(listed) + 1 and not content.endswith("\n"):
-                    continue  # the last line, cut off by a crash
+                if is_torn_last_line(content, number, len(listed) + 1):
+                    continue
                 raise RecordingError(f"{csv_path}:{number}: not a frame (stamp_ns, file): {exc}") from None
             # a listed frame whose image is gone stays listed: reading it fails, and the reader counts it as
             # unreadable (VO bridges it) instead of the frame silently vanishing
@@ -397,7 +397,7 @@ class RecordingReader:
                 if not all(math.isfinite(v) for v in values):
                     raise ValueError("a value is not finite")
             except (KeyError, TypeError, ValueError) as exc:
-                if number == len(rows) + 1 and not content.endswith("\n"):
+                if is_torn_last_line(content, number, len(rows) + 1):
                     log.warning("%s:%d: skipped the last line, cut off mid-write", path, number)
                     continue
                 raise RecordingError(f"{path}:{number}: not a command (stamp_ns, steer_rad, throttle, brake): "
