@@ -78,10 +78,10 @@ class Trajectory:
         stamps = np.asarray(stamps_s, dtype=np.float64)
         if len(self) == 0:
             raise DataError("cannot interpolate an empty trajectory")
-        if len(self) == 1 or not np.all(np.diff(self.stamps_s) > 0):
-            if len(self) > 1:
-                raise DataError("the trajectory's timestamps do not increase: it cannot be interpolated")
+        if len(self) == 1:
             return Trajectory(stamps, np.repeat(self.poses, len(stamps), axis=0))
+        if not np.all(np.diff(self.stamps_s) > 0):
+            raise DataError("the trajectory's timestamps do not increase: it cannot be interpolated")
         clipped = np.clip(stamps, self.stamps_s[0], self.stamps_s[-1])
         poses = np.repeat(np.eye(4)[None], len(stamps), axis=0)
         poses[:, :3, :3] = Slerp(self.stamps_s, Rotation.from_matrix(self.poses[:, :3, :3]))(clipped).as_matrix()
