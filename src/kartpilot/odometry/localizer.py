@@ -147,10 +147,15 @@ class StereoVOLocalizer(PoseTracker):
         self._keyframe = 0
         self._previous_images: dict[str, Image] = {}
         self.relocalisations = 0
-        self.timing_ms: dict[str, float] = {}  # VO's stages (and reloc), summed over every frame
+        self._reloc_ms: float | None = None  # summed once the map has been tried
 
     def close(self) -> None:
         self.vo.close()
+
+    @property
+    def timing_ms(self) -> dict[str, float]:
+        """VO's stages and the relocalisation, milliseconds summed over every frame."""
+        return {**self.vo.timing_ms, **({"reloc": self._reloc_ms} if self._reloc_ms is not None else {})}
 
     def update(self, frames: FrameSet) -> VehiclePose:
         """The pose at ``frames.stamp_ns``."""
@@ -169,8 +174,6 @@ class StereoVOLocalizer(PoseTracker):
             estimate = self.vo.process(frames)
         except (PerceptionError, OdometryError) as exc:
             return self._bridge(frames.stamp_ns, str(exc))
-        for stage, ms in estimate.diagnostics.timing_ms.items():
-            self.timing_ms[stage] = self.timing_ms.get(stage, 0.0) + ms
         raw = vo_ground_pose(estimate.pose_world_cam, self.body_cam)
         step = (0.0, 0.0, 0.0) if self._raw is None else between_2d(self._raw, raw)
         pose = compose_2d(self._pose_at_raw, step) if self._raw is not None else raw
@@ -208,7 +211,7 @@ class StereoVOLocalizer(PoseTracker):
             self.relocalisations += 1
             pose = compose_2d(pose, (reloc.gain * error[0], reloc.gain * error[1], reloc.gain * error[2]))
             break
-        self.timing_ms["reloc"] = self.timing_ms.get("reloc", 0.0) + (time.perf_counter() - t0) * 1e3
+        self._reloc_ms = (self._reloc_ms or 0.0) + (time.perf_counter() - t0) * 1e3
         return pose
 
     @property

@@ -73,7 +73,10 @@ class Localizer(Protocol):
 
     body_cam: Array
     relocalisations: int
-    timing_ms: dict[str, float]
+
+    @property
+    def timing_ms(self) -> dict[str, float]:
+        """Milliseconds per stage, summed over every frame."""
 
     @property
     def camera_name(self) -> str: ...
