@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -18,7 +17,7 @@ from kartpilot.cli.values import file_or_new_folder, new_folder, number, output_
 from kartpilot.control.lane_follow import LaneFollowState, lane_follow_step
 from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import write_csv_atomic, write_text_atomic
-from kartpilot.core.geometry import invert_pose, mount_pose, planar_pose
+from kartpilot.core.geometry import mount_pose
 from kartpilot.core.trajectory import Trajectory, read_trajectory, write_trajectory
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.eval.disparity import bad_pixel_rate, disparity_search_range_px, load_middlebury_pair
@@ -27,7 +26,7 @@ from kartpilot.eval.trajectory_metrics import evaluate_trajectory
 from kartpilot.odometry.mono_localizer import MonoLocalizer
 from kartpilot.odometry.mono_vo import MonoVO
 from kartpilot.odometry.places import load_places
-from kartpilot.odometry.run import bridge_unreadable, run_vo
+from kartpilot.odometry.run import run_mono_localizer, run_vo
 from kartpilot.odometry.stereo_vo import StereoVO
 from kartpilot.odometry.vo import VisualOdometry
 from kartpilot.perception.lanes import LaneStages, detect_lanes, draw_lanes
@@ -99,32 +98,16 @@ def _place_localised(args: argparse.Namespace, source: StereoSource) -> tuple[Tr
     mount = mount_pose(z_m=args.camera_height, pitch_down_deg=args.camera_pitch_down)
     camera = source.rig.camera.on_body(mount)
     localizer = MonoLocalizer(camera, database, stack.mono_vo, replace(stack.drive.mono, camera=database.camera_name))
-    origin_world_body = database.poses_world_cam[0] @ invert_pose(mount)
-    poses, stamps_s, read, everything, placed = [], [], [], [], 0
-    start = time.perf_counter()
-    for item in tqdm(source.frame_sets((database.camera_name, "right")), total=len(source), unit="frame",
-                     desc=f"mono VO + places {source.name}", disable=args.no_progress or None, leave=False):
-        everything.append(item if isinstance(item, int) else item.index)
-        if isinstance(item, int):
-            continue
-        read.append(item.index)
-        pose = localizer.update(item)
-        placed += localizer.filter.state is not None
-        poses.append(origin_world_body @ planar_pose(pose.x_m, pose.y_m, pose.yaw_rad) @ mount)
-        stamps_s.append(item.stamp_ns * 1e-9)
-    localizer.close()
-    wall = time.perf_counter() - start
-    if not poses:
-        raise DataError(f"none of the {len(source)} frames of {source.name} could be read")
-    unreadable = len(everything) - len(read)
-    print(f"{len(everything)} frames, {placed} placed on the database, {localizer.relocalisations} place fixes used, "
-          f"{localizer.rejected_fixes} rejected, {unreadable} unreadable, {len(poses) / wall:.1f} frames/s; scale "
-          f"from the ground plane and the place fixes")
-    trajectory = bridge_unreadable(Trajectory.from_poses(poses, stamps_s), read, everything)
-    return trajectory, {
-        "mode": "mono+places", "places": str(args.places), "placed_frames": placed,
-        "place_fixes": localizer.relocalisations, "rejected_fixes": localizer.rejected_fixes,
-        "unreadable_frames": unreadable, "frames_per_second": len(poses) / wall}
+    frames = tqdm(source.frame_sets((database.camera_name, "right")), total=len(source), unit="frame",
+                  desc=f"mono VO + places {source.name}", disable=args.no_progress or None, leave=False)
+    run = run_mono_localizer(frames, localizer, source.name)
+    print(f"{len(run.trajectory)} frames, {run.placed_frames} placed on the database, {run.place_fixes} place fixes "
+          f"used, {run.rejected_fixes} rejected, {run.unreadable_frames} unreadable, {run.frames_per_second:.1f} "
+          f"frames/s; scale from the ground plane and the place fixes")
+    return run.trajectory, {
+        "mode": "mono+places", "places": str(args.places), "placed_frames": run.placed_frames,
+        "place_fixes": run.place_fixes, "rejected_fixes": run.rejected_fixes,
+        "unreadable_frames": run.unreadable_frames, "frames_per_second": run.frames_per_second}
 
 
 def odometry(args: argparse.Namespace) -> int:

@@ -10,15 +10,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from kartpilot.core.errors import DataError
-from kartpilot.core.geometry import Array, vo_ground_pose
+from kartpilot.core.geometry import Array, invert_pose, planar_pose, vo_ground_pose
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import FrameSet
+from kartpilot.odometry.mono_localizer import MonoLocalizer
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
 from kartpilot.odometry.visual_map import MapBuilder, MapConfig, VisualMap
 from kartpilot.odometry.vo import VisualOdometry, VOStep
 from kartpilot.sensors.base import StereoSource
 
-__all__ = ["VORun", "bridge_unreadable", "run_teach", "run_vo"]
+__all__ = ["LocalizedRun", "VORun", "bridge_unreadable", "run_mono_localizer", "run_teach", "run_vo"]
 
 
 @dataclass(frozen=True)
@@ -129,3 +130,47 @@ def run_teach(source: StereoSource, pose_body_cam: Array, config: StereoVOConfig
 
     run = run_vo(source.frame_sets(), vo, source.name, on_frame=keep)
     return run, builder.build()
+
+
+@dataclass(frozen=True)
+class LocalizedRun:
+    """The one-camera localiser over a frame sequence: the camera's poses in the place database's frame, one per
+    input frame (before the first fix, the motion model's; an unreadable frame bridged), and its counts."""
+
+    trajectory: Trajectory
+    placed_frames: int
+    place_fixes: int
+    rejected_fixes: int
+    unreadable_frames: int
+    wall_time_s: float
+
+    @property
+    def frames_per_second(self) -> float:
+        read = len(self.trajectory) - self.unreadable_frames
+        return read / self.wall_time_s if self.wall_time_s > 0 else float("nan")
+
+
+def run_mono_localizer(frames: Iterable[FrameSet | int], localizer: MonoLocalizer, name: str) -> LocalizedRun:
+    """Run ``localizer`` over every frame set of ``frames`` (a bare index is a frame that could not be read), and
+    close it; when no frame could be read, DataError."""
+    body_cam = localizer.body_cam
+    origin_world_body = localizer.places.poses_world_cam[0] @ invert_pose(body_cam)
+    poses, stamps_s, read, everything, placed = [], [], [], [], 0
+    start = time.perf_counter()
+    try:
+        for item in frames:
+            everything.append(item if isinstance(item, int) else item.index)
+            if isinstance(item, int):
+                continue
+            read.append(item.index)
+            pose = localizer.update(item)
+            placed += localizer.filter.state is not None
+            poses.append(origin_world_body @ planar_pose(pose.x_m, pose.y_m, pose.yaw_rad) @ body_cam)
+            stamps_s.append(item.stamp_ns * 1e-9)
+    finally:
+        localizer.close()
+    if not poses:
+        raise DataError(f"none of the {len(everything)} frames of {name} could be read")
+    trajectory = bridge_unreadable(Trajectory.from_poses(poses, stamps_s), read, everything)
+    return LocalizedRun(trajectory, placed, localizer.relocalisations, localizer.rejected_fixes,
+                        len(everything) - len(read), time.perf_counter() - start)
