@@ -55,6 +55,39 @@ def test_zncc_subpixel_disparity_is_gain_invariant() -> None:
     assert abs(float(np.median(disparity[valid])) - true_disparity) < 0.1
 
 
+def _area_sampled_pair(disparity_eighths: int) -> tuple[np.ndarray, np.ndarray]:
+    """A textured scene seen by two cameras whose pixels integrate light over their area, the right one
+    shifted by ``disparity_eighths / 8`` px exactly, with another gain and offset."""
+    scale = 8
+    rng = np.random.default_rng(5)
+    fine = cv2.resize(rng.uniform(0, 255, (100, 140)).astype(np.float32), (240 * scale, 200 * scale),
+                      interpolation=cv2.INTER_CUBIC)
+    fine = cv2.GaussianBlur(fine, (0, 0), 0.5 * scale)
+
+    def camera(first_column: int, gain: float, offset: float) -> np.ndarray:
+        window = fine[:, first_column:first_column + 200 * scale]
+        image = cv2.resize(window, (200, 200), interpolation=cv2.INTER_AREA) * gain + offset
+        return np.clip(image, 0, 255).astype(np.uint8)
+
+    return camera(0, 1.0, 0.0), camera(disparity_eighths, 0.8, 20.0)
+
+
+def test_zncc_subpixel_disparity_has_no_bias_over_the_fraction() -> None:
+    """A parabola through the integer scores pulls toward whole pixels (about 0.02 px here at a quarter
+    pixel); the interpolated correlation's peak does not."""
+    points = np.random.default_rng(6).uniform(30, 170, (300, 2)).astype(np.float32)
+    points[:, 0] += 20.0
+    points[:, 0] = np.minimum(points[:, 0], 185.0)
+    for eighths in range(20 * 8, 21 * 8 + 1):
+        left, right = _area_sampled_pair(eighths)
+        _, disparity, valid = refine_disparity_zncc(left, right, points, np.full(len(points), 20.4, np.float32))
+        assert valid.mean() > 0.9
+        error = disparity[valid] - eighths / 8
+        print(f"disparity {eighths / 8:.3f} px: mean error {error.mean():+.4f} px, std {error.std():.4f} px")
+        assert abs(float(error.mean())) < 0.008
+        assert float(error.std()) < 0.02
+
+
 @pytest.mark.parametrize("config", [BlockMatchConfig(method="bm", block_size=11), BlockMatchConfig(method="sgbm"),
                                     BlockMatchConfig(method="sgbm", wls=True)])
 def test_block_matchers_recover_a_constant_disparity(config: BlockMatchConfig) -> None:

@@ -100,11 +100,16 @@ def refine_disparity_zncc(
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.bool_]]:
     """Sub-pixel disparity by zero-mean normalised cross-correlation along the row.
 
-    Each left point is rounded to its pixel; the right patch is compared at integer
-    disparities ``round(d) - search .. round(d) + search`` and a parabola through the
-    best score and its neighbours gives the sub-pixel disparity. ZNCC is invariant to
-    gain and offset between the cameras, which biases SSD-based trackers (KLT) when the
-    two exposures differ.
+    Each left point is rounded to its pixel, and its patch is compared with the right
+    patches at integer disparities ``round(d) - search .. round(d) + search``. Between
+    the best integer disparity and its better neighbour, the right patch is linearly
+    interpolated and the ZNCC maximised over the fraction in closed form: the score is
+    a linear function over the square root of a quadratic, so its maximum solves a
+    linear equation (Psarakis and Evangelidis, "An enhanced correlation-based method
+    for stereo correspondence with subpixel accuracy", ICCV 2005). A parabola through
+    the integer scores, the usual shortcut, pulls the result toward whole pixels
+    ("pixel locking"); this does not. ZNCC is invariant to gain and offset between the
+    cameras, which biases SSD-based trackers (KLT) when the two exposures differ.
 
     Returns:
         (left pixels rounded, refined disparity, valid mask); invalid where the window
@@ -117,7 +122,7 @@ def refine_disparity_zncc(
     u = np.rint(left_px[:, 0]).astype(np.int64)
     v = np.rint(left_px[:, 1]).astype(np.int64)
     d0 = np.rint(disparity_px).astype(np.int64)
-    offsets = np.arange(-search_px - 1, search_px + 2)  # one extra each side for the parabola
+    offsets = np.arange(-search_px - 1, search_px + 2)  # one extra each side for the interpolation
     valid = (v - h >= 0) & (v + h < height) & (u + h < width) & (u - d0 - search_px - 1 - h >= 0) & (u - h >= 0)
     rounded = np.stack([u, v], axis=1).astype(np.float32)
     refined = np.full(count, np.nan, dtype=np.float32)
@@ -134,18 +139,28 @@ def refine_disparity_zncc(
     zl = patch_left - patch_left.mean(axis=1, keepdims=True)
     zr = patch_right - patch_right.mean(axis=2, keepdims=True)
     norm_l = np.sqrt((zl**2).sum(axis=1))
-    norm_r = np.sqrt((zr**2).sum(axis=2))
-    score = np.einsum("mk,msk->ms", zl, zr) / np.maximum(norm_l[:, None] * norm_r, 1e-6)
-    # the outer offsets only serve the parabola: a peak beyond the searched range
-    # shows up as a neighbour scoring higher, which the |shift| <= 0.5 test rejects
+    cross = np.einsum("mk,msk->ms", zl, zr)  # <left, right at offset s>
+    power = np.einsum("msk,msk->ms", zr, zr)  # |right at s|^2
+    adjacent = np.einsum("msk,msk->ms", zr[:, :-1], zr[:, 1:])  # <right at s, right at s + 1>
+    score = cross / np.maximum(norm_l[:, None] * np.sqrt(power), 1e-6)
+    # the outer offsets only serve the interpolation: a peak beyond the searched range
+    # shows up as a neighbour scoring higher, which the fraction's range test rejects
     best = np.argmax(score[:, 1:-1], axis=1) + 1
-    rows_m = np.arange(index.size)
-    s_minus, s_0, s_plus = score[rows_m, best - 1], score[rows_m, best], score[rows_m, best + 1]
-    curvature = s_minus - 2 * s_0 + s_plus
-    textured = (norm_l > 1e-3 * patch_left.shape[1]) & (curvature < -1e-6) & (s_0 > 0.7)
-    shift = np.where(curvature < 0, 0.5 * (s_minus - s_plus) / np.where(curvature < 0, curvature, -1.0), 0.0)
-    ok = textured & (np.abs(shift) <= 0.5)
-    refined[index] = (d0[index] + offsets[best] + shift).astype(np.float32)
+    m = np.arange(index.size)
+    low = np.where(score[m, best - 1] > score[m, best + 1], best - 1, best)  # the peak lies in [low, low + 1]
+    # right(t) = (1 - t) A + t B: <left, right(t)> = l0 + l1 t, |right(t)|^2 = q0 + q1 t + q2 t^2;
+    # d/dt of (l0 + l1 t) / sqrt(q) vanishes where 2 l1 q - (l0 + l1 t) q' = 0, linear in t
+    l0, l1 = cross[m, low], cross[m, low + 1] - cross[m, low]
+    q0 = power[m, low]
+    q1 = 2.0 * (adjacent[m, low] - q0)
+    q2 = q0 - 2.0 * adjacent[m, low] + power[m, low + 1]
+    denominator = l1 * q1 - 2.0 * l0 * q2
+    solvable = np.abs(denominator) > 1e-9 * np.maximum(np.abs(l0 * q1), 1.0)
+    fraction = np.where(solvable, (l0 * q1 - 2.0 * l1 * q0) / np.where(solvable, denominator, 1.0), np.nan)
+    textured = (norm_l > 1e-3 * patch_left.shape[1]) & (score[m, best] > 0.7)
+    # a fraction outside [0, 1] means the interpolated score has no maximum between the two
+    ok = textured & solvable & (fraction >= -0.01) & (fraction <= 1.01)
+    refined[index] = (d0[index] + offsets[low] + np.clip(fraction, 0.0, 1.0)).astype(np.float32)
     valid[index] = ok
     return rounded, refined, valid
 
