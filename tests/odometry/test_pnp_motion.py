@@ -2,8 +2,9 @@ import numpy as np
 import pytest
 
 from kartpilot.core.camera import StereoRig
+from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import invert_pose, pose_from_rotvec, relative_pose, rotation_angle_rad
-from kartpilot.odometry.pnp import PnpConfig, check_motion, estimate_motion_pnp
+from kartpilot.odometry.pnp import MotionLimits, PnpConfig, StepVelocity, check_motion, estimate_motion_pnp
 from kartpilot.odometry.stereo_refine import refine_pose_and_depths
 
 
@@ -67,6 +68,11 @@ def test_joint_depth_refinement_removes_disparity_noise_bias(rig: StereoRig, sce
     assert rotation_deg < 0.05
 
 
+def _step(motion: np.ndarray, dt_s: float, start_s: float = 0.0) -> StepVelocity:
+    start_ns = int(start_s * 1e9)
+    return StepVelocity.of_step(invert_pose(motion), start_ns, start_ns + int(dt_s * 1e9))
+
+
 @pytest.mark.parametrize(
     ("motion", "reason"),
     [
@@ -74,6 +80,33 @@ def test_joint_depth_refinement_removes_disparity_noise_bias(rig: StereoRig, sce
         (pose_from_rotvec(np.radians([0.0, 30.0, 0.0]), np.zeros(3)), "rotation"),
     ],
 )
-def test_motion_sanity_check(motion: np.ndarray, reason: str) -> None:
-    assert reason in check_motion(invert_pose(motion), 0.1, max_speed_mps=20.0, max_yaw_rate_dps=180.0)
-    assert check_motion(invert_pose(motion), 10.0, max_speed_mps=20.0, max_yaw_rate_dps=180.0) == ""
+def test_motion_check_bounds_speed_and_rotation_rate(motion: np.ndarray, reason: str) -> None:
+    limits = MotionLimits(max_speed_mps=20.0, max_yaw_rate_dps=180.0)
+    assert reason in check_motion(_step(motion, 0.1), limits)
+    assert check_motion(_step(motion, 10.0), limits) == ""
+
+
+def test_motion_check_rejects_a_step_inconsistent_with_the_recent_motion() -> None:
+    """At 10 m/s and 10 Hz, a step 0.66 or 1.5 times too long, or one that turns 3 degrees more than the
+    last, cannot be: the kart brakes or corners at 1 g at most. After bridged frames, more change is allowed."""
+    limits = MotionLimits(max_accel_mps2=10.0, max_angular_accel_dps2=200.0)
+    forward = pose_from_rotvec(np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    recent = _step(forward, 0.1)
+    assert check_motion(_step(forward, 0.1, 0.1), limits, recent) == ""
+    slightly = pose_from_rotvec(np.radians([0.0, 0.5, 0.0]), np.array([0.0, 0.0, 1.05]))
+    assert check_motion(_step(slightly, 0.1, 0.1), limits, recent) == ""
+    for factor in (0.66, 1.5):
+        wrong = pose_from_rotvec(np.zeros(3), np.array([0.0, 0.0, factor]))
+        assert "velocity changed" in check_motion(_step(wrong, 0.1, 0.1), limits, recent)
+    turned = pose_from_rotvec(np.radians([0.0, 3.0, 0.0]), np.array([0.0, 0.0, 1.0]))
+    assert "rotation rate changed" in check_motion(_step(turned, 0.1, 0.1), limits, recent)
+    # the same slower step half a second after the last accepted one is possible
+    slower = pose_from_rotvec(np.zeros(3), np.array([0.0, 0.0, 0.66]))
+    assert check_motion(_step(slower, 0.1, 0.5), limits, recent) == ""
+
+
+def test_motion_limits_refuse_non_positive_values() -> None:
+    with pytest.raises(ConfigError, match="max_accel_mps2"):
+        MotionLimits(max_accel_mps2=0.0)
+    with pytest.raises(ConfigError, match="speed_tolerance_mps"):
+        MotionLimits(speed_tolerance_mps=float("nan"))

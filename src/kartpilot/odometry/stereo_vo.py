@@ -31,10 +31,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kartpilot.core.camera import StereoRig
-from kartpilot.core.errors import ConfigError, PerceptionError
+from kartpilot.core.errors import PerceptionError
 from kartpilot.core.geometry import Array, invert_pose, pose_from_rotvec, rotvec_from_pose
 from kartpilot.core.types import FrameSet, Image, StereoFrame
-from kartpilot.odometry.pnp import PnpConfig, check_motion, estimate_motion_pnp
+from kartpilot.odometry.pnp import MotionLimits, PnpConfig, StepVelocity, check_motion, estimate_motion_pnp
 from kartpilot.odometry.stereo_refine import refine_pose_and_depths
 from kartpilot.odometry.vo import grey_images
 from kartpilot.odometry.window_ba import WindowBAConfig, WindowObservations, bundle_adjust_window
@@ -70,7 +70,8 @@ class StereoVOConfig:
             depth, observed through its disparity (see ``stereo_refine``).
         window_ba: after PnP, refine the last frames' poses and the points tracked through them together
             (see ``window_ba``; descriptor temporal matching only).
-        max_speed_mps, max_yaw_rate_dps: the vehicle's limits for the motion sanity check.
+        motion_limits: what the vehicle can do; a step beyond them, or too far from the recent motion,
+            is rejected and bridged (see ``pnp.check_motion``).
         max_bridged_frames: consecutive bridged frames after which the estimate is reported lost.
     """
 
@@ -85,13 +86,8 @@ class StereoVOConfig:
     subpixel: bool = True
     joint_depth_refinement: bool = False
     window_ba: WindowBAConfig = field(default_factory=WindowBAConfig)
-    max_speed_mps: float = 40.0
-    max_yaw_rate_dps: float = 180.0
+    motion_limits: MotionLimits = field(default_factory=MotionLimits)
     max_bridged_frames: int = 10
-
-    def __post_init__(self) -> None:
-        if self.max_speed_mps <= 0 or self.max_yaw_rate_dps <= 0:
-            raise ConfigError("max_speed_mps and max_yaw_rate_dps must be positive")
 
 
 @dataclass(frozen=True)
@@ -189,6 +185,7 @@ class StereoVO:
         self._pose_world_cam = np.eye(4)
         self._velocity_cur_prev: Array = np.eye(4)  # last accepted motion, for bridging
         self._velocity_dt_s = 0.1
+        self._recent: StepVelocity | None = None  # the last accepted step, for the motion check
         self._bridged_in_row = 0
         self._window: list[_WindowFrame] = []
         self._next_track = 0
@@ -249,9 +246,10 @@ class StereoVO:
             motion = replace(motion, pose_cur_prev=refined)
         timer.lap("pnp")
         reason = motion.reason
+        step: StepVelocity | None = None
         if motion.ok:
-            reason = check_motion(motion.pose_cur_prev, dt_s, self.config.max_speed_mps,
-                                  self.config.max_yaw_rate_dps)
+            step = StepVelocity.of_step(motion.pose_cur_prev, previous.stamp_ns, frame.stamp_ns)
+            reason = check_motion(step, self.config.motion_limits, self._recent)
         diagnostics = replace(
             counts, temporal_matches=len(prev_points), inliers=len(motion.inliers),
             reprojection_rmse_px=motion.reprojection_rmse_px, timing_ms=timer.timing,
@@ -260,6 +258,7 @@ class StereoVO:
         if motion.ok and not reason:
             pose_cur_prev, status = motion.pose_cur_prev, "ok"
             self._velocity_cur_prev, self._velocity_dt_s = pose_cur_prev, dt_s
+            self._recent = step
             self._bridged_in_row = 0
         else:
             pose_cur_prev, status = self._predicted(dt_s), "bridged"
