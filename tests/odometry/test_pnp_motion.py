@@ -4,7 +4,14 @@ import pytest
 from kartpilot.core.camera import StereoRig
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import invert_pose, pose_from_rotvec, relative_pose, rotation_angle_rad
-from kartpilot.odometry.pnp import MotionLimits, PnpConfig, StepVelocity, check_motion, estimate_motion_pnp
+from kartpilot.odometry.pnp import (
+    MotionLimits,
+    PnpConfig,
+    StepVelocity,
+    check_motion,
+    estimate_motion_from_prior,
+    estimate_motion_pnp,
+)
 from kartpilot.odometry.stereo_refine import refine_pose_and_depths
 
 
@@ -66,6 +73,39 @@ def test_joint_depth_refinement_removes_disparity_noise_bias(rig: StereoRig, sce
     translation_m, rotation_deg = _errors(refined, truth)
     assert translation_m < 0.02
     assert rotation_deg < 0.05
+
+
+def test_the_prediction_finds_the_scene_where_ransac_takes_a_moving_majority(rig: StereoRig,
+                                                                          scene_points: np.ndarray) -> None:
+    """Two thirds of the points ride on a car ahead that moves with the kart: RANSAC's largest consensus
+    is the car's (no motion). Started from the kart's predicted motion, the estimate keeps the scene's."""
+    truth = _true_motion()
+    count = len(scene_points)
+    riding = np.arange(count) < 2 * count // 3
+    pixels = _observe(rig, scene_points, truth, noise_px=0.05, seed=7)
+    pixels[riding] = _observe(rig, scene_points[riding], np.eye(4), noise_px=0.05, seed=8)
+    ransac = estimate_motion_pnp(scene_points, pixels, rig.camera.matrix, PnpConfig())
+    assert ransac.ok and _errors(ransac.pose_cur_prev, truth)[0] > 0.3  # the car's consensus
+    # a prediction 3 cm and 0.2 degrees off the truth, as constant velocity gives
+    predicted = pose_from_rotvec(np.radians([0.0, 0.2, 0.0]), np.array([0.0, 0.0, 0.03])) @ truth
+    motion = estimate_motion_from_prior(scene_points, pixels, rig.camera.matrix, PnpConfig(), predicted)
+    translation_m, rotation_deg = _errors(motion.pose_cur_prev, truth)
+    assert motion.ok and translation_m < 2e-3 and rotation_deg < 0.02
+    assert not riding[motion.inliers].any()
+
+
+def test_vetted_inliers_leave_the_refinement(rig: StereoRig, scene_points: np.ndarray) -> None:
+    """Points a costly check distrusts (here: a third whose depth is 30 % long, which RANSAC's 1.5 px still
+    accepts) are neither refined on nor reported as inliers."""
+    truth = _true_motion()
+    pixels = _observe(rig, scene_points, truth, noise_px=0.05, seed=9)
+    wrong = np.arange(len(scene_points)) % 3 == 0
+    stretched = scene_points.copy()
+    stretched[wrong] *= 1.3
+    plain = estimate_motion_pnp(stretched, pixels, rig.camera.matrix, PnpConfig())
+    vetted = estimate_motion_pnp(stretched, pixels, rig.camera.matrix, PnpConfig(), vet=lambda index: ~wrong[index])
+    assert vetted.ok and not wrong[vetted.inliers].any()
+    assert _errors(vetted.pose_cur_prev, truth)[0] < 1e-3 < _errors(plain.pose_cur_prev, truth)[0]
 
 
 def _step(motion: np.ndarray, dt_s: float, start_s: float = 0.0) -> StepVelocity:

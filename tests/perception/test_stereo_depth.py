@@ -9,6 +9,7 @@ from kartpilot.perception.stereo import (
     compute_disparity,
     refine_disparity_zncc,
     stereo_filter_mask,
+    stereo_match_margin,
     triangulate_rectified,
 )
 from kartpilot.sim.synthetic_stereo import make_texture
@@ -86,6 +87,27 @@ def test_zncc_subpixel_disparity_has_no_bias_over_the_fraction() -> None:
         print(f"disparity {eighths / 8:.3f} px: mean error {error.mean():+.4f} px, std {error.std():.4f} px")
         assert abs(float(error.mean())) < 0.008
         assert float(error.std()) < 0.02
+
+
+def test_stereo_match_margin_flags_repeated_structure() -> None:
+    """A patch repeated every 12 px along the row (a row of cones, a fence) has no margin over its copies;
+    unique texture has a clear one."""
+    rng = np.random.default_rng(3)
+    unique = rng.uniform(0, 255, (60, 300))
+    tile = rng.uniform(0, 255, (60, 12))
+    repeated = np.tile(tile, (1, 25))
+    scene = np.vstack([unique, repeated]).astype(np.float32)
+    scene = cv2.GaussianBlur(scene, (0, 0), 0.8)
+    left = np.clip(scene[:, :-20], 0, 255).astype(np.uint8)
+    right = np.clip(scene[:, 20:], 0, 255).astype(np.uint8)  # disparity 20 px everywhere
+    columns = np.arange(120, 260, 10, dtype=np.float32)
+    points = np.vstack([np.column_stack([columns, np.full_like(columns, 30)]),
+                        np.column_stack([columns, np.full_like(columns, 90)])])
+    margins = stereo_match_margin(left, right, points, np.full(len(points), 20.0), 2.0, 100.0)
+    unique_margins, repeated_margins = margins[:len(columns)], margins[len(columns):]
+    print(f"margins: unique texture {np.round(unique_margins, 2)}, repeated {np.round(repeated_margins, 2)}")
+    assert (unique_margins > 0.3).all()
+    assert (repeated_margins < 0.05).all()
 
 
 @pytest.mark.parametrize("config", [BlockMatchConfig(method="bm", block_size=11), BlockMatchConfig(method="sgbm"),

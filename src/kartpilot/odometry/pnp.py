@@ -14,7 +14,8 @@ its inverse.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -29,6 +30,7 @@ __all__ = [
     "PnpConfig",
     "StepVelocity",
     "check_motion",
+    "estimate_motion_from_prior",
     "estimate_motion_pnp",
     "refine_translation",
     "reprojection_errors",
@@ -128,10 +130,13 @@ def refine_translation(pose_cur_prev: Array, points_prev_m: Array, pixels_cur: A
 def estimate_motion_pnp(
     points_prev_m: Array, pixels_cur: Array, camera_matrix: Array, config: PnpConfig,
     disparities_px: Array | None = None,
+    vet: Callable[[NDArray[np.intp]], NDArray[np.bool_]] | None = None,
 ) -> MotionEstimate:
     """Estimate ``pose_cur_prev`` from (N, 3) previous-frame points and their (N, 2) current pixels.
 
-    ``disparities_px`` (N,), when given, enables the near-point translation step.
+    ``disparities_px`` (N,), when given, enables the near-point translation step. ``vet``, when given,
+    is asked once about RANSAC's inliers (their indices) and returns which to trust; the refinement then
+    works on those alone. It is for checks too costly to run on every correspondence.
     """
     points = np.ascontiguousarray(points_prev_m, dtype=np.float64).reshape(-1, 3)
     pixels = np.ascontiguousarray(pixels_cur, dtype=np.float64).reshape(-1, 2)
@@ -145,6 +150,44 @@ def estimate_motion_pnp(
         count = 0 if inliers is None else len(inliers)
         return _failure(f"RANSAC found {count} inliers (need {config.min_inliers})")
     inlier_index = inliers.ravel().astype(np.intp)
+    usable = np.ones(len(points), dtype=bool)
+    if vet is not None:  # the refinement may then only drop inliers: it cannot vet new ones
+        inlier_index = inlier_index[np.asarray(vet(inlier_index), dtype=bool)]
+        usable[:] = False
+        usable[inlier_index] = True
+        if len(inlier_index) < config.min_inliers:
+            return _failure(f"{len(inlier_index)} of RANSAC's inliers passed the check (need {config.min_inliers})")
+    return _refine(points, pixels, K, config, rvec, tvec, inlier_index, usable, disparities_px)
+
+
+def estimate_motion_from_prior(
+    points_prev_m: Array, pixels_cur: Array, camera_matrix: Array, config: PnpConfig, prior_cur_prev: Array,
+    disparities_px: Array | None = None, gate_px: float = 4.0,
+) -> MotionEstimate:
+    """Estimate ``pose_cur_prev`` starting from a predicted motion instead of RANSAC.
+
+    The correspondences that the prediction reprojects within ``gate_px`` start the same refinement as
+    :func:`estimate_motion_pnp`. For the frames where RANSAC settles on a consensus the vehicle cannot
+    have (a car ahead moving with the kart, a repeated structure), the prediction picks the scene's.
+    """
+    points = np.ascontiguousarray(points_prev_m, dtype=np.float64).reshape(-1, 3)
+    pixels = np.ascontiguousarray(pixels_cur, dtype=np.float64).reshape(-1, 2)
+    K = np.asarray(camera_matrix, dtype=np.float64)
+    inlier_index = np.flatnonzero(reprojection_errors(prior_cur_prev, points, pixels, K) < gate_px)
+    if len(inlier_index) < config.min_inliers:
+        return _failure(f"{len(inlier_index)} correspondences agree with the predicted motion "
+                        f"(need {config.min_inliers})")
+    rvec = cv2.Rodrigues(np.ascontiguousarray(prior_cur_prev[:3, :3]))[0]
+    tvec = np.ascontiguousarray(prior_cur_prev[:3, 3]).reshape(3, 1)
+    return _refine(points, pixels, K, replace(config, refine_lm=True), rvec, tvec, inlier_index,
+                   np.ones(len(points), dtype=bool), disparities_px)
+
+
+def _refine(points: Array, pixels: Array, K: Array, config: PnpConfig, rvec: Array, tvec: Array,
+            inlier_index: NDArray[np.intp], usable: NDArray[np.bool_], disparities_px: Array | None
+            ) -> MotionEstimate:
+    """Levenberg-Marquardt on the inliers, re-selecting them (among the usable) until they settle, then the
+    near-point translation step."""
     if config.refine_lm:
         criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 1e-10)
         for _ in range(2):
@@ -152,7 +195,7 @@ def estimate_motion_pnp(
                                               rvec, tvec, criteria=criteria)
             pose = pose_from_rt(cv2.Rodrigues(rvec)[0], tvec)
             errors = reprojection_errors(pose, points, pixels, K)
-            refined = np.flatnonzero(errors < config.reprojection_px)
+            refined = np.flatnonzero((errors < config.reprojection_px) & usable)
             if len(refined) < config.min_inliers or np.array_equal(refined, inlier_index):
                 break
             inlier_index = refined

@@ -31,10 +31,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kartpilot.core.camera import StereoRig
-from kartpilot.core.errors import PerceptionError
+from kartpilot.core.errors import ConfigError, PerceptionError
 from kartpilot.core.geometry import Array, invert_pose, pose_from_rotvec, rotvec_from_pose
 from kartpilot.core.types import FrameSet, Image, StereoFrame
-from kartpilot.odometry.pnp import MotionLimits, PnpConfig, StepVelocity, check_motion, estimate_motion_pnp
+from kartpilot.odometry.pnp import (
+    MotionEstimate,
+    MotionLimits,
+    PnpConfig,
+    StepVelocity,
+    check_motion,
+    estimate_motion_from_prior,
+    estimate_motion_pnp,
+)
 from kartpilot.odometry.stereo_refine import refine_pose_and_depths
 from kartpilot.odometry.vo import grey_images
 from kartpilot.odometry.window_ba import WindowBAConfig, WindowObservations, bundle_adjust_window
@@ -46,6 +54,7 @@ from kartpilot.perception.stereo import (
     compute_disparity,
     refine_disparity_zncc,
     stereo_filter_mask,
+    stereo_match_margin,
     triangulate_rectified,
 )
 from kartpilot.perception.tracking import KltConfig, track_klt
@@ -70,8 +79,12 @@ class StereoVOConfig:
             depth, observed through its disparity (see ``stereo_refine``).
         window_ba: after PnP, refine the last frames' poses and the points tracked through them together
             (see ``window_ba``; descriptor temporal matching only).
-        motion_limits: what the vehicle can do; a step beyond them, or too far from the recent motion,
-            is rejected and bridged (see ``pnp.check_motion``).
+        min_stereo_margin: keep a PnP inlier only if its stereo match's ZNCC beats every other disparity
+            along its row by this much (``stereo_match_margin``); repeated structure such as a row of cones
+            otherwise gives points metres off that pass every other filter. 0 turns the check off.
+        motion_limits: what the vehicle can do. A step beyond them, or too far from the recent motion
+            (``pnp.check_motion``), is estimated again from the constant-velocity prediction
+            (``pnp.estimate_motion_from_prior``); when that fails too, the frame is bridged.
         max_bridged_frames: consecutive bridged frames after which the estimate is reported lost.
     """
 
@@ -86,8 +99,13 @@ class StereoVOConfig:
     subpixel: bool = True
     joint_depth_refinement: bool = False
     window_ba: WindowBAConfig = field(default_factory=WindowBAConfig)
+    min_stereo_margin: float = 0.0
     motion_limits: MotionLimits = field(default_factory=MotionLimits)
     max_bridged_frames: int = 10
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.min_stereo_margin < 2.0:
+            raise ConfigError(f"stereo_vo.min_stereo_margin must be in [0, 2), got {self.min_stereo_margin}")
 
 
 @dataclass(frozen=True)
@@ -96,6 +114,8 @@ class VODiagnostics:
 
     Counts: ``left_features``, ``right_features``, ``stereo_matches`` (before filters),
     ``epipolar_ok``, ``depth_ok`` (3D points kept), ``temporal_matches``, ``inliers``.
+    ``motion_from_prior``: RANSAC's motion was implausible (see ``motion_limits``) and the motion was
+    found again from the constant-velocity prediction.
     ``inlier_pixels`` (M, 2) and ``inlier_depths_m`` (M,) are the final points in the
     previous left image, for feature-distribution grids and depth histograms.
     """
@@ -108,6 +128,7 @@ class VODiagnostics:
     temporal_matches: int = 0
     inliers: int = 0
     reprojection_rmse_px: float = float("nan")
+    motion_from_prior: bool = False
     timing_ms: dict[str, float] = field(default_factory=dict)
     inlier_pixels: Array = field(default_factory=lambda: np.zeros((0, 2)))
     inlier_depths_m: Array = field(default_factory=lambda: np.zeros(0))
@@ -141,6 +162,7 @@ class _Keyframe:
     """The state carried from one frame to the next."""
 
     image: Image
+    right: Image
     features: Features
     points_m: Array  # (N, 3) per left feature, NaN where no valid stereo depth
     stamp_ns: int
@@ -226,7 +248,7 @@ class StereoVO:
             )
         timer = _Timer()
         features, points_m, counts = self._stereo_points(frame, timer)
-        current = _Keyframe(frame.left, features, points_m, frame.stamp_ns)
+        current = _Keyframe(frame.left, frame.right, features, points_m, frame.stamp_ns)
         previous, self._previous = self._previous, current
         if previous is None:
             if self.config.window_ba.enabled:
@@ -236,8 +258,24 @@ class StereoVO:
         dt_s = max((frame.stamp_ns - previous.stamp_ns) * 1e-9, 1e-3)
         prev_points, cur_pixels, prev_pixels, pairs = self._temporal_correspondences(previous, current, timer)
         disparities = self.rig.camera.fx_px * self.rig.baseline_m / prev_points[:, 2]
+        vet = None
+        if self.config.min_stereo_margin > 0:
+            def vet(index: NDArray[np.intp]) -> NDArray[np.bool_]:
+                """The inliers whose stereo match is unambiguous along its row in the previous pair."""
+                low, high = self.config.stereo.disparity_range_px(self.rig)
+                margins = stereo_match_margin(previous.image, previous.right, prev_pixels[index], disparities[index],
+                                              low, high)
+                return margins >= self.config.min_stereo_margin
         motion = estimate_motion_pnp(prev_points, cur_pixels, self.rig.camera.matrix, self.config.pnp,
-                                     disparities)
+                                     disparities, vet)
+        from_prior = False
+        if self._recent is not None and (not motion.ok or self._implausible(motion, previous, frame)):
+            retry = estimate_motion_from_prior(prev_points, cur_pixels, self.rig.camera.matrix, self.config.pnp,
+                                               self._predicted(dt_s), disparities)
+            if retry.ok and not self._implausible(retry, previous, frame):
+                logger.info("frame %d: motion from the prediction (%s)", frame.index,
+                            motion.reason or self._implausible(motion, previous, frame))
+                motion, from_prior = retry, True
         if motion.ok and self.config.joint_depth_refinement:
             inl = motion.inliers
             refined = refine_pose_and_depths(motion.pose_cur_prev, prev_pixels[inl].astype(np.float64),
@@ -251,7 +289,7 @@ class StereoVO:
             step = StepVelocity.of_step(motion.pose_cur_prev, previous.stamp_ns, frame.stamp_ns)
             reason = check_motion(step, self.config.motion_limits, self._recent)
         diagnostics = replace(
-            counts, temporal_matches=len(prev_points), inliers=len(motion.inliers),
+            counts, temporal_matches=len(prev_points), inliers=len(motion.inliers), motion_from_prior=from_prior,
             reprojection_rmse_px=motion.reprojection_rmse_px, timing_ms=timer.timing,
             inlier_pixels=prev_pixels[motion.inliers], inlier_depths_m=prev_points[motion.inliers, 2])
         status: VOStatus
@@ -270,6 +308,11 @@ class StereoVO:
             timer.lap("window_ba")
         lost = self._bridged_in_row > self.config.max_bridged_frames
         return VOEstimate(frame.index, frame.stamp_ns, self.pose_world_cam, status, reason, lost, diagnostics)
+
+    def _implausible(self, motion: MotionEstimate, previous: _Keyframe, frame: StereoFrame) -> str:
+        """Why ``motion`` is not a step the vehicle can have made (empty when it is)."""
+        step = StepVelocity.of_step(motion.pose_cur_prev, previous.stamp_ns, frame.stamp_ns)
+        return check_motion(step, self.config.motion_limits, self._recent)
 
     def _predicted(self, dt_s: float) -> Array:
         """Constant-velocity prediction of ``pose_cur_prev`` over ``dt_s``."""

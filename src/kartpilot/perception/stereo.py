@@ -27,6 +27,7 @@ __all__ = [
     "compute_disparity",
     "refine_disparity_zncc",
     "stereo_filter_mask",
+    "stereo_match_margin",
     "triangulate_rectified",
 ]
 
@@ -163,6 +164,44 @@ def refine_disparity_zncc(
     refined[index] = (d0[index] + offsets[low] + np.clip(fraction, 0.0, 1.0)).astype(np.float32)
     valid[index] = ok
     return rounded, refined, valid
+
+
+def stereo_match_margin(
+    left: Image, right: Image, left_px: Array, disparity_px: Array, min_disparity_px: float,
+    max_disparity_px: float, half_window_px: int = 5, exclusion_px: float = 2.0,
+) -> Array:
+    """How much better each stereo match is than the best other disparity along its row.
+
+    The ZNCC of the left patch is computed at every integer disparity of the range; the margin is the
+    score at the match's disparity minus the highest score farther than ``exclusion_px`` from it.
+    Repeated structure (a row of cones, a fence, windows) gives a margin near zero or below: the
+    match may be the wrong copy, and its depth is then wrong by metres although every filter passes
+    (the uniqueness test of block matchers, applied to sparse matches).
+
+    Returns:
+        (N,) margins; ``inf`` where nothing else along the row fits in the image, NaN where the
+        match's own window does not.
+    """
+    height, width = left.shape
+    h = half_window_px
+    margins = np.full(len(left_px), np.nan)
+    low, high = max(int(np.floor(min_disparity_px)), 0), int(np.ceil(max_disparity_px))
+    for k, ((x, y), d) in enumerate(zip(np.rint(left_px).astype(np.int64), disparity_px, strict=True)):
+        if not (h <= y < height - h and h <= x < width - h) or not np.isfinite(d):
+            continue
+        first = max(x - high - h, 0)  # right column of the largest disparity's window start
+        last = x - low + h + 1
+        if last - first < 2 * h + 2 or x - int(np.rint(d)) - h < first:
+            continue
+        strip = right[y - h:y + h + 1, first:min(last, width)]
+        scores = cv2.matchTemplate(strip, left[y - h:y + h + 1, x - h:x + h + 1], cv2.TM_CCOEFF_NORMED).ravel()
+        disparities = x - (first + h + np.arange(scores.size))
+        own = np.abs(disparities - d) <= 0.5 + 1e-9
+        others = np.abs(disparities - d) > exclusion_px
+        if not own.any():
+            continue
+        margins[k] = float(scores[own].max()) - (float(scores[others].max()) if others.any() else -np.inf)
+    return margins
 
 
 @dataclass(frozen=True)
