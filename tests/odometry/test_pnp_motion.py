@@ -4,14 +4,8 @@ import pytest
 from kartpilot.core.camera import StereoRig
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import invert_pose, pose_from_rotvec, relative_pose, rotation_angle_rad
-from kartpilot.odometry.pnp import (
-    MotionLimits,
-    PnpConfig,
-    StepVelocity,
-    check_motion,
-    estimate_motion_from_prior,
-    estimate_motion_pnp,
-)
+from kartpilot.odometry.motion_check import MotionLimits, StepVelocity, check_motion
+from kartpilot.odometry.pnp import PnpConfig, estimate_motion_from_prior, estimate_motion_pnp
 from kartpilot.odometry.stereo_refine import refine_pose_and_depths
 
 

@@ -34,15 +34,8 @@ from kartpilot.core.camera import StereoRig
 from kartpilot.core.errors import ConfigError, PerceptionError
 from kartpilot.core.geometry import Array, invert_pose, pose_from_rotvec, rotvec_from_pose
 from kartpilot.core.types import FrameSet, Image, StereoFrame
-from kartpilot.odometry.pnp import (
-    MotionEstimate,
-    MotionLimits,
-    PnpConfig,
-    StepVelocity,
-    check_motion,
-    estimate_motion_from_prior,
-    estimate_motion_pnp,
-)
+from kartpilot.odometry.motion_check import MotionLimits, StepVelocity, check_motion
+from kartpilot.odometry.pnp import MotionEstimate, PnpConfig, estimate_motion_from_prior, estimate_motion_pnp
 from kartpilot.odometry.stereo_refine import refine_pose_and_depths
 from kartpilot.odometry.vo import grey_images
 from kartpilot.odometry.window_ba import WindowBAConfig, WindowObservations, bundle_adjust_window
