@@ -1,6 +1,7 @@
 """Monocular VO with ground-plane scale: the pure pieces on synthetic geometry, the whole on a simulated
 drive with ground truth (a kart's camera, 0.6 m high and pitched down), and on KITTI 06 (real data)."""
 
+import itertools
 import math
 
 import cv2
@@ -103,6 +104,54 @@ def test_the_arc_step_is_found_by_aligning_the_road(yaw_deg, length_m):
           f"deg {math.hypot(body[0, 3], body[1, 3]):.4f} m")
     assert math.degrees(math.atan2(body[1, 0], body[0, 0])) == pytest.approx(yaw_deg, abs=0.05)
     assert math.hypot(body[0, 3], body[1, 3]) == pytest.approx(length_m, abs=0.01 + 0.01 * length_m)
+
+
+def _straight_drive(frames: int, step_m: float, frozen: int | None = None) -> list[FrameSet]:
+    """A kart's centre camera driving straight over a textured road at 10 Hz; frame ``frozen`` repeats the
+    frame before it (a camera that delivered the same image twice)."""
+    texture = road_texture(5)
+    views = []
+    for k in range(frames):
+        body = np.eye(4)
+        body[0, 3] = step_m * (k - 1 if k == frozen else k)
+        views.append(FrameSet(k, k * 10**8, {"left": road_view(texture, body, 0.01)}))
+    return views
+
+
+def _body_distance(camera: PinholeCamera, pose_world_cam: np.ndarray) -> float:
+    body = camera.pose_body_cam_array @ pose_world_cam @ np.linalg.inv(camera.pose_body_cam_array)
+    return float(np.hypot(body[0, 3], body[1, 3]))
+
+
+def test_a_frozen_frame_at_speed_is_bridged_not_taken_for_a_stop():
+    """At 5 m/s the road standing still for a frame is no motion the kart can make (it would brake at 50 m/s^2),
+    nor is the double step after it: both frames are bridged with the last step and counted, and the drive's
+    length stays right."""
+    vo = MonoVO(KART, MonoVOConfig(ground=GroundConfig(camera_height_m=0.6)))
+    estimates = [vo.process(frames) for frames in _straight_drive(8, 0.5, frozen=5)]
+    assert [e.status for e in estimates[1:]] == ["ok"] * 4 + ["bridged"] * 2 + ["ok"]
+    assert all("implausible" in e.reason for e in estimates[5:7])
+    assert vo.bridged == 2
+    assert _body_distance(KART, estimates[-1].pose_world_cam) == pytest.approx(3.5, abs=0.05)
+
+
+def test_the_pitch_measured_on_the_road_corrects_a_mis_stated_mount():
+    """The mount says the camera is pitched down 11 degrees; it is 12. Trusting the mount, every step is 9 %
+    long; measuring the pitch on the road (``arc_pitch_every``) brings the steps back to the truth."""
+    told = PinholeCamera(480.0, 480.0, 319.5, 239.5, 640, 480,
+                         pose_body_cam=mount_pose(1.2, 0.0, 0.6, pitch_down_deg=11.0))
+    drive = _straight_drive(16, 0.5)
+
+    def last_steps_m(config: MonoVOConfig) -> np.ndarray:
+        vo = MonoVO(told, config)
+        poses = [vo.process(frames).pose_world_cam for frames in drive]
+        return np.array([_body_distance(told, np.linalg.inv(a) @ b) for a, b in itertools.pairwise(poses[-5:])])
+
+    trusted = last_steps_m(MonoVOConfig(ground=GroundConfig(camera_height_m=0.6)))
+    measured = last_steps_m(MonoVOConfig(ground=GroundConfig(camera_height_m=0.6), arc_pitch_every=1))
+    print(f"\nsteps of 0.5 m: mount trusted {np.round(trusted, 3)}, plane measured {np.round(measured, 3)}")
+    assert np.all(np.abs(trusted - 0.5) > 0.03)
+    assert np.all(np.abs(measured - 0.5) < 0.01)
 
 
 def test_a_blank_road_gives_no_arc_step():

@@ -51,13 +51,32 @@ from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array, mount_pose
 from kartpilot.core.types import FrameSet, Image
+from kartpilot.odometry.motion_check import MotionLimits, StepVelocity, check_motion
 from kartpilot.odometry.vo import grey_images
 from kartpilot.perception.tracking import KltConfig, track_klt
 
-__all__ = ["GroundConfig", "MonoEstimate", "MonoVO", "MonoVOConfig", "align_road_arc", "arc_step", "beyond_ground_mask",
-           "fit_ground_homography", "ground_normal_prior", "ground_region", "has_mount", "level_mount", "relative_pose"]
+__all__ = [
+    "GroundConfig",
+    "MonoEstimate",
+    "MonoVO",
+    "MonoVOConfig",
+    "align_road_arc",
+    "align_road_pitch",
+    "arc_step",
+    "beyond_ground_mask",
+    "fit_ground_homography",
+    "ground_normal_prior",
+    "ground_region",
+    "has_mount",
+    "level_mount",
+    "mount_normal",
+    "pitched_mount",
+    "relative_pose",
+]
 
 log = logging.getLogger(__name__)
+
+ARC_PITCH_MIN_MEASUREMENTS = 5  # the arc keeps the mount's pitch until this many measurements give a median
 
 F32 = NDArray[np.float32]
 
@@ -120,6 +139,12 @@ class MonoVOConfig:
             is no clear minimum: the frame is bridged.
         min_road_contrast: a road region whose grey levels vary less than this (standard deviation) is blank
             (a black or covered lens, fog): the frame is bridged.
+        arc_pitch_every: with the arc, the camera's pitch over the road is measured every this many frames
+            (:func:`align_road_pitch`; 0: never, the mount's is trusted) and the median of the last
+            ``pitch_window`` replaces the mount's.
+        pitch_window: how many of those measurements the median keeps.
+        motion_limits: what the vehicle can do (``motion_check``); an arc step beyond them, or too far from
+            the last (the road's best fit a car ahead moving with the kart), is bridged with the last step.
     """
 
     corners: int = 3000
@@ -136,6 +161,9 @@ class MonoVOConfig:
     max_step_heights: float = 5.0
     max_alignment_ratio: float = 0.9
     min_road_contrast: float = 2.0
+    arc_pitch_every: int = 0
+    pitch_window: int = 30
+    motion_limits: MotionLimits = field(default_factory=MotionLimits)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -143,6 +171,8 @@ class MonoVOConfig:
             raise ConfigError(f"mono_vo.motion must be 'auto', 'arc' or 'general', got {self.motion!r}")
         if min(self.max_yaw_step_deg, self.max_step_heights, self.max_alignment_ratio) <= 0:
             raise ConfigError("mono_vo.max_yaw_step_deg, max_step_heights and max_alignment_ratio must be positive")
+        if self.arc_pitch_every < 0 or self.pitch_window < 1:
+            raise ConfigError("mono_vo.arc_pitch_every must not be negative and mono_vo.pitch_window must be positive")
 
 
 @dataclass(frozen=True)
@@ -280,11 +310,57 @@ def align_road_arc(previous: list[NDArray[np.float32]], current: list[NDArray[np
     return yaw, length, quality
 
 
+def pitched_mount(pose_body_cam: Array, pitch_down_deg: float) -> Array:
+    """The mount turned about the camera's own horizontal axis, its view ``pitch_down_deg`` further down."""
+    tilted = pose_body_cam.copy()
+    tilted[:3, :3] = pose_body_cam[:3, :3] @ cv2.Rodrigues(np.array([-math.radians(pitch_down_deg), 0.0, 0.0]))[0]
+    return tilted
+
+
+def mount_normal(pose_body_cam: Array) -> Array:
+    """The road's normal (pointing down, towards the road) in the camera frame of a mount."""
+    normal = pose_body_cam[:3, :3].T @ np.array([0.0, 0.0, -1.0])
+    return normal / np.linalg.norm(normal)
+
+
+def _best_on_grid(values: Array, costs: Array) -> float:
+    """The grid's best value, refined by a parabola through it and its neighbours."""
+    i = int(np.argmin(costs))
+    if 0 < i < len(values) - 1 and np.all(np.isfinite(costs[i - 1:i + 2])):
+        curvature = costs[i - 1] - 2 * costs[i] + costs[i + 1]
+        shift = 0.5 * (costs[i - 1] - costs[i + 1]) / curvature if curvature > 0 else 0.0
+        return float(values[i] + np.clip(shift, -0.5, 0.5) * (values[1] - values[0]))
+    return float(values[i])
+
+
+def align_road_pitch(previous: NDArray[np.float32], current: NDArray[np.float32], level: RoadLevel,
+                     pose_body_cam: Array, height_m: float, yaw_rad: float, length_m: float,
+                     span_deg: float = 1.5, steps: int = 7) -> float:
+    """How much further down the camera looks than ``pose_body_cam`` says, measured on the road (degrees,
+    within ``span_deg``), for the arc step (``yaw_rad``, about ``length_m``) found with the mount.
+
+    A pitch error and a length error both change how the road expands between frames, but not alike: the
+    length scales every distance, the pitch moves the horizon. So each pitch on a grid gets its best length,
+    and a parabola through the best costs gives the pitch. The cost is the arc's own
+    (:func:`road_alignment_cost`): road corners tracked in square windows are pulled along the
+    foreshortened road and bias a fitted plane by tenths of a degree, which at 15 camera heights ahead is
+    several per cent of the distance."""
+    pitches = np.linspace(-span_deg, span_deg, steps)
+    lengths = length_m * np.linspace(0.9, 1.1, 11)
+
+    def lowest(pitch: float) -> float:
+        mount = pitched_mount(pose_body_cam, pitch)
+        normal = mount_normal(mount)
+        return min(road_alignment_cost(previous, current, level, arc_step(yaw_rad, float(d), mount), normal,
+                                       height_m) for d in lengths)
+
+    return _best_on_grid(pitches, np.array([lowest(float(p)) for p in pitches]))
+
+
 def ground_normal_prior(camera: PinholeCamera) -> Array:
     """The road's normal (pointing down, towards the road) in the camera frame, from the camera's mount; a
     camera without a mount is taken as level: (0, 1, 0)."""
-    normal = level_mount(camera)[:3, :3].T @ np.array([0.0, 0.0, -1.0])
-    return normal / np.linalg.norm(normal)
+    return mount_normal(level_mount(camera))
 
 
 def beyond_ground_mask(camera: PinholeCamera, ignore_ground_heights: float) -> NDArray[np.uint8]:
@@ -393,6 +469,9 @@ class MonoVO:
         self._levels = road_levels(camera, self._road_mask, (0.25, 0.5)) if self.arc else []
         self._road_images: list[NDArray[np.float32]] | None = None
         self._last_arc: tuple[float, float] | None = None
+        self._previous_stamp_ns: int | None = None
+        self._recent: StepVelocity | None = None  # the last accepted arc step, for the motion check
+        self._pitches: list[float] = []  # the camera's pitch over the road, measured, less the mount's
         self.timing_ms: dict[str, float] = {"track": 0.0, "pose": 0.0, "ground": 0.0}
         self.frames = 0
         self.bridged = 0
@@ -429,11 +508,12 @@ class MonoVO:
         index, stamp_ns = frames.index, frames.stamp_ns
         self.frames += 1
         previous, self._previous = self._previous, gray
+        previous_stamp_ns, self._previous_stamp_ns = self._previous_stamp_ns, stamp_ns
         if previous is None:
             self._road_images = [road_image(gray, level) for level in self._levels]
             return self._estimate(index, stamp_ns, "init", "")
         if self.arc:
-            return self._arc(index, stamp_ns, gray)
+            return self._arc(index, stamp_ns, previous_stamp_ns, previous, gray)
         cfg = self.config
         t0 = time.perf_counter()
         corners = cv2.goodFeaturesToTrack(previous, cfg.corners, cfg.corner_quality, cfg.corner_spacing_px)
@@ -464,10 +544,27 @@ class MonoVO:
         self._pose = self._pose @ np.linalg.inv(step)
         return self._estimate(index, stamp_ns, "ok", "", int(inliers.sum()), road)
 
-    def _arc(self, index: int, stamp_ns: int, gray: Image) -> MonoEstimate:
+    def _pitch(self) -> float:
+        """The median of the recent measurements of the camera's pitch over the road, less its mount's
+        (degrees); 0 until ``ARC_PITCH_MIN_MEASUREMENTS`` measurements give a median."""
+        if len(self._pitches) < ARC_PITCH_MIN_MEASUREMENTS:
+            return 0.0
+        return float(np.median(self._pitches[-self.config.pitch_window:]))
+
+    def _arc_mount(self) -> Array:
+        """The camera's mount, pitched as measured on the road (:func:`align_road_pitch`)."""
+        return pitched_mount(self._mount, self._pitch())
+
+    def _arc(self, index: int, stamp_ns: int, previous_stamp_ns: int | None, previous_image: Image, gray: Image
+             ) -> MonoEstimate:
         """One arc step, aligned on the road (:func:`align_road_arc`); searched near the last step, or over
-        the whole range at the start, after a bridged frame, or when the best lies on the window's edge."""
+        the whole range at the start, after a bridged frame, or when the best lies on the window's edge.
+        Every ``arc_pitch_every`` frames, the camera's pitch over the road is measured again
+        (:func:`align_road_pitch`): a camera pitched a degree further down than its mount says misjudges a
+        road point 15 camera heights ahead by a quarter of its distance."""
         cfg, g = self.config, self.config.ground
+        mount = self._arc_mount()
+        normal = mount_normal(mount)
         t0 = time.perf_counter()
         previous, self._road_images = self._road_images, [road_image(gray, level) for level in self._levels]
         assert previous is not None
@@ -481,7 +578,7 @@ class MonoVO:
             yaw_grid = last[0] + np.radians(np.arange(-2.0, 2.01, 0.5))
             spread = 0.4 * last[1] + 0.05 * g.camera_height_m
             length_grid = np.linspace(max(last[1] - spread, 0.0), last[1] + spread, 9)
-            result = align_road_arc(previous, self._road_images, self._levels, self._mount, self._prior_normal,
+            result = align_road_arc(previous, self._road_images, self._levels, mount, normal,
                                     g.camera_height_m, yaw_grid, length_grid)
             edge = (abs(result[0] - last[0]) > math.radians(1.9) or not length_grid[0] + 1e-9 < result[1]
                     or result[1] > length_grid[-1] - 1e-9)
@@ -489,17 +586,36 @@ class MonoVO:
                 result = None
         if result is None:
             wide = math.radians(cfg.max_yaw_step_deg)
-            result = align_road_arc(previous, self._road_images, self._levels, self._mount, self._prior_normal,
+            result = align_road_arc(previous, self._road_images, self._levels, mount, normal,
                                     g.camera_height_m, np.arange(-wide, wide + 1e-9, math.radians(0.5)),
                                     np.linspace(0.0, cfg.max_step_heights * g.camera_height_m, 25))
         yaw, length, quality = result
         self.timing_ms["ground"] += (time.perf_counter() - t0) * 1e3
         if not quality <= cfg.max_alignment_ratio:
             return self._estimate(index, stamp_ns, "bridged", f"the road does not align (cost ratio {quality:.2f})")
+        step = arc_step(yaw, length, mount)
+        if previous_stamp_ns is not None:
+            velocity = StepVelocity.of_step(np.linalg.inv(step), previous_stamp_ns, stamp_ns)
+            reason = check_motion(velocity, cfg.motion_limits, self._recent)
+            if reason and last is not None:
+                # a car ahead moving with the kart, a shadow: the road's best fit is not a motion the kart
+                # can make. Keep the last step and search near it again next frame.
+                self._last_arc = last
+                self._pose = self._pose @ arc_step(last[0], last[1], mount)
+                return self._estimate(index, stamp_ns, "bridged", f"the road's best fit is implausible: {reason}")
+            self._recent = velocity
         self._last_arc = (yaw, length)
-        step = arc_step(yaw, length, self._mount)
         self._scales.append(float(np.linalg.norm(step[:3, 3])))
         self._pose = self._pose @ step
+        if cfg.arc_pitch_every and self.frames % cfg.arc_pitch_every == 0 and length > 0.05 * g.camera_height_m:
+            t1 = time.perf_counter()
+            finest = len(self._levels) - 1
+            pitch = align_road_pitch(previous[finest], self._road_images[finest], self._levels[finest], mount,
+                                     g.camera_height_m, yaw, length)
+            self._pitches.append(pitch + self._pitch())  # measured against the mount pitched as now
+            if len(self._pitches) == ARC_PITCH_MIN_MEASUREMENTS:
+                self._recent = None  # the steps so far were measured with the mount's pitch, not the road's
+            self.timing_ms["pitch"] = self.timing_ms.get("pitch", 0.0) + (time.perf_counter() - t1) * 1e3
         return self._estimate(index, stamp_ns, "ok", "standing" if length < 1e-3 else "")
 
     def _ground(self, previous: Image, gray: Image, rotation: Array, t: Array) -> int:
