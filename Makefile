@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DATA ?= ../shared/data
 
-.PHONY: install test lint bench demo clean
+.PHONY: install test lint bench accuracy demo clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,6 +30,11 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/record.py --out benchmarks/results/record.json
 	$(BIN)/python benchmarks/places.py --out benchmarks/results/places.json
 	$(BIN)/python benchmarks/mono_drive.py --out benchmarks/results/mono_drive.json
+
+# VO accuracy on every real and simulated sequence (records the simulated drives once), into the docs
+accuracy: $(STAMP)
+	$(BIN)/python benchmarks/vo_accuracy.py --data $(DATA) --out docs/results/vo_accuracy.json
+	$(BIN)/python benchmarks/vo_table.py docs/results/vo_accuracy.json --out docs/results/vo_accuracy.md --into README.md
 
 demo: $(STAMP)
 	$(BIN)/kartpilot demo --out demo_out

@@ -1,0 +1,178 @@
+"""Visual odometry accuracy on every sequence at hand, real and simulated, each marked tuned-on or held-out.
+
+The defaults were tuned on KITTI 06 (stereo and monocular) and the monocular arc settings on sdc-assen;
+every other row is held out. Simulated drives are recorded once into ``--cache`` (several seeds each):
+
+* utrack, rc-kart stereo: 160 m from the start at 2 m/s, an 74 m straight and 130 degrees of the first bend;
+* sdc-assen, sdc-kart centre camera (monocular, the mount's arc): 70 s at 4 m/s, about 280 m with bends.
+
+kitti-raw-city has no poses: its row compares the distance stereo VO (scale from the baseline) and
+monocular VO (scale from the 1.65 m camera height) drive, each scale independent of the other.
+
+    python benchmarks/vo_accuracy.py --data ../shared/data --out docs/results/vo_accuracy.json
+    python benchmarks/vo_table.py docs/results/vo_accuracy.json --out docs/results/vo_accuracy.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import platform
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from common import write_json
+from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.trajectory import Trajectory
+from kartpilot.core.types import FrameSet
+from kartpilot.eval.trajectory_metrics import evaluate_trajectory
+from kartpilot.odometry.mono_vo import GroundConfig, MonoVO, MonoVOConfig
+from kartpilot.odometry.run import VORun, run_vo
+from kartpilot.odometry.stereo_vo import StereoVO
+from kartpilot.odometry.vo import VisualOdometry
+from kartpilot.record.recording import RecordingReader, RecordingStereoSource
+from kartpilot.runtime.session import SessionOutputs
+from kartpilot.runtime.simulate import run_simulation
+from kartpilot.sensors.base import StereoSource, read_gray
+from kartpilot.sensors.euroc import EurocSource
+from kartpilot.sensors.kitti import KittiOdometrySource
+from kartpilot.sim.drivers import CenterlineDriverConfig
+from kartpilot.sim.simulator import SimConfig
+
+
+@dataclass(frozen=True)
+class Sequence:
+    """One row: a name, where it comes from, which VO, and whether the defaults were tuned on it."""
+
+    name: str
+    kind: str  # "real" or "simulated"
+    mode: str  # "stereo" or "mono"
+    tuned_on: bool
+    note: str
+
+
+def _length_m(trajectory: Trajectory) -> float:
+    return float(np.linalg.norm(np.diff(trajectory.positions, axis=0), axis=1).sum())
+
+
+def _row(sequence: Sequence, run: VORun, truth: Trajectory | None) -> dict[str, Any]:
+    row: dict[str, Any] = {**sequence.__dict__, "frames": len(run.trajectory), "bridged_frames": run.bridged_frames,
+                           "frames_per_second": run.frames_per_second, "distance_m": _length_m(run.trajectory)}
+    if truth is not None:
+        metrics = evaluate_trajectory(truth, run.trajectory)
+        row.update(true_distance_m=metrics.path_length_m, end_drift_percent=metrics.end_drift_percent,
+                   ate_rmse_m=metrics.ate_rmse_m,
+                   rpe_percent={f"{r.delta_m:g}m": r.translation_percent for r in metrics.rpe})
+    print(f"{sequence.name:34s} {sequence.mode:6s} {'tuned on' if sequence.tuned_on else 'held out':9s} "
+          + (f"drift {row['end_drift_percent']:6.2f} %  ATE {row['ate_rmse_m']:.3f} m  " if truth is not None else "")
+          + f"{row['distance_m']:.1f} m, {run.bridged_frames} bridged, {run.frames_per_second:.1f} frames/s")
+    return row
+
+
+def _stereo(source: StereoSource) -> VORun:
+    return run_vo(source.frame_sets(), StereoVO(source.rig), source.name)
+
+
+def _mono(frames: Iterator[FrameSet | int], camera: PinholeCamera, camera_name: str, height_m: float,
+          name: str) -> VORun:
+    vo: VisualOdometry = MonoVO(camera, replace(MonoVOConfig(), ground=GroundConfig(camera_height_m=height_m)),
+                                camera_name)
+    return run_vo(frames, vo, name)
+
+
+def _recorded(folder: Path, config: SimConfig, speed_mps: float) -> Path:
+    """Record a centre-line drive once (kept in the cache for later runs)."""
+    if not (folder / "manifest.json").is_file():
+        print(f"recording {folder.name} ...")
+        run_simulation(config, "centerline", driver_config=CenterlineDriverConfig(speed_mps=speed_mps),
+                       outputs=SessionOutputs(record_dir=folder))
+    return folder
+
+
+def _camera_frames(reader: RecordingReader, camera: str) -> Iterator[FrameSet | int]:
+    for index, (stamp_ns, path) in enumerate(reader.frames(camera)):
+        yield FrameSet(index, stamp_ns, {camera: read_gray(path)})
+
+
+def real_rows(data: Path) -> list[dict[str, Any]]:
+    rows = []
+    kitti = data / "kitti-odometry"
+    if kitti.is_dir():
+        source = KittiOdometrySource(kitti, "06")
+        truth = source.ground_truth()
+        tuning = Sequence("KITTI 06 (51 frames, straight)", "real", "stereo", True, "the defaults' tuning clip")
+        rows.append(_row(tuning, _stereo(source), truth))
+        rows.append(_row(Sequence("KITTI 06 (51 frames, straight)", "real", "mono", True, "camera 1.65 m"),
+                         _mono(source.frame_sets(), source.rig.camera, "left", 1.65, source.name), truth))
+    city = data / "kitti-raw-city"
+    if city.is_dir():
+        source = KittiOdometrySource(city, "91")
+        stereo = _row(Sequence("kitti-raw-city (100 frames, no poses)", "real", "stereo", False, "scale: baseline"),
+                      _stereo(source), None)
+        mono = _row(Sequence("kitti-raw-city (100 frames, no poses)", "real", "mono", False, "scale: camera 1.65 m"),
+                    _mono(source.frame_sets(), source.rig.camera, "left", 1.65, source.name), None)
+        stereo["stereo_over_mono_distance"] = mono["stereo_over_mono_distance"] = (
+            stereo["distance_m"] / mono["distance_m"])
+        rows += [stereo, mono]
+    euroc = data / "euroc-v101-static"
+    if euroc.is_dir():
+        run = _stereo(EurocSource(euroc))
+        row = _row(Sequence("EuRoC V1_01 (95 frames, standing)", "real", "stereo", False,
+                            "largest distance from the start"), run, None)
+        row["excursion_m"] = float(np.linalg.norm(run.trajectory.positions, axis=1).max())
+        rows.append(row)
+    return rows
+
+
+def simulated_rows(cache: Path, seeds: list[int], quick: bool) -> list[dict[str, Any]]:
+    rows = []
+    utrack_s = 40.0 if quick else 80.0
+    for seed in seeds:
+        folder = _recorded(cache / f"utrack-rc-stereo-{utrack_s:g}s-{seed}",
+                           SimConfig(track="utrack", vehicle="rc-kart", cameras=("left", "right"), camera_rate_hz=10.0,
+                                     max_time_s=utrack_s, seed=seed), 2.0)
+        source = RecordingStereoSource(folder)
+        rows.append(_row(Sequence(f"utrack, seed {seed} ({2 * utrack_s:.0f} m, straight and bend)", "simulated",
+                                  "stereo", False, "rc-kart, 14 cm baseline"), _stereo(source), source.ground_truth()))
+    assen_s = 35.0 if quick else 70.0
+    for seed in seeds[:2]:
+        folder = _recorded(cache / f"assen-sdc-centre-{assen_s:g}s-{seed}",
+                           SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0,
+                                     max_time_s=assen_s, seed=seed), 4.0)
+        reader = RecordingReader(folder)
+        camera = reader.cameras["center"]
+        truth = reader.camera_poses("center")
+        height = float(camera.pose_body_cam_array[2, 3])
+        rows.append(_row(Sequence(f"sdc-assen, seed {seed} ({4 * assen_s:.0f} m, bends)", "simulated", "mono",
+                                  True, f"sdc-kart centre camera, {height:g} m"),
+                         _mono(_camera_frames(reader, "center"), camera, "center", height, folder.name), truth))
+    return rows
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", default="../shared/data")
+    parser.add_argument("--cache", default="benchmarks/results/recordings", help="simulated recordings, kept")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    parser.add_argument("--quick", action="store_true", help="half-length simulated drives")
+    parser.add_argument("--out", default="docs/results/vo_accuracy.json")
+    args = parser.parse_args()
+    rows = real_rows(Path(args.data)) + simulated_rows(Path(args.cache), args.seeds, args.quick)
+    write_json(args.out, {
+        "date": datetime.date.today().isoformat(),
+        "configuration": "defaults",
+        "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
+                    "python": platform.python_version(), "opencv": cv2.__version__},
+        "rows": rows,
+    })
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
