@@ -108,3 +108,21 @@ def test_the_centerline_driver_trims_against_a_kart_that_pulls_to_one_side():
           f"untrimmed, {runs[0.1].mean_center_offset_m:.3f} m trimmed")
     assert runs[0.0].mean_center_offset_m > 0.1
     assert runs[0.1].mean_center_offset_m < 0.02 and runs[0.1].finished
+
+
+def test_the_video_overlay_names_the_supervisor_s_state_and_fault_on_every_frame():
+    """After a fault the overlay must not read as if all were well: the supervisor's state and its reason are
+    on the frame, as an alarm."""
+    from kartpilot.core.types import OperatorInput
+    from kartpilot.runtime.simulate import overlay_lines
+    from kartpilot.runtime.supervisor import Supervisor
+
+    sim = Simulator(SimConfig(track="straight20", vehicle="rc-kart", render_images=False))
+    supervisor = Supervisor()
+    drive = ActuatorCommand(0, 0.0, 0.3, 0.0)
+    supervisor.step(0, [], OperatorInput(connected=True, hold=True, request="autonomous", source="test"), drive)
+    assert overlay_lines(sim, supervisor)[-1] == ("supervisor: autonomous", False)
+    supervisor.step(10**8, ["camera left: no frame for 0.5 s"], OperatorInput(connected=True, hold=True), drive)
+    text, alarm = overlay_lines(sim, supervisor)[-1]
+    assert alarm and text.startswith("supervisor: fault") and "no frame" in text
+    assert not any("supervisor" in line for line, _ in overlay_lines(sim))

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
-from dataclasses import replace
+import time
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +35,7 @@ from kartpilot.perception.lanes import LaneStages, detect_lanes, draw_lanes
 from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
+from kartpilot.record.video import VideoFile
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
 from kartpilot.runtime.lane_policy import LANE_PRESETS
@@ -269,43 +272,86 @@ def steer_agreement(steer_right: np.ndarray, human_right: np.ndarray, deadband: 
 class _Overlay:
     def __init__(self, target: str | Path) -> None:
         self.path = Path(target)
-        self.video: cv2.VideoWriter | None = None
+        self.video: VideoFile | None = None
         if self.path.suffix.lower() not in VIDEO_SUFFIXES:
             self.path.mkdir(parents=True, exist_ok=True)
 
     def write(self, index: int, image: np.ndarray) -> None:
         if self.path.suffix.lower() in VIDEO_SUFFIXES:
             if self.video is None:
-                self.path.parent.mkdir(parents=True, exist_ok=True)
                 h, w = image.shape[:2]
-                self.video = cv2.VideoWriter(str(self.path), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (w, h))
+                self.video = VideoFile(self.path, 30.0, (w, h))
+            if image.shape[:2] != (self.video.size_wh[1], self.video.size_wh[0]):
+                image = cv2.resize(image, self.video.size_wh)
             self.video.write(image)
         else:
             cv2.imwrite(str(self.path / f"{index:06d}.png"), image)
 
     def close(self) -> None:
         if self.video is not None:
-            self.video.release()
+            self.video.close()
+
+
+@dataclass(frozen=True)
+class DemoPlan:
+    """What ``kartpilot demo`` drives: a part of an sdc-assen lap on lane following, and a teach-and-repeat on
+    stereo VO; ``--full`` drives the whole lap and a teach-and-repeat lap of utrack."""
+
+    lanes_seconds: float  # 0: the whole lap
+    vo_track: str
+    vo_speed_mps: float
+
+
+QUICK_DEMO = DemoPlan(lanes_seconds=50.0, vo_track="straight20", vo_speed_mps=1.0)
 
 
 def demo(args: argparse.Namespace) -> int:
-    """The showcase, closed loop in the simulator: the lane-following lap of sdc-assen (sdc-kart, three
-    cameras) and the stereo-VO teach-and-repeat lap of utrack (rc-kart), each with a video of the
-    pipeline's view and the referee's result."""
+    """The showcase, closed loop in the simulator, in about two minutes: lane following on the sdc-kart's three
+    cameras along the start of sdc-assen, then the rc-kart taught a drive and repeating it on stereo VO. Each
+    part writes a video of the pipeline's view and the referee's result; warnings go to ``demo.log``, and a
+    summary says what was measured and where it is."""
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    print("1/2 lane following: the sdc-kart drives a lap of sdc-assen on its three cameras (15 km/h mode) ...")
-    lanes_config = SimConfig(track="sdc-assen", vehicle="sdc-kart", speed_mode_mps=15 / 3.6, camera_rate_hz=30.0,
-                             seed=1)
-    run = run_simulation(lanes_config, "lanes", outputs=SessionOutputs(
-        video_path=out / "sdc-assen-lanes.mp4", result_path=out / "sdc-assen-lanes.json", progress=True))
-    _print_result(run.result, run)
-    print(f"2/2 waypoint following: the rc-kart is taught a lap of utrack at {args.vo_speed} m/s, builds its "
-          "reference with stereo VO, then drives it on VO and the taught map ...")
-    result = run_teach_repeat(TeachRepeatConfig(track="utrack", speed_mps=args.vo_speed, seed=1), out / "utrack-vo",
-                           progress=True)
-    print(summary_line(result))
-    print(f"wrote {out / 'sdc-assen-lanes.mp4'}, {out / 'utrack-vo' / 'repeat.mp4'} and their result JSON and plots")
+    plan = DemoPlan(0.0, "utrack", args.vo_speed) if args.full else QUICK_DEMO
+    log_path = out / "demo.log"
+    handler = logging.FileHandler(log_path, mode="w", encoding="utf-8")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger()
+    quiet = [h for h in root.handlers if isinstance(h, logging.StreamHandler) and h.level < logging.ERROR]
+    levels = [h.level for h in quiet]
+    root.addHandler(handler)
+    for console in quiet:  # the terminal shows the progress and the summary; the details go to the log
+        console.setLevel(logging.ERROR)
+    start = time.perf_counter()
+    try:
+        lap = "a lap" if plan.lanes_seconds == 0 else f"the first {plan.lanes_seconds:g} s"
+        print(f"1/2 lane following: the sdc-kart drives {lap} of sdc-assen on its three cameras (15 km/h mode)")
+        lanes_config = SimConfig(track="sdc-assen", vehicle="sdc-kart", speed_mode_mps=15 / 3.6, camera_rate_hz=30.0,
+                                 seed=1, max_time_s=plan.lanes_seconds)
+        lanes = run_simulation(lanes_config, "lanes", outputs=SessionOutputs(
+            video_path=out / "sdc-assen-lanes.mp4", result_path=out / "sdc-assen-lanes.json", progress=True))
+        print(f"2/2 waypoint following: the rc-kart is taught {plan.vo_track} at {plan.vo_speed_mps:g} m/s, builds "
+              "its reference with stereo VO, then drives it on VO and the taught map")
+        repeat = run_teach_repeat(TeachRepeatConfig(track=plan.vo_track, speed_mps=plan.vo_speed_mps, seed=1),
+                                  out / f"{plan.vo_track}-vo", progress=True)
+    finally:
+        root.removeHandler(handler)
+        handler.close()
+        for console, level in zip(quiet, levels, strict=True):
+            console.setLevel(level)
+    minutes, seconds = divmod(round(time.perf_counter() - start), 60)
+    result = lanes.result
+    print(f"\ndone in {minutes} min {seconds:02d} s. What was measured:")
+    print(f"  lane following, sdc-assen: {result.distance_m:.0f} m in {result.sim_time_s:.0f} s, "
+          + (f"disqualified: {result.reason}" if result.disqualified else "no disqualification")
+          + f", centre offset mean {result.mean_center_offset_m:.2f} m, max {result.max_center_offset_m:.2f} m")
+    print(f"  teach and repeat, {plan.vo_track}: {summary_line(repeat)}")
+    print("Where it is:")
+    print(f"  {out / 'sdc-assen-lanes.mp4'}   the lane pipeline's view, with the referee's verdict on every frame")
+    print(f"  {out / 'sdc-assen-lanes.json'}  the lap's result and stage timings")
+    print(f"  {out / f'{plan.vo_track}-vo'}/  the teach recording, the VO reference, the repeat drive's video, "
+          "result and plots")
+    print(f"  {log_path}   warnings and details" + ("" if args.full else "; `kartpilot demo --full` drives whole laps"))
     return 0
 
 
@@ -400,5 +446,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
     demo_parser = sub.add_parser("demo", help="the main job on an embedded default (see README)")
     demo_parser.add_argument("--out", default="demo_out")
-    demo_parser.add_argument("--vo-speed", type=number(above=0), default=2.0, help="speed of the utrack lap, m/s")
+    demo_parser.add_argument("--full", action="store_true",
+                             help="a whole lap of sdc-assen and a teach-and-repeat lap of utrack (over ten minutes)")
+    demo_parser.add_argument("--vo-speed", type=number(above=0), default=2.0,
+                             help="with --full: speed of the utrack lap, m/s")
     demo_parser.set_defaults(handler=demo)

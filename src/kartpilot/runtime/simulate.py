@@ -19,6 +19,7 @@ from kartpilot.core.errors import ConfigError, RecordingError
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, CommandSink, FrameSet, FrameSource, Image
 from kartpilot.record.recording import RecordingReader, RecordingWriter
+from kartpilot.record.video import VideoFile
 from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.drive import ScriptedOperator, SupervisedDrive, Watchdogs
 from kartpilot.runtime.faults import FaultyBus, InjectedSource, Injection, RaisingPipeline, failing_vo
@@ -149,7 +150,9 @@ def _run(sim: Simulator, source: FrameSource, policy: Policy, sink: CommandSink,
     pipeline, its drive log (which says why a failed run failed) and the recording (with the ground truth) are
     closed, ``before_close`` first. Returns the loop's statistics and the wall time."""
     view = policy.pipeline if isinstance(policy, SupervisedDrive) else policy
-    video = _VideoSink(outputs.video_path, sim, getattr(view, "overlay", None)) if outputs.video_path else None
+    supervisor = policy.supervisor if isinstance(policy, SupervisedDrive) else None
+    video = (_VideoSink(outputs.video_path, sim, getattr(view, "overlay", None), supervisor)
+             if outputs.video_path else None)
     bar = tqdm(total=round(_goal_m(sim), 1), unit="m", disable=(not outputs.progress) or None, leave=False)
 
     def on_step(frames: FrameSet, command: ActuatorCommand) -> None:
@@ -220,24 +223,38 @@ def _goal_m(sim: Simulator) -> float:
     return track.finish_s_m - track.spec.start_s_m
 
 
+def overlay_lines(sim: Simulator, supervisor: Supervisor | None = None) -> list[tuple[str, bool]]:
+    """What a drive's video shows on each frame, and which lines are alarms: the time, speed and distance, the
+    command, the referee's verdict, and the supervisor's state with its reason when it is not driving."""
+    ref = sim.referee
+    status = f"DISQUALIFIED: {ref.reason}" if ref.disqualified else ("FINISHED" if ref.finished else "on track")
+    lines = [(f"t {sim.time_s:6.1f} s   v {sim.state.vx_mps:4.2f} m/s   s {ref.progress_m:7.1f} m", False),
+             (f"steer {np.degrees(sim.last_command.steer_rad):+5.1f} deg   throttle {sim.last_command.throttle:.2f}",
+              False),
+             (f"referee: {status}", ref.disqualified)]
+    if supervisor is not None:
+        state, reason = supervisor.state, supervisor.reason
+        text = f"supervisor: {state}" + (f": {reason}" if reason and state != "autonomous" else "")
+        lines.append((text, state in ("fault", "paused")))
+    return lines
+
+
 class _VideoSink:
-    """Writes the pipeline's view (the policy's ``overlay``, if it has one) or the main camera's image,
-    with the referee's state drawn on it."""
+    """Writes the pipeline's view (the policy's ``overlay``, if it has one) or the main camera's image, with
+    the referee's state and, for a supervised drive, the supervisor's state and reason drawn on every frame."""
 
     def __init__(self, path: str | Path, sim: Simulator,
-                 overlay: Callable[[FrameSet], Image | None] | None = None) -> None:
+                 overlay: Callable[[FrameSet], Image | None] | None = None,
+                 supervisor: Supervisor | None = None) -> None:
         if not sim.config.render_images:
             raise ConfigError("a video needs rendered images")
         self.sim = sim
         self.overlay = overlay
+        self.supervisor = supervisor
         self.camera = "center" if "center" in sim.cameras else next(iter(sim.cameras))
         cam = sim.cameras[self.camera]
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
         self._size_hw = (cam.height_px, cam.width_px)
-        self._writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), sim.config.camera_rate_hz,
-                                       (cam.width_px, cam.height_px))
-        if not self._writer.isOpened():
-            raise RecordingError(f"cannot write the video {path}")
+        self._video = VideoFile(path, sim.config.camera_rate_hz, (cam.width_px, cam.height_px))
         self._last: Image | None = None
 
     def write(self, frames: FrameSet) -> None:
@@ -248,20 +265,15 @@ class _VideoSink:
         if image.shape[:2] != self._size_hw:
             image = cv2.resize(image, self._size_hw[::-1])
         self._last = image
-        sim, ref = self.sim, self.sim.referee
-        canvas = image.copy()
-        status = f"DISQUALIFIED: {ref.reason}" if ref.disqualified else ("FINISHED" if ref.finished else "OK")
-        lines = [f"t {sim.time_s:6.1f} s   v {sim.state.vx_mps:4.2f} m/s   s {ref.progress_m:7.1f} m",
-                 f"steer {np.degrees(sim.last_command.steer_rad):+5.1f} deg   throttle {sim.last_command.throttle:.2f}",
-                 status]
-        for k, text in enumerate(lines):
-            colour = (0, 0, 255) if (k == 2 and ref.disqualified) else (255, 255, 255)
+        canvas = image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+        for k, (text, alarm) in enumerate(overlay_lines(self.sim, self.supervisor)):
+            colour = (0, 0, 255) if alarm else (255, 255, 255)
             cv2.putText(canvas, text, (12, 28 + 26 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 3, cv2.LINE_AA)
             cv2.putText(canvas, text, (12, 28 + 26 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.7, colour, 1, cv2.LINE_AA)
-        self._writer.write(canvas)
+        self._video.write(canvas)
 
     def close(self) -> None:
-        self._writer.release()
+        self._video.close()
 
 
 FAULT_HELD_S = 1.0  # a supervised run ends once the kart has been held in a fault this long
