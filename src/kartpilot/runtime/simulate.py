@@ -239,6 +239,18 @@ def overlay_lines(sim: Simulator, supervisor: Supervisor | None = None) -> list[
     return lines
 
 
+def _wrapped(text: str, width_px: int) -> list[str]:
+    """``text`` in lines that fit ``width_px`` in the overlay's font, broken between words."""
+    lines: list[str] = []
+    for word in text.split(" "):
+        candidate = f"{lines[-1]} {word}" if lines else word
+        if lines and cv2.getTextSize(candidate, cv2.FONT_HERSHEY_SIMPLEX, 0.7, 1)[0][0] <= width_px:
+            lines[-1] = candidate
+        else:
+            lines.append(word if lines else candidate)
+    return lines or [""]
+
+
 class _VideoSink:
     """Writes the pipeline's view (the policy's ``overlay``, if it has one) or the main camera's image, with
     the referee's state and, for a supervised drive, the supervisor's state and reason drawn on every frame."""
@@ -266,7 +278,10 @@ class _VideoSink:
             image = cv2.resize(image, self._size_hw[::-1])
         self._last = image
         canvas = image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-        for k, (text, alarm) in enumerate(overlay_lines(self.sim, self.supervisor)):
+        width = canvas.shape[1] - 24
+        rows = [(part, alarm) for text, alarm in overlay_lines(self.sim, self.supervisor)
+                for part in _wrapped(text, width)]
+        for k, (text, alarm) in enumerate(rows):
             colour = (0, 0, 255) if alarm else (255, 255, 255)
             cv2.putText(canvas, text, (12, 28 + 26 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 3, cv2.LINE_AA)
             cv2.putText(canvas, text, (12, 28 + 26 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.7, colour, 1, cv2.LINE_AA)
