@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DATA ?= ../shared/data
 
-.PHONY: install test lint bench accuracy demo clean
+.PHONY: install test lint docs bench accuracy demo clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -21,6 +21,11 @@ test: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/mypy
+	$(BIN)/mkdocs build --strict --quiet --site-dir $$(mktemp -d)
+
+# the documentation as a static site in site/ (open site/index.html)
+docs: $(STAMP)
+	$(BIN)/mkdocs build --strict
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/stereo_vo.py --data $(DATA) --out benchmarks/results/stereo_vo.json
@@ -34,10 +39,10 @@ bench: $(STAMP)
 # VO accuracy on every real and simulated sequence (records the simulated drives once), into the docs
 accuracy: $(STAMP)
 	$(BIN)/python benchmarks/vo_accuracy.py --data $(DATA) --out docs/results/vo_accuracy.json
-	$(BIN)/python benchmarks/vo_table.py docs/results/vo_accuracy.json --out docs/results/vo_accuracy.md --into README.md
+	$(BIN)/python benchmarks/vo_table.py docs/results/vo_accuracy.json --out docs/results/vo_accuracy.md --into README.md docs/results.md
 
 demo: $(STAMP)
 	$(BIN)/kartpilot demo --out demo_out
 
 clean:
-	rm -rf $(VENV) demo_out .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) demo_out site .pytest_cache .mypy_cache .ruff_cache

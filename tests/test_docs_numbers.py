@@ -18,14 +18,15 @@ def _vo_table():
     return module
 
 
-def test_the_readme_s_vo_accuracy_table_is_the_measured_one() -> None:
+@pytest.mark.parametrize("page", ["README.md", "docs/results.md"])
+def test_the_vo_accuracy_table_shown_is_the_measured_one(page: str) -> None:
     vo_table = _vo_table()
     results = json.loads((ROOT / "docs" / "results" / "vo_accuracy.json").read_text(encoding="utf-8"))
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
-    section = readme[readme.index(vo_table.START) + len(vo_table.START):readme.index(vo_table.END)]
+    text = (ROOT / page).read_text(encoding="utf-8")
+    section = text[text.index(vo_table.START) + len(vo_table.START):text.index(vo_table.END)]
     assert section.strip() == vo_table.render(results).strip(), (
-        "README.md's VO accuracy table differs from docs/results/vo_accuracy.json: run "
-        "benchmarks/vo_table.py docs/results/vo_accuracy.json --out docs/results/vo_accuracy.md --into README.md")
+        f"{page}'s VO accuracy table differs from docs/results/vo_accuracy.json: run benchmarks/vo_table.py "
+        "docs/results/vo_accuracy.json --out docs/results/vo_accuracy.md --into README.md docs/results.md")
     held_out = [row for row in results["rows"] if not row["tuned_on"]]
     assert held_out and any(row["kind"] == "simulated" for row in held_out)
 
@@ -39,3 +40,22 @@ def test_a_table_goes_between_the_markers_and_nowhere_else(tmp_path: Path) -> No
     (tmp_path / "bare.md").write_text("no markers\n")
     with pytest.raises(SystemExit, match="markers"):
         vo_table.put_between_markers(tmp_path / "bare.md", "| new |\n")
+
+
+def test_every_stack_config_example_in_the_docs_is_valid() -> None:
+    """A reader copies these: each YAML example that configures the stack must load, key for key."""
+    import re
+
+    import yaml
+
+    from kartpilot.core.config import merge_config
+    from kartpilot.runtime.config import StackConfig
+
+    checked = 0
+    for page in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        for block in re.findall(r"```yaml\n(.*?)```", page.read_text(encoding="utf-8"), flags=re.S):
+            data = yaml.safe_load(block)
+            if isinstance(data, dict) and set(data) & {"stereo_vo", "drive", "lane_policy", "sim", "mono_vo"}:
+                merge_config(StackConfig(), data)
+                checked += 1
+    assert checked >= 1

@@ -1,0 +1,23 @@
+"""One frame of a drive's video as a figure (the docs' picture of the lane pipeline).
+
+    kartpilot demo --out demo_out
+    python docs/figures/video_frame.py demo_out/sdc-assen-lanes.mp4 600 docs/figures/demo-lanes.png
+"""
+
+import sys
+
+import cv2
+
+
+def main() -> None:
+    video, index, target = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+    capture = cv2.VideoCapture(video)
+    capture.set(cv2.CAP_PROP_POS_FRAMES, index)
+    ok, image = capture.read()
+    if not ok:
+        raise SystemExit(f"{video} has no frame {index}")
+    cv2.imwrite(target, image)
+
+
+if __name__ == "__main__":
+    main()
