@@ -597,11 +597,12 @@ class MonoVO:
         if previous_stamp_ns is not None:
             velocity = StepVelocity.of_step(np.linalg.inv(step), previous_stamp_ns, stamp_ns)
             reason = check_motion(velocity, cfg.motion_limits, self._recent)
-            if reason and last is not None:
+            if reason:
                 # a car ahead moving with the kart, a shadow: the road's best fit is not a motion the kart
-                # can make. Keep the last step and search near it again next frame.
-                self._last_arc = last
-                self._pose = self._pose @ arc_step(last[0], last[1], mount)
+                # can make. Keep the last step (none before the first) and search near it again next frame.
+                if last is not None:
+                    self._last_arc = last
+                    self._pose = self._pose @ arc_step(last[0], last[1], mount)
                 return self._estimate(index, stamp_ns, "bridged", f"the road's best fit is implausible: {reason}")
             self._recent = velocity
         self._last_arc = (yaw, length)

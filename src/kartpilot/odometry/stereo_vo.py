@@ -76,7 +76,7 @@ class StereoVOConfig:
             along its row by this much (``stereo_match_margin``); repeated structure such as a row of cones
             otherwise gives points metres off that pass every other filter. 0 turns the check off.
         motion_limits: what the vehicle can do. A step beyond them, or too far from the recent motion
-            (``pnp.check_motion``), is estimated again from the constant-velocity prediction
+            (``motion_check.check_motion``), is estimated again from the constant-velocity prediction
             (``pnp.estimate_motion_from_prior``); when that fails too, the frame is bridged.
         max_bridged_frames: consecutive bridged frames after which the estimate is reported lost.
     """
