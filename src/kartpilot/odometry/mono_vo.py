@@ -595,7 +595,7 @@ class MonoVO:
             return self._estimate(index, stamp_ns, "bridged", f"the road does not align (cost ratio {quality:.2f})")
         step = arc_step(yaw, length, mount)
         if previous_stamp_ns is not None:
-            velocity = StepVelocity.of_step(np.linalg.inv(step), previous_stamp_ns, stamp_ns)
+            velocity = StepVelocity.of_motion(step, previous_stamp_ns, stamp_ns)
             reason = check_motion(velocity, cfg.motion_limits, self._recent)
             if reason:
                 # a car ahead moving with the kart, a shadow: the road's best fit is not a motion the kart

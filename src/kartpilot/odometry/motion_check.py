@@ -32,10 +32,15 @@ class StepVelocity:
     mid_ns: int
 
     @staticmethod
-    def of_step(pose_cur_prev: Array, start_ns: int, end_ns: int) -> StepVelocity:
+    def of_motion(motion: Array, start_ns: int, end_ns: int) -> StepVelocity:
+        """The velocities of the camera's motion ``motion`` (its pose at ``end_ns`` in its frame at ``start_ns``)."""
         dt_s = max((end_ns - start_ns) * 1e-9, 1e-3)
-        motion = invert_pose(pose_cur_prev)
         return StepVelocity(motion[:3, 3] / dt_s, rotvec_from_pose(motion) / dt_s, (start_ns + end_ns) // 2)
+
+    @staticmethod
+    def of_step(pose_cur_prev: Array, start_ns: int, end_ns: int) -> StepVelocity:
+        """The velocities of a step given as the transform of points from the earlier camera to the later."""
+        return StepVelocity.of_motion(invert_pose(pose_cur_prev), start_ns, end_ns)
 
 
 @dataclass(frozen=True)

@@ -261,26 +261,23 @@ class StereoVO:
                 return margins >= self.config.min_stereo_margin
         motion = estimate_motion_pnp(prev_points, cur_pixels, self.rig.camera.matrix, self.config.pnp,
                                      disparities, vet)
+        step, reason = self._checked(motion, previous, frame)
         from_prior = False
-        if self._recent is not None and (not motion.ok or self._implausible(motion, previous, frame)):
+        if reason and self._recent is not None:
             retry = estimate_motion_from_prior(prev_points, cur_pixels, self.rig.camera.matrix, self.config.pnp,
                                                self._predicted(dt_s), disparities)
-            if retry.ok and not self._implausible(retry, previous, frame):
-                logger.info("frame %d: motion from the prediction (%s)", frame.index,
-                            motion.reason or self._implausible(motion, previous, frame))
-                motion, from_prior = retry, True
+            retry_step, retry_reason = self._checked(retry, previous, frame)
+            if not retry_reason:
+                logger.info("frame %d: motion from the prediction (%s)", frame.index, reason)
+                motion, step, reason, from_prior = retry, retry_step, retry_reason, True
         if motion.ok and self.config.joint_depth_refinement:
             inl = motion.inliers
             refined = refine_pose_and_depths(motion.pose_cur_prev, prev_pixels[inl].astype(np.float64),
                                              disparities[inl], cur_pixels[inl].astype(np.float64),
                                              self.rig.camera.matrix, self.rig.baseline_m)
             motion = replace(motion, pose_cur_prev=refined)
+            step, reason = self._checked(motion, previous, frame)
         timer.lap("pnp")
-        reason = motion.reason
-        step: StepVelocity | None = None
-        if motion.ok:
-            step = StepVelocity.of_step(motion.pose_cur_prev, previous.stamp_ns, frame.stamp_ns)
-            reason = check_motion(step, self.config.motion_limits, self._recent)
         diagnostics = replace(
             counts, temporal_matches=len(prev_points), inliers=len(motion.inliers), motion_from_prior=from_prior,
             reprojection_rmse_px=motion.reprojection_rmse_px, timing_ms=timer.timing,
@@ -302,10 +299,14 @@ class StereoVO:
         lost = self._bridged_in_row > self.config.max_bridged_frames
         return VOEstimate(frame.index, frame.stamp_ns, self.pose_world_cam, status, reason, lost, diagnostics)
 
-    def _implausible(self, motion: MotionEstimate, previous: _Keyframe, frame: StereoFrame) -> str:
-        """Why ``motion`` is not a step the vehicle can have made (empty when it is)."""
+    def _checked(self, motion: MotionEstimate, previous: _Keyframe, frame: StereoFrame
+                 ) -> tuple[StepVelocity | None, str]:
+        """``motion``'s step, and why it is no step the vehicle can have made (the estimate's own failure, or the
+        motion check's; empty when it is)."""
+        if not motion.ok:
+            return None, motion.reason
         step = StepVelocity.of_step(motion.pose_cur_prev, previous.stamp_ns, frame.stamp_ns)
-        return check_motion(step, self.config.motion_limits, self._recent)
+        return step, check_motion(step, self.config.motion_limits, self._recent)
 
     def _predicted(self, dt_s: float) -> Array:
         """Constant-velocity prediction of ``pose_cur_prev`` over ``dt_s``."""
