@@ -20,7 +20,7 @@ import datetime
 import os
 import platform
 from collections.abc import Iterator
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -37,9 +37,10 @@ from kartpilot.odometry.run import VORun, run_vo
 from kartpilot.odometry.stereo_vo import StereoVO
 from kartpilot.odometry.vo import VisualOdometry
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
+from kartpilot.record.replay import RecordingFrameSource
 from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation
-from kartpilot.sensors.base import StereoSource, read_gray
+from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
 from kartpilot.sim.drivers import CenterlineDriverConfig
@@ -81,8 +82,7 @@ def _stereo(source: StereoSource) -> VORun:
 
 def _mono(frames: Iterator[FrameSet | int], camera: PinholeCamera, camera_name: str, height_m: float,
           name: str) -> VORun:
-    vo: VisualOdometry = MonoVO(camera, replace(MonoVOConfig(), ground=GroundConfig(camera_height_m=height_m)),
-                                camera_name)
+    vo: VisualOdometry = MonoVO(camera, MonoVOConfig(ground=GroundConfig(camera_height_m=height_m)), camera_name)
     return run_vo(frames, vo, name)
 
 
@@ -93,11 +93,6 @@ def _recorded(folder: Path, config: SimConfig, speed_mps: float) -> Path:
         run_simulation(config, "centerline", driver_config=CenterlineDriverConfig(speed_mps=speed_mps),
                        outputs=SessionOutputs(record_dir=folder))
     return folder
-
-
-def _camera_frames(reader: RecordingReader, camera: str) -> Iterator[FrameSet | int]:
-    for index, (stamp_ns, path) in enumerate(reader.frames(camera)):
-        yield FrameSet(index, stamp_ns, {camera: read_gray(path)})
 
 
 def real_rows(data: Path) -> list[dict[str, Any]]:
@@ -151,7 +146,8 @@ def simulated_rows(cache: Path, seeds: list[int], quick: bool) -> list[dict[str,
         height = float(camera.pose_body_cam_array[2, 3])
         rows.append(_row(Sequence(f"sdc-assen, seed {seed} ({4 * assen_s:.0f} m, bends)", "simulated", "mono",
                                   True, f"sdc-kart centre camera, {height:g} m"),
-                         _mono(_camera_frames(reader, "center"), camera, "center", height, folder.name), truth))
+                         _mono(iter(RecordingFrameSource(folder, ["center"]).read, None), camera, "center", height,
+                               folder.name), truth))
     return rows
 
 
