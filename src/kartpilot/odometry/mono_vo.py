@@ -553,7 +553,8 @@ class MonoVO:
 
     def _arc_mount(self) -> Array:
         """The camera's mount, pitched as measured on the road (:func:`align_road_pitch`)."""
-        return pitched_mount(self._mount, self._pitch())
+        pitch = self._pitch()
+        return self._mount if pitch == 0.0 else pitched_mount(self._mount, pitch)
 
     def _arc(self, index: int, stamp_ns: int, previous_stamp_ns: int | None, previous_image: Image, gray: Image
              ) -> MonoEstimate:
@@ -564,7 +565,7 @@ class MonoVO:
         road point 15 camera heights ahead by a quarter of its distance."""
         cfg, g = self.config, self.config.ground
         mount = self._arc_mount()
-        normal = mount_normal(mount)
+        normal = self._prior_normal if mount is self._mount else mount_normal(mount)
         t0 = time.perf_counter()
         previous, self._road_images = self._road_images, [road_image(gray, level) for level in self._levels]
         assert previous is not None
