@@ -76,6 +76,19 @@ def test_dropped_frames_vibration_and_exposure_are_applied():
     assert max(float(image.mean()) for image in images) < 100  # half exposure: a dark image
 
 
+def test_the_light_changes_at_the_given_time():
+    effects = CameraEffectsConfig(noise_sigma=0.0, light_change_at_s=0.2, light_change_gain=0.3)
+    config = SimConfig(track="straight20", cameras=("left",), camera_rate_hz=10.0, effects=effects, max_time_s=0.4)
+    with Simulator(config) as sim:
+        means = []
+        while (frames := sim.read()) is not None:
+            means.append(float(frames.images["left"].mean()))
+            sim.send(ActuatorCommand.stop(frames.stamp_ns))
+    assert len(means) == 4
+    assert means[1] == pytest.approx(means[0], rel=0.02)  # before the change: the same light
+    assert means[2] < 0.4 * means[1] and means[3] < 0.4 * means[1]
+
+
 def test_the_simulator_stops_delivering_when_the_run_is_over():
     with Simulator(SimConfig(track="straight20", render_images=False, max_time_s=0.5)) as sim:
         steps = 0

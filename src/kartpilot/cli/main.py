@@ -20,6 +20,7 @@ from kartpilot.cli import (
     drive_commands,
     places_commands,
     record_commands,
+    study_commands,
 )
 from kartpilot.cli.values import OneLineParser
 from kartpilot.core.errors import KartpilotError
@@ -38,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     drive_commands.add_parsers(sub)
     places_commands.add_parsers(sub)
     can_commands.add_parsers(sub)
+    study_commands.add_parsers(sub)
     return parser
 
 

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
-__all__ = ["OneLineParser", "file_or_new_folder", "new_folder", "number", "output_file"]
+__all__ = ["OneLineParser", "file_or_new_folder", "new_folder", "number", "output_file", "results_folder"]
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -92,3 +92,13 @@ def new_folder(text: str) -> Path:
 def file_or_new_folder(text: str) -> Path:
     """A file to write where the path has a suffix (``overlay.mp4``), else a new or empty folder."""
     return output_file(text) if Path(text).suffix else new_folder(text)
+
+
+def results_folder(text: str) -> Path:
+    """A folder a command keeps adding to (a study's results): new, empty, or one it wrote before (``marker``
+    inside it: ``study.json``)."""
+    path = Path(text)
+    if path.is_dir() and any(path.iterdir()) and not (path / "study.json").is_file():
+        raise argparse.ArgumentTypeError(f"{text} holds other files and no study: give a new folder, or a "
+                                         "study's own to continue it")
+    return new_folder(text) if not path.is_dir() or not any(path.iterdir()) else path

@@ -43,6 +43,8 @@ class CameraEffectsConfig:
             at 1 m/s and above; the small kart shook).
         lens_distortion: OpenCV distortion coefficients (k1, k2, p1, p2[, k3]) every camera's lens has: the
             cameras' calibration carries them and the images are bent by them (empty: pinhole cameras).
+        light_change_at_s, light_change_gain: from this time on (0: never) the light changes by this factor,
+            at once, as when the kart drives out of a building's shadow (the thesis's runs met such changes).
     """
 
     exposure_gain: float = 1.0
@@ -54,8 +56,12 @@ class CameraEffectsConfig:
     vibration_pitch_deg: float = 0.0
     vibration_hz: float = 11.0
     lens_distortion: tuple[float, ...] = ()
+    light_change_at_s: float = 0.0
+    light_change_gain: float = 1.0
 
     def __post_init__(self) -> None:
+        if not (self.light_change_at_s >= 0 and self.light_change_gain > 0 and self.exposure_gain > 0):
+            raise ConfigError("sim.effects.light_change_at_s must not be negative; the gains must be positive")
         if len(self.lens_distortion) not in DISTORTION_COUNTS or not all(map(math.isfinite, self.lens_distortion)):
             raise ConfigError("sim.effects.lens_distortion needs 4, 5, 8, 12 or 14 finite OpenCV coefficients "
                               f"(or none), got {list(self.lens_distortion)}")
@@ -254,8 +260,11 @@ class Simulator:
     def _expose(self, image: Image) -> Image:
         effects = self.config.effects
         out = image
-        if effects.exposure_gain != 1.0:
-            out = np.clip(out.astype(np.float32) * effects.exposure_gain, 0, 255).astype(np.uint8)
+        gain = effects.exposure_gain
+        if 0 < effects.light_change_at_s <= self.time_s:
+            gain *= effects.light_change_gain
+        if gain != 1.0:
+            out = np.clip(out.astype(np.float32) * gain, 0, 255).astype(np.uint8)
         if self._noise_bank:
             bank = self._noise_bank[int(self._rng.integers(len(self._noise_bank)))]
             h, w = out.shape[:2]

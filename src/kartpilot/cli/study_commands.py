@@ -1,0 +1,83 @@
+"""``kartpilot study``: the thesis's study, and sweeps of any stack setting, on Ray (see ``kartpilot.study``)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from kartpilot.cli.values import number, results_folder
+from kartpilot.study.report import write_report
+from kartpilot.study.run import run_study
+from kartpilot.study.spec import BUILT_IN, expand_cells, load_spec
+from kartpilot.study.tune import tune_study
+
+__all__ = ["add_parsers"]
+
+
+def study_list(args: argparse.Namespace) -> int:
+    for name in BUILT_IN:
+        spec = load_spec(name)
+        full, quick = ({c.key for c in expand_cells(spec, q)} for q in (False, True))
+        print(f"{name:12s} {len(full):4d} cells ({len(quick):3d} with --quick)  {spec.title}"
+              + ("  [tune]" if spec.tune else ""))
+    return 0
+
+
+def study_run(args: argparse.Namespace) -> int:
+    spec = load_spec(args.spec)
+    run = run_study(spec, args.out, args.data, quick=args.quick, address=args.address, cpus=args.cpus,
+                    cache_dir=args.cache, progress=not args.no_progress and sys.stderr.isatty())
+    print(f"{spec.name}: {len(run.rows)} cells, {run.computed} computed, {run.cached} from the cache, "
+          f"{run.failed} failed, in {run.wall_s:.0f} s on {run.cpus:g} CPUs")
+    files = write_report(args.out)
+    print(f"report: {files[0]}  rows: {files[1]}")
+    return 1 if run.failed and run.failed == len({r['config_hash'] for r in run.rows}) else 0
+
+
+def study_report(args: argparse.Namespace) -> int:
+    files = write_report(args.folder)
+    print("\n".join(str(f) for f in files))
+    return 0
+
+
+def study_tune(args: argparse.Namespace) -> int:
+    spec = load_spec(args.spec)
+    result = tune_study(spec, args.out, args.data, quick=args.quick, address=args.address, cpus=args.cpus,
+                        trials=args.trials, progress=not args.no_progress and sys.stderr.isatty())
+    best = ", ".join(f"{k.split('.')[-1]} {v:.3g}" for k, v in result.best_params.items())
+    print(f"{spec.name}: {result.trials} trials in {result.wall_s:.0f} s; best {best}")
+    for name, summary in result.held_out.items():
+        print(f"  held out, {name:8s} " + ", ".join(f"{k} {v:.4g}" for k, v in summary.items()))
+    print(f"settings for --config: {args.out}/best.yaml  report: {args.out}/tune.md")
+    return 0
+
+
+def _common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("spec", help=f"a built-in study ({', '.join(BUILT_IN)}) or a spec .yaml file")
+    parser.add_argument("--out", required=True, type=results_folder,
+                        help="the study's folder: rows are cached here, so a rerun computes only new cells")
+    parser.add_argument("--quick", action="store_true", help="the study's small size (a few minutes on 2 cores)")
+    parser.add_argument("--address", help="an existing Ray cluster (HOST:6379, from `ray start --head`); "
+                                          "default: Ray on this machine's cores")
+    parser.add_argument("--cpus", type=number(int, minimum=1), help="cores of the local Ray (default: all)")
+    parser.add_argument("--data", default="../shared/data", help="the datasets' folder (real sources)")
+    parser.add_argument("--no-progress", action="store_true")
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    """This module's subcommands, each with its arguments and handler."""
+    study = sub.add_parser("study", help="the thesis's study and sweeps, on Ray: run, report, tune, list")
+    actions = study.add_subparsers(dest="action", required=True, metavar="ACTION")
+    listing = actions.add_parser("list", help="the built-in studies and their sizes")
+    listing.set_defaults(handler=study_list)
+    run = actions.add_parser("run", help="run a study's cells (cached by their hash), then write its report")
+    _common(run)
+    run.add_argument("--cache", help="where simulated recordings are kept (default: OUT/cache)")
+    run.set_defaults(handler=study_run)
+    report = actions.add_parser("report", help="a study folder's report: Markdown, CSV and figures")
+    report.add_argument("folder")
+    report.set_defaults(handler=study_report)
+    tune = actions.add_parser("tune", help="search a study's tune space with Optuna; report on held-out cells")
+    _common(tune)
+    tune.add_argument("--trials", type=number(int, minimum=1), help="how many trials (default: the spec's)")
+    tune.set_defaults(handler=study_tune)

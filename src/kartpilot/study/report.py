@@ -1,0 +1,325 @@
+"""A study's report: its rows as CSV, figures, and a Markdown page that answers each question with numbers.
+
+Every mean is over the seeds of a simulated source and comes with a 95 % interval (Student's t over the
+seeds; none for a real dataset, which is one cell). The thesis's figure numbers are given beside ours.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from collections import defaultdict
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt
+import numpy as np
+from scipy import stats
+
+from kartpilot.core.files import write_csv_atomic, write_text_atomic
+from kartpilot.study.jobs import DEPTH_EDGES_M, GRID_COLS, GRID_ROWS
+from kartpilot.study.run import load_rows
+
+__all__ = ["Estimate", "estimate", "paired_effects", "write_report"]
+
+Row = dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A mean over ``n`` values and the half-width of its 95 % interval (nan with one value)."""
+
+    mean: float
+    half_width: float
+    n: int
+
+    def text(self, digits: int = 2, unit: str = "") -> str:
+        if self.n == 0 or math.isnan(self.mean):
+            return "n/a"
+        body = f"{self.mean:.{digits}f}"
+        if self.n > 1 and not math.isnan(self.half_width):
+            body += f" ± {self.half_width:.{digits}f}"
+        return body + unit
+
+
+def estimate(values: Iterable[float]) -> Estimate:
+    """Mean and 95 % t-interval of the finite values."""
+    data = np.array([v for v in values if v is not None and np.isfinite(v)], float)
+    if len(data) == 0:
+        return Estimate(math.nan, math.nan, 0)
+    if len(data) == 1:
+        return Estimate(float(data[0]), math.nan, 1)
+    half = float(stats.t.ppf(0.975, len(data) - 1) * data.std(ddof=1) / math.sqrt(len(data)))
+    return Estimate(float(data.mean()), half, len(data))
+
+
+def _ok(rows: Iterable[Row]) -> list[Row]:
+    return [r for r in rows if r.get("status") == "ok"]
+
+
+def _value(row: Row, metric: str) -> float:
+    value = row.get(metric)
+    if isinstance(value, bool):
+        return float(value)
+    return float(value) if isinstance(value, (int, float)) else math.nan
+
+
+def _groups(rows: Iterable[Row], keys: Sequence[str]) -> dict[tuple[Any, ...], list[Row]]:
+    out: dict[tuple[Any, ...], list[Row]] = defaultdict(list)
+    for row in rows:
+        out[tuple(row[k] for k in keys)].append(row)
+    return out
+
+
+def paired_effects(rows: Sequence[Row], metric: str, baseline: str) -> dict[str, Estimate]:
+    """Each variant's change of ``metric`` against ``baseline`` on the same source and seed, over all pairs."""
+    base = {(r["source"], r["seed"]): _value(r, metric) for r in _ok(rows) if r["variant"] == baseline}
+    diffs: dict[str, list[float]] = defaultdict(list)
+    for row in _ok(rows):
+        if row["variant"] != baseline and (row["source"], row["seed"]) in base:
+            diffs[row["variant"]].append(_value(row, metric) - base[(row["source"], row["seed"])])
+    return {variant: estimate(values) for variant, values in diffs.items()}
+
+
+def _table(rows: Sequence[Row], metrics: Sequence[tuple[str, str, int]], keys: Sequence[str] = ("variant", "source")
+           ) -> str:
+    """A Markdown table: one line per (variant, source), mean ± interval of each metric over seeds."""
+    header = [k for k in keys] + ["runs"] + [label for _, label, _ in metrics]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for group, members in _groups(_ok(rows), keys).items():
+        cells = [str(g) for g in group] + [str(len(members))]
+        cells += [estimate(_value(r, m) for r in members).text(d) for m, _, d in metrics]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _save(figure: Any, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(path.stem + ".partial.png")
+    figure.savefig(partial, dpi=110, bbox_inches="tight")
+    plt.close(figure)
+    partial.replace(path)
+    return path
+
+
+# --- features (RQ2) -----------------------------------------------------------------------------------------
+
+def _share(arrays: list[np.ndarray]) -> np.ndarray:
+    total = np.sum(arrays, axis=0).astype(float)
+    return total / total.sum() if total.sum() > 0 else total
+
+
+def _features(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]]:
+    ok = _ok(rows)
+    cones = [r for r in ok if r["part"] in ("cones", "real frames")]
+    sections, answers = [], {}
+    labels = list(dict.fromkeys((r["variant"], r["source"]) for r in cones))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4))
+    width = 0.8 / max(len(labels), 1)
+    for i, (variant, source) in enumerate(labels):
+        members = [r for r in cones if r["variant"] == variant and r["source"] == source]
+        grid = _share([np.array(r["grid_counts"]).ravel() for r in members])
+        depth = _share([np.array(r["depth_counts"]) for r in members])
+        x = np.arange(len(grid))
+        axes[0].bar(x + i * width, 100 * grid, width, label=f"{source}, {variant}")
+        axes[1].bar(np.arange(len(depth)) + i * width, 100 * depth, width, label=f"{source}, {variant}")
+    axes[0].set(title=f"Final points over a {GRID_ROWS}x{GRID_COLS} image grid (thesis Fig. 16c-d)",
+                xlabel="grid cell (top left first, row by row)", ylabel="share of final points (%)")
+    bins = [f"{a:g}-{b:g}" for a, b in itertools.pairwise(DEPTH_EDGES_M)]
+    axes[1].set(title="Depth of the final points, 1-45 m (thesis Fig. 16e-f)", xlabel="depth (m)",
+                ylabel="share of final points (%)")
+    axes[1].set_xticks(np.arange(len(bins)) + 0.4 - width / 2, bins, rotation=45)
+    axes[0].legend(fontsize=7)
+    _save(fig, figures / "features_distribution.png")
+    sections.append("![Where the final points fall](figures/features_distribution.png)")
+    metrics = [("near_share", "share < 3 m", 3), ("final_points", "final points", 0),
+               ("mean_inliers", "inliers/frame", 1), ("drift_percent", "drift %", 2),
+               ("bridged_frames", "bridged frames", 1)]
+    sections.append(_table(cones, metrics))
+    with_c = [r for r in cones if r["variant"] == "cones"]
+    without = [r for r in cones if r["variant"] == "no cones"]
+    if with_c and without:
+        empty = sum(1 for r in without if _value(r, "final_points") == 0)
+        near_without = estimate(100 * _value(r, "near_share") for r in without)
+        answers["RQ2"] = (
+            f"With cones, {estimate(100 * _value(r, 'near_share') for r in with_c).text(1)} % of the final points "
+            f"lie nearer than 3 m ({estimate(_value(r, 'mean_inliers') for r in with_c).text(1)} per frame) and "
+            f"VO drifts {estimate(_value(r, 'drift_percent') for r in with_c).text(2)} %; without cones "
+            + (f"{near_without.text(1)} % do " if near_without.n else "")
+            + f"({estimate(_value(r, 'mean_inliers') for r in without).text(1)} final points per frame, none at all "
+            f"in {empty} of {len(without)} runs) and VO drifts "
+            f"{estimate(_value(r, 'drift_percent') for r in without).text(1)} %. As in the thesis (Fig. 16), the "
+            "near, distinctive cones are what the motion is measured from.")
+    bands = [r for r in ok if r["part"] == "depth bands"]
+    if bands:
+        fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
+        variants = list(dict.fromkeys(r["variant"] for r in bands))
+        for ax, (metric, label) in zip(axes, (("rpe_translation_percent", "translation error over 1 m (%)"),
+                                              ("rpe_rotation_deg_per_m", "rotation error (deg/m)")), strict=True):
+            values = [estimate(_value(r, metric) for r in bands if r["variant"] == v) for v in variants]
+            ax.barh(variants, [v.mean for v in values], xerr=[0 if math.isnan(v.half_width) else v.half_width
+                                                             for v in values], color="tab:blue")
+            ax.set(xlabel=label)
+        axes[0].set_title("Removing a depth band (the thesis's near/far claim)")
+        _save(fig, figures / "features_bands.png")
+        sections.append("![Removing near or far points](figures/features_bands.png)")
+        sections.append(_table(bands, [("rpe_translation_percent", "translation %/m", 2),
+                                       ("rpe_rotation_deg_per_m", "rotation deg/m", 3),
+                                       ("drift_percent", "drift %", 2), ("mean_inliers", "inliers/frame", 1)]))
+        answers["bands"] = _bands_answer(bands, variants)
+    return sections, answers
+
+
+def _bands_answer(bands: list[Row], variants: list[str]) -> str:
+    def of(variant: str, metric: str) -> Estimate:
+        return estimate(_value(r, metric) for r in bands if r["variant"] == variant)
+
+    base, near, far = variants[0], variants[1], variants[2]
+    t = {v: of(v, "rpe_translation_percent") for v in (base, near, far)}
+    r = {v: of(v, "rpe_rotation_deg_per_m") for v in (base, near, far)}
+    near_translation = t[near].mean > t[base].mean
+    far_rotation = r[far].mean > r[base].mean
+    verdict = ("both halves of the claim hold" if near_translation and far_rotation else
+               "only the near half holds" if near_translation else
+               "only the far half holds" if far_rotation else "neither half shows here")
+    if t[far].mean > t[near].mean:
+        verdict += (", though the far points matter for the translation too: without them it is worse than "
+                    "without the near ones")
+    return (f"Without the near points the translation error is {t[near].text(2)} %/m against "
+            f"{t[base].text(2)} with all points; without the far points the rotation error is "
+            f"{r[far].text(3)} deg/m against {r[base].text(3)} (and the translation error {t[far].text(2)}): "
+            f"{verdict}.")
+
+
+# --- filters (RQ3) ------------------------------------------------------------------------------------------
+
+def _ranked_effects(rows: list[Row], figures: Path, question: str, title: str, stem: str
+                    ) -> tuple[list[str], dict[str, str]]:
+    """Every variant against ``defaults`` on the same drives, ranked by the change of drift."""
+    ok = _ok(rows)
+    effects = paired_effects(ok, "drift_percent", "defaults")
+    ate = paired_effects(ok, "ate_m", "defaults")
+    ranked = sorted(effects.items(), key=lambda kv: -abs(kv[1].mean) if not math.isnan(kv[1].mean) else 0)
+    fig, ax = plt.subplots(figsize=(8, 0.35 * len(ranked) + 1.2))
+    names = [name for name, _ in ranked][::-1]
+    values = [effects[n] for n in names]
+    ax.barh(names, [v.mean for v in values], xerr=[0 if math.isnan(v.half_width) else v.half_width for v in values],
+            color=["tab:red" if v.mean > 0 else "tab:green" for v in values])
+    ax.axvline(0, color="k", lw=0.8)
+    ax.set(xlabel="change of end drift against the defaults (percentage points, 95 % interval)", title=title)
+    _save(fig, figures / f"{stem}.png")
+    lines = ["Change against the defaults on the same source and seed, over every pair:", "",
+             "| variant | group | pairs | drift change (points) | ATE change (m) |", "|---|---|---|---|---|"]
+    group_of = {r["variant"]: r["group"] for r in ok}
+    lines += [f"| {name} | {group_of.get(name, '')} | {e.n} | {e.text(2)} | "
+              f"{ate.get(name, Estimate(math.nan, math.nan, 0)).text(3)} |" for name, e in ranked]
+    sections = [f"![Ranked by the change of drift](figures/{stem}.png)", "\n".join(lines),
+                _table(ok, [("drift_percent", "drift %", 2), ("ate_m", "ATE m", 3),
+                            ("mean_epipolar_ok", "stereo matches kept/frame", 0),
+                            ("mean_depth_ok", "3D points/frame", 0), ("mean_inliers", "inliers/frame", 1),
+                            ("bridged_frames", "bridged", 1), ("ms_per_frame", "ms/frame", 1)])]
+    return sections, {question: _ranking_answer(ranked, group_of, "drift")}
+
+
+def _filters(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]]:
+    return _ranked_effects(rows, figures, "RQ3", "Each filter off or swept, same drives (thesis RQ3, Fig. 9)",
+                           "filters_ranking")
+
+
+def _robustness(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]]:
+    return _ranked_effects(rows, figures, "robustness", "Each disturbance on its own, same drives",
+                           "robustness_ranking")
+
+
+def _ranking_answer(ranked: list[tuple[str, Estimate]], group_of: dict[str, str], what: str) -> str:
+    """Which settings change ``what`` beyond their 95 % interval, worse first, then better, then the rest."""
+    worse = [(n, e) for n, e in ranked if e.n > 1 and e.mean - e.half_width > 0]
+    better = [(n, e) for n, e in ranked if e.n > 1 and e.mean + e.half_width < 0]
+    moved = {group_of.get(n, n) for n, _ in worse + better}
+    neutral = [g for g in dict.fromkeys(group_of.get(n, n) for n, _ in ranked) if g not in moved]
+    parts = []
+    if worse:
+        parts.append(f"{what} is worse, beyond the 95 % interval, with " +
+                     "; ".join(f"{n} ({e.text(2)} points)" for n, e in sorted(worse, key=lambda kv: -kv[1].mean)))
+    if better:
+        parts.append(f"{what} is better with " +
+                     "; ".join(f"{n} ({e.text(2)} points)" for n, e in sorted(better, key=lambda kv: kv[1].mean)))
+    if neutral:
+        parts.append("no setting of " + ", ".join(neutral) + f" moves the {what} beyond the seed-to-seed spread")
+    if not parts:
+        parts = [f"no setting changes the {what}"]
+    return " ".join(p[0].upper() + p[1:] + "." for p in parts)
+
+
+# --- any study ----------------------------------------------------------------------------------------------
+
+_SKIP = {"seed", "cell_seconds", "grid_counts", "depth_counts", "config_hash"}
+
+
+def _numeric(rows: list[Row]) -> list[str]:
+    return [k for k in dict.fromkeys(k for r in rows for k in r)
+            if k not in _SKIP and all(isinstance(r.get(k), (int, float)) for r in rows if k in r)]
+
+
+def _every_metric(rows: list[Row]) -> str:
+    ok = _ok(rows)
+    return _table(ok, [(k, k.replace("_", " "), 3) for k in _numeric(ok)])
+
+
+def _generic(rows: list[Row], figures: Path, metric: str = "") -> tuple[list[str], dict[str, str]]:
+    """A table of every metric, and a bar chart of ``metric`` (the first numeric one by default)."""
+    ok = _ok(rows)
+    numeric = _numeric(ok)
+    sections = [_every_metric(rows)]
+    if metric or numeric:
+        metric = metric or numeric[0]
+        variants = list(dict.fromkeys(r["variant"] for r in ok))
+        values = [estimate(_value(r, metric) for r in ok if r["variant"] == v) for v in variants]
+        fig, ax = plt.subplots(figsize=(8, 0.35 * len(variants) + 1.2))
+        ax.barh(variants[::-1], [v.mean for v in values][::-1],
+                xerr=[0 if math.isnan(v.half_width) else v.half_width for v in values][::-1])
+        ax.set(xlabel=metric.replace("_", " "))
+        _save(fig, figures / f"{metric}.png")
+        sections.insert(0, f"![{metric}](figures/{metric}.png)")
+    return sections, {}
+
+
+REPORTS: dict[str, Callable[[list[Row], Path], tuple[list[str], dict[str, str]]]] = {
+    "features": _features, "filters": _filters, "robustness": _robustness, "table": _generic,
+}
+
+
+def _csv_value(value: Any) -> Any:
+    return json.dumps(value) if isinstance(value, (list, dict)) else value
+
+
+def write_report(folder: str | Path) -> list[Path]:
+    """Write ``report.md``, ``rows.csv`` and ``figures/`` into the study folder; returns the files."""
+    folder = Path(folder)
+    meta, rows = load_rows(folder)
+    columns = list(dict.fromkeys(k for r in rows for k in r))
+    csv = write_csv_atomic(folder / "rows.csv", columns, ([_csv_value(r.get(c, "")) for c in columns] for r in rows))
+    make = REPORTS.get(meta.get("report", "table"), _generic)
+    sections, answers = make(rows, folder / "figures")
+    if make is not _generic:
+        sections += ["## Every metric", _every_metric(rows)]
+    lines = [f"# {meta.get('title', meta.get('name', 'study'))}", "",
+             f"{len(rows)} cells ({'quick size' if meta.get('quick') else 'full size'}), kartpilot "
+             f"{meta.get('code_version', '?')}. Means over seeds with 95 % intervals.", "", "## Answers", ""]
+    for key, question in meta.get("questions", {}).items():
+        lines += [f"**{key}: {question}**", "", answers.get(key, "No answer: the cells it needs are missing."), ""]
+    lines += ["## Results", ""] + [s + "\n" for s in sections]
+    failed = [r for r in rows if r.get("status") != "ok"]
+    if failed:
+        lines += ["## Failed cells", "", "| variant | source | seed | error |", "|---|---|---|---|"]
+        lines += [f"| {r['variant']} | {r['source']} | {r['seed']} | {r.get('error', '')} |" for r in failed]
+    report = write_text_atomic(folder / "report.md", "\n".join(lines) + "\n")
+    pictures = sorted((folder / "figures").glob("*.png")) if (folder / "figures").is_dir() else []
+    return [report, csv, *pictures]
