@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DATA ?= ../shared/data
 
-.PHONY: install test lint docs bench accuracy demo clean
+.PHONY: install test lint docs bench accuracy studies demo clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -41,8 +41,17 @@ accuracy: $(STAMP)
 	$(BIN)/python benchmarks/vo_accuracy.py --data $(DATA) --out docs/results/vo_accuracy.json
 	$(BIN)/python benchmarks/vo_table.py docs/results/vo_accuracy.json --out docs/results/vo_accuracy.md --into README.md docs/results.md
 
+# every built-in study at its quick size (a few minutes each on 2 cores), the tuning, and the scaling, into the docs
+STUDIES := features filters detectors robustness lanes controllers
+studies: $(STAMP)
+	for s in $(STUDIES); do $(BIN)/kartpilot study run $$s --quick --out runs/$$s --data $(DATA) || exit 1; done
+	$(BIN)/kartpilot study tune controllers --quick --out runs/controllers-tune --data $(DATA)
+	$(BIN)/python benchmarks/study_docs.py $(addprefix runs/,$(STUDIES)) runs/controllers-tune
+	$(BIN)/python benchmarks/study_scaling.py --study features --data $(DATA) --out docs/results/study_scaling.json
+	$(BIN)/python benchmarks/study_scaling.py --render docs/results/study_scaling.json --into README.md docs/study/index.md
+
 demo: $(STAMP)
 	$(BIN)/kartpilot demo --out demo_out
 
 clean:
-	rm -rf $(VENV) demo_out site .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) demo_out runs site .pytest_cache .mypy_cache .ruff_cache

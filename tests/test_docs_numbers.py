@@ -3,6 +3,7 @@ from the committed JSON."""
 
 import importlib.util
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -44,8 +45,6 @@ def test_a_table_goes_between_the_markers_and_nowhere_else(tmp_path: Path) -> No
 
 def test_every_stack_config_example_in_the_docs_is_valid() -> None:
     """A reader copies these: each YAML example that configures the stack must load, key for key."""
-    import re
-
     import yaml
 
     from kartpilot.core.config import merge_config
@@ -57,5 +56,42 @@ def test_every_stack_config_example_in_the_docs_is_valid() -> None:
             data = yaml.safe_load(block)
             if isinstance(data, dict) and set(data) & {"stereo_vo", "drive", "lane_policy", "sim", "mono_vo"}:
                 merge_config(StackConfig(), data)
+                checked += 1
+    assert checked >= 1
+
+
+def _study_docs():
+    spec = importlib.util.spec_from_file_location("study_docs", ROOT / "benchmarks" / "study_docs.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+STUDY_RESULTS = sorted((ROOT / "docs" / "results" / "study").glob("*.json"))
+
+
+@pytest.mark.parametrize("results", STUDY_RESULTS, ids=[p.stem for p in STUDY_RESULTS])
+def test_each_study_page_is_what_its_committed_rows_give(results: Path) -> None:
+    data = json.loads(results.read_text(encoding="utf-8"))
+    shown = (ROOT / "docs" / "study" / f"{results.stem}.md").read_text(encoding="utf-8")
+    docs = _study_docs()
+    assert shown == (docs.tune_page(data) if "trials" in data else docs.page(data)), (
+        f"docs/study/{results.stem}.md differs from its rows: run benchmarks/study_docs.py on the study's folder")
+    for figure in re.findall(r"\]\(\.\./figures/(study/[^)]+\.png)\)", shown):
+        assert (ROOT / "docs" / "figures" / figure).is_file(), figure
+
+
+def test_every_study_spec_in_the_docs_is_valid() -> None:
+    import yaml
+
+    from kartpilot.study.spec import parse_spec
+
+    checked = 0
+    for page in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]:
+        for block in re.findall(r"```yaml\n(.*?)```", page.read_text(encoding="utf-8"), flags=re.S):
+            data = yaml.safe_load(block)
+            if isinstance(data, dict) and "parts" in data:
+                parse_spec(data, str(page))
                 checked += 1
     assert checked >= 1

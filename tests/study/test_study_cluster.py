@@ -5,7 +5,9 @@ fails on purpose: its rows, its cache (a rerun computes nothing) and its report 
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import json
 import os
 import shutil
 import signal
@@ -20,8 +22,10 @@ import pytest
 import yaml
 
 from kartpilot.cli.main import main
+from kartpilot.runtime.config import load_stack_config
 from kartpilot.study.run import run_study
 from kartpilot.study.spec import load_spec
+from kartpilot.study.tune import tune_study
 
 ray = pytest.importorskip("ray")
 
@@ -63,9 +67,10 @@ def _status(address: str) -> subprocess.CompletedProcess[str]:
                           env=RAY_ENV)
 
 
-@pytest.fixture
-def cluster(tmp_path: Path) -> Iterator[str]:
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """``ray start --head`` and ``ray start --address`` (a second node), one CPU each; stopped afterwards."""
+    tmp_path = tmp_path_factory.mktemp("ray-logs")
     if not RAY.is_file():
         pytest.skip(f"no ray command beside {sys.executable}")
     port = _free_port()
@@ -91,10 +96,12 @@ def cluster(tmp_path: Path) -> Iterator[str]:
     finally:
         for process in reversed(processes):
             os.killpg(process.pid, signal.SIGTERM)  # --block: the command stops the node it started
-            try:
-                process.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                os.killpg(process.pid, signal.SIGKILL)
+        deadline = time.monotonic() + 10
+        for process in processes:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                process.wait(timeout=max(0.1, deadline - time.monotonic()))
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(process.pid, signal.SIGKILL)  # and whatever of its group is left
         shutil.rmtree(temp, ignore_errors=True)
 
 
@@ -134,3 +141,29 @@ def test_a_study_runs_on_a_cluster_caches_its_rows_and_reports(cluster: str, tmp
         rows = list(csv.DictReader(f))
     assert len(rows) == 4 and {r["source"] for r in rows} == {"straight20", "no-such-track"}
     assert list((out / "figures").glob("*.png"))
+
+
+def test_tuning_searches_on_the_cluster_and_reports_on_held_out_seeds(cluster: str, tmp_path: Path):
+    spec = {**SPEC, "parts": [{**SPEC["parts"][0], "sources": ["straight20"]}], "tune": {
+        "part": "gains",
+        "space": {"drive.follow.stanley.k_cross_track": [0.2, 5.0, "log"],
+                  "drive.follow.stanley.k_heading": [0.1, 2.0]},
+        "minimize": {"max_offset_m": 1.0, "steer_rate_rms_radps": 0.1},
+        "tune_on": {"sources": ["straight20"], "seeds": [1]},
+        "held_out": {"sources": ["straight20"], "seeds": [2, 3]}, "trials": 4}}
+    spec_file = tmp_path / "tiny.yaml"
+    spec_file.write_text(yaml.safe_dump(spec))
+    out = tmp_path / "tune"
+    result = tune_study(load_spec(spec_file), out, tmp_path, address=cluster)
+    assert result.trials == 4 and set(result.best_params) == {"drive.follow.stanley.k_cross_track",
+                                                              "drive.follow.stanley.k_heading"}
+    assert set(result.held_out) == {"defaults", "tuned", "change"}
+    assert all(summary["runs"] == 2 for summary in result.held_out.values())  # seeds 2 and 3, not 1
+    change = result.held_out["change"]["objective"]
+    assert change == pytest.approx(result.held_out["tuned"]["objective"] - result.held_out["defaults"]["objective"])
+    saved = json.loads((out / "tune.json").read_text())
+    assert saved["tuned_on"]["seeds"] == [1] and saved["held_out"]["seeds"] == [2, 3] and len(saved["trials"]) == 4
+    stack = load_stack_config(out / "best.yaml")  # the best settings load as a stack configuration
+    assert stack.drive.follow.stanley.k_cross_track == pytest.approx(
+        result.best_params["drive.follow.stanley.k_cross_track"])
+    assert "Held out" in (out / "tune.md").read_text()

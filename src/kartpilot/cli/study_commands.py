@@ -47,6 +47,8 @@ def study_tune(args: argparse.Namespace) -> int:
     best = ", ".join(f"{k.split('.')[-1]} {v:.3g}" for k, v in result.best_params.items())
     print(f"{spec.name}: {result.trials} trials in {result.wall_s:.0f} s; best {best}")
     for name, summary in result.held_out.items():
+        if name == "change":
+            continue
         print(f"  held out, {name:8s} " + ", ".join(f"{k} {v:.4g}" for k, v in summary.items()))
     print(f"settings for --config: {args.out}/best.yaml  report: {args.out}/tune.md")
     return 0

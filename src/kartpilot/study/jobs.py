@@ -15,12 +15,15 @@ recording the same drive at once).
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import hashlib
+import io
 import itertools
 import json
 import math
 import shutil
+import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -45,6 +48,7 @@ from kartpilot.odometry.two_view import rotation_angle_deg, two_view_motion
 from kartpilot.planning.reference_path import build_reference_path, lateral_offset
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.runtime.config import StackConfig
+from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat
 from kartpilot.runtime.lane_policy import LanePolicy
 from kartpilot.runtime.loop import run_loop
 from kartpilot.runtime.session import SessionOutputs
@@ -292,11 +296,35 @@ def path_follow_job(cell: Cell, context: JobContext) -> dict[str, Any]:
             "oscillations_per_100m": 100.0 * float(np.count_nonzero(np.diff(signs) != 0)) / 2 / distance}
 
 
+def _teach_repeat(config: TeachRepeatConfig, folder: Path) -> dict[str, Any]:
+    cv2.setNumThreads(1)
+    with contextlib.redirect_stdout(io.StringIO()):
+        return run_teach_repeat(config, folder, video=False)
+
+
+def teach_repeat_job(cell: Cell, context: JobContext) -> dict[str, Any]:
+    """The thesis's autonomous run, closed loop: teach by driving the track, build the reference with stereo VO,
+    repeat with the stereo-VO pipeline (``runtime.experiment``). Success: no disqualification, and the end
+    point within the thesis's 1.5 m of the taught one."""
+    stack, params = stack_of(cell), params_of(cell)
+    config = TeachRepeatConfig(track=cell.source, speed_mps=params.speed_mps, seed=cell.seed,
+                               camera_rate_hz=params.camera_rate_hz, drive=stack.drive, vo=stack.stereo_vo)
+    with tempfile.TemporaryDirectory() as folder:
+        result = _in_child(_teach_repeat, config, Path(folder))
+    end = math.hypot(float(result["end_error_along_m"]), float(result["end_error_across_m"]))
+    return {"success": not result["disqualified"] and end <= float(result["thesis_end_error_m"]),
+            "touched": bool(result["disqualified"]), "reason": result["reason"], "end_error_m": end,
+            "distance_m": result["distance_m"],
+            "max_distance_from_taught_path_m": result["max_distance_from_taught_path_m"],
+            "steer_rate_rms_radps": result["steer_rate_rms_radps"]}
+
+
 JOBS: dict[str, Job] = {
     "stereo_vo": Job(stereo_vo_job, "stereo VO over a simulated recording or a real dataset"),
     "two_view": Job(two_view_job, "the monocular front end (features, matching, essential matrix) per frame pair"),
     "lanes": Job(lanes_job, "the lane follower closed loop in the simulator"),
     "path_follow": Job(path_follow_job, "the path follower on the centre line with the true pose"),
+    "teach_repeat": Job(teach_repeat_job, "teach, reference from stereo VO, repeat closed loop (the thesis's run)"),
 }
 
 

@@ -79,12 +79,18 @@ def _groups(rows: Iterable[Row], keys: Sequence[str]) -> dict[tuple[Any, ...], l
 
 
 def paired_effects(rows: Sequence[Row], metric: str, baseline: str) -> dict[str, Estimate]:
-    """Each variant's change of ``metric`` against ``baseline`` on the same source and seed, over all pairs."""
-    base = {(r["source"], r["seed"]): _value(r, metric) for r in _ok(rows) if r["variant"] == baseline}
+    """Each variant's change of ``metric`` against ``baseline`` on the same source and seed (in the same part
+    where it has one), over all pairs."""
+    base = {(r.get("part"), r["source"], r["seed"]): _value(r, metric) for r in _ok(rows) if r["variant"] == baseline}
+    anywhere = {(r["source"], r["seed"]): _value(r, metric) for r in _ok(rows) if r["variant"] == baseline}
     diffs: dict[str, list[float]] = defaultdict(list)
     for row in _ok(rows):
-        if row["variant"] != baseline and (row["source"], row["seed"]) in base:
-            diffs[row["variant"]].append(_value(row, metric) - base[(row["source"], row["seed"])])
+        if row["variant"] == baseline:
+            continue
+        # the baseline of the row's own part, else of another part (a part that only changes the job's params)
+        reference = base.get((row.get("part"), row["source"], row["seed"]), anywhere.get((row["source"], row["seed"])))
+        if reference is not None:
+            diffs[row["variant"]].append(_value(row, metric) - reference)
     return {variant: estimate(values) for variant, values in diffs.items()}
 
 
@@ -148,15 +154,17 @@ def _features(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]
     if with_c and without:
         empty = sum(1 for r in without if _value(r, "final_points") == 0)
         near_without = estimate(100 * _value(r, "near_share") for r in without)
+        if near_without.n:
+            without_text = (f"without cones {near_without.text(1)} % of them do "
+                            f"({estimate(_value(r, 'mean_inliers') for r in without).text(1)} per frame)")
+        else:
+            without_text = f"without cones no final point survives the filters in {empty} of {len(without)} runs"
         answers["RQ2"] = (
             f"With cones, {estimate(100 * _value(r, 'near_share') for r in with_c).text(1)} % of the final points "
             f"lie nearer than 3 m ({estimate(_value(r, 'mean_inliers') for r in with_c).text(1)} per frame) and "
-            f"VO drifts {estimate(_value(r, 'drift_percent') for r in with_c).text(2)} %; without cones "
-            + (f"{near_without.text(1)} % do " if near_without.n else "")
-            + f"({estimate(_value(r, 'mean_inliers') for r in without).text(1)} final points per frame, none at all "
-            f"in {empty} of {len(without)} runs) and VO drifts "
-            f"{estimate(_value(r, 'drift_percent') for r in without).text(1)} %. As in the thesis (Fig. 16), the "
-            "near, distinctive cones are what the motion is measured from.")
+            f"VO drifts {estimate(_value(r, 'drift_percent') for r in with_c).text(2)} %; {without_text}, and VO "
+            f"drifts {estimate(_value(r, 'drift_percent') for r in without).text(1)} %. As in the thesis "
+            "(Fig. 16), the near, distinctive cones are what the motion is measured from.")
     bands = [r for r in ok if r["part"] == "depth bands"]
     if bands:
         fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
@@ -202,8 +210,10 @@ def _bands_answer(bands: list[Row], variants: list[str]) -> str:
 
 def _ranked_effects(rows: list[Row], figures: Path, question: str, title: str, stem: str
                     ) -> tuple[list[str], dict[str, str]]:
-    """Every variant against ``defaults`` on the same drives, ranked by the change of drift."""
-    ok = _ok(rows)
+    """Every variant against ``defaults`` on the same drives, ranked by the change of drift; closed-loop rows
+    (``teach_repeat``) are counted as successes."""
+    closed = [r for r in _ok(rows) if r.get("job") == "teach_repeat"]
+    ok = [r for r in _ok(rows) if r.get("job") != "teach_repeat"]
     effects = paired_effects(ok, "drift_percent", "defaults")
     ate = paired_effects(ok, "ate_m", "defaults")
     ranked = sorted(effects.items(), key=lambda kv: -abs(kv[1].mean) if not math.isnan(kv[1].mean) else 0)
@@ -225,7 +235,15 @@ def _ranked_effects(rows: list[Row], figures: Path, question: str, title: str, s
                             ("mean_epipolar_ok", "stereo matches kept/frame", 0),
                             ("mean_depth_ok", "3D points/frame", 0), ("mean_inliers", "inliers/frame", 1),
                             ("bridged_frames", "bridged", 1), ("ms_per_frame", "ms/frame", 1)])]
-    return sections, {question: _ranking_answer(ranked, group_of, "drift")}
+    answer = _ranking_answer(ranked, group_of, "drift")
+    if closed:
+        counts = {v: (sum(1 for r in closed if r["variant"] == v and r.get("success")),
+                      sum(1 for r in closed if r["variant"] == v)) for v in dict.fromkeys(r["variant"] for r in closed)}
+        sections.append(_table(closed, [("success", "success rate", 2), ("end_error_m", "end error m", 3),
+                                        ("max_distance_from_taught_path_m", "max from taught path m", 3)]))
+        answer += " Closed loop (teach and repeat): " + ", ".join(f"{v} {k} of {n}" for v, (k, n) in counts.items()) \
+            + " runs succeed."
+    return sections, {question: answer}
 
 
 def _filters(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]]:
@@ -256,6 +274,91 @@ def _ranking_answer(ranked: list[tuple[str, Estimate]], group_of: dict[str, str]
     if not parts:
         parts = [f"no setting changes the {what}"]
     return " ".join(p[0].upper() + p[1:] + "." for p in parts)
+
+
+# --- detectors, lanes, controllers ---------------------------------------------------------------------------
+
+def _means(rows: list[Row], metric: str) -> dict[str, Estimate]:
+    variants = list(dict.fromkeys(r["variant"] for r in rows))
+    return {v: estimate(_value(r, metric) for r in rows if r["variant"] == v) for v in variants}
+
+
+def _detectors(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]]:
+    ok = _ok(rows)
+    sources = list(dict.fromkeys(r["source"] for r in ok))
+    fig, axes = plt.subplots(1, len(sources), figsize=(6.5 * len(sources), 5), squeeze=False)
+    answer = []
+    for ax, source in zip(axes[0], sources, strict=True):
+        members = [r for r in ok if r["source"] == source]
+        drift, ms = _means(members, "drift_percent"), _means(members, "ms_per_frame")
+        for variant in drift:
+            marker = "o" if variant.startswith("bf") else "s" if variant.startswith("flann") else "^"
+            ax.scatter(ms[variant].mean, drift[variant].mean, marker=marker)
+            ax.annotate(variant.replace("detector=", "").replace("ratio=", ""),
+                        (ms[variant].mean, drift[variant].mean), fontsize=6)
+        ax.set(xlabel="ms per frame pair", ylabel="end drift with true step lengths (%)", title=source,
+               yscale="log")
+        best = min(drift, key=lambda v: drift[v].mean if not math.isnan(drift[v].mean) else math.inf)
+        good = [v for v in drift if drift[v].mean <= 1.5 * drift[best].mean]
+        fastest = min(good, key=lambda v: ms[v].mean)
+        thesis = next((v for v in drift if v == "bf, detector=orb, ratio=0.7"), None)
+        answer.append(f"On {source} the lowest drift is {best}'s ({drift[best].text(2)} %, {ms[best].text(0)} ms "
+                      f"per pair); the fastest within 1.5 times of it is {fastest} ({drift[fastest].text(2)} %, "
+                      f"{ms[fastest].text(0)} ms)"
+                      + (f"; the thesis's ORB with brute force at 0.7 gives {drift[thesis].text(2)} %" if thesis
+                         else ""))
+    fig.suptitle("Monocular front end: drift against time (circles brute force, squares FLANN, triangles KLT)")
+    _save(fig, figures / "detectors.png")
+    table = _table(ok, [("mean_matches", "matches", 0), ("mean_inliers", "inliers", 0),
+                        ("rotation_error_deg", "rotation error deg", 3),
+                        ("direction_error_deg", "direction error deg", 2), ("drift_percent", "drift %", 2),
+                        ("ms_per_frame", "ms/pair", 1)])
+    return ["![Drift against time](figures/detectors.png)", table], {"front-end": ". ".join(answer) + "."}
+
+
+def _setting(row: Row) -> str:
+    """The part of a variant's name its sweep added (``speed_mode_mps=4.17``), without its group's name."""
+    group, variant = row["group"], row["variant"]
+    return variant[len(group) + 2:] if group and variant.startswith(group + ", ") else ""
+
+
+def _lanes(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]]:
+    ok = _ok(rows)
+    _generic(rows, figures, "mean_center_offset_m")
+    answer = []
+    for setting in dict.fromkeys(_setting(r) for r in ok):
+        members = [r for r in ok if _setting(r) == setting]
+        parts = []
+        for group in dict.fromkeys(r["group"] for r in members):
+            runs = [r for r in members if r["group"] == group]
+            touched = sum(1 for r in runs if r.get("touched"))
+            parts.append(f"{group} touched a line in {touched} of {len(runs)} runs, "
+                         f"{estimate(_value(r, 'mean_center_offset_m') for r in runs).text(3)} m from the centre on "
+                         f"average, steer rate RMS {estimate(_value(r, 'steer_rate_rms_radps') for r in runs).text(3)}"
+                         " rad/s")
+        answer.append((f"With {setting}: " if setting else "") + "; ".join(parts))
+    sections = ["![Centre offset](figures/mean_center_offset_m.png)", _every_metric(rows)]
+    return sections, {"lanes": ". ".join(answer) + "."}
+
+
+def _controllers(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]]:
+    ok = _ok(rows)
+    _generic(rows, figures, "max_offset_m")
+    variants = list(dict.fromkeys(r["variant"] for r in ok))
+    safe = [v for v in variants if all(r.get("success") for r in ok if r["variant"] == v)]
+    offset = _means(ok, "max_offset_m")
+    rate = _means(ok, "steer_rate_rms_radps")
+    answer = f"{len(safe)} of {len(variants)} settings finish every run. "
+    if safe:
+        best = min(safe, key=lambda v: offset[v].mean)
+        smooth = min(safe, key=lambda v: rate[v].mean)
+        answer += (f"Nearest the path: {best} (largest offset {offset[best].text(3)} m, steer rate RMS "
+                   f"{rate[best].text(3)} rad/s); smoothest: {smooth} ({offset[smooth].text(3)} m, "
+                   f"{rate[smooth].text(3)} rad/s)")
+        thesis = next((v for v in variants if "k_heading=0.5" in v and "k_cross_track=1.2" in v), None)
+        if thesis:
+            answer += f"; the thesis's gains: {offset[thesis].text(3)} m, {rate[thesis].text(3)} rad/s"
+    return ["![Largest offset](figures/max_offset_m.png)", _every_metric(rows)], {"controllers": answer + "."}
 
 
 # --- any study ----------------------------------------------------------------------------------------------
@@ -292,7 +395,8 @@ def _generic(rows: list[Row], figures: Path, metric: str = "") -> tuple[list[str
 
 
 REPORTS: dict[str, Callable[[list[Row], Path], tuple[list[str], dict[str, str]]]] = {
-    "features": _features, "filters": _filters, "robustness": _robustness, "table": _generic,
+    "features": _features, "filters": _filters, "robustness": _robustness, "detectors": _detectors,
+    "lanes": _lanes, "controllers": _controllers, "table": _generic,
 }
 
 

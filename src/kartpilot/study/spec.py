@@ -107,6 +107,7 @@ class Part:
     quick_sources: tuple[str, ...]
     quick_seeds: tuple[int, ...]
     quick_params: JobParams
+    in_quick: bool = True
 
 
 @dataclass(frozen=True)
@@ -229,14 +230,15 @@ def _part(data: Any, index: int) -> Part:
     sources = _strings(data.get("sources"), f"{where}sources")
     seeds = _ints(data.get("seeds", [1]), f"{where}seeds")
     params = _params(data.get("params"), f"{where}params")
-    quick = _mapping(data.get("quick"), f"{where}quick")
+    in_quick = data.get("quick") is not False  # `quick: false`: the part is left out of the quick size
+    quick = _mapping(data.get("quick") if in_quick else None, f"{where}quick")
     _check_keys(quick, {"sources", "seeds", "params"}, f"{where}quick.")
     return Part(
         name=str(data.get("name", f"part {index + 1}")), job=job, sources=sources, seeds=seeds, params=params,
         base=_mapping(data.get("base"), f"{where}base"), variants=_variants(data, where),
         quick_sources=_strings(quick["sources"], f"{where}quick.sources") if "sources" in quick else sources,
         quick_seeds=_ints(quick["seeds"], f"{where}quick.seeds") if "seeds" in quick else seeds,
-        quick_params=_params(quick.get("params"), f"{where}quick.params", params))
+        quick_params=_params(quick.get("params"), f"{where}quick.params", params), in_quick=in_quick)
 
 
 def parse_spec(data: Mapping[str, Any], origin: str) -> StudySpec:
@@ -281,6 +283,8 @@ def expand_cells(spec: StudySpec, quick: bool) -> list[Cell]:
     configuration share a key, and are computed once."""
     cells: list[Cell] = []
     for part in spec.parts:
+        if quick and not part.in_quick:
+            continue
         params = part.quick_params if quick else part.params
         plain_params = {f.name: getattr(params, f.name) for f in fields(params)}
         for variant in part.variants:

@@ -35,10 +35,11 @@ from kartpilot.core.config import config_to_dict, merge_config
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.files import write_json_atomic, write_text_atomic
 from kartpilot.runtime.config import StackConfig
+from kartpilot.study.report import estimate
 from kartpilot.study.run import CellRunner, study_context
 from kartpilot.study.spec import Cell, Part, StudySpec, cell_key, nested_override
 
-__all__ = ["TuneResult", "TuneSpec", "parse_tune", "tune_study"]
+__all__ = ["TuneResult", "TuneSpec", "parse_tune", "tune_page", "tune_study"]
 
 
 @dataclass(frozen=True)
@@ -188,10 +189,14 @@ def tune_study(spec: StudySpec, out: str | Path, data_dir: str | Path, quick: bo
         best = dict(search.best_params)
         defaults = {d.key: _default(d.key) for d in tune.space}
         held: dict[str, dict[str, float]] = {}
+        per_run: dict[str, list[float]] = {}
         for name, params in (("defaults", defaults), ("tuned", best)):
             group = _cells(spec.name, tune, name, params, tune.held_sources, tune.held_seeds, quick)
             rows = runner.run(group)
             held[name] = _summary([rows[c.key] for c in group], tune)
+            per_run[name] = [objective([rows[c.key]], tune) for c in group]  # the same runs, in the same order
+        change = estimate(t - d for t, d in zip(per_run["tuned"], per_run["defaults"], strict=True))
+        held["change"] = {"objective": change.mean, "half_width_95": change.half_width, "runs": float(change.n)}
     wall = time.perf_counter() - start
     result = TuneResult(best, float(search.best_value), len(history), held, wall)
     _write(out, spec, tune, result, history, defaults)
@@ -207,22 +212,41 @@ def _default(key: str) -> float:
 
 def _write(out: Path, spec: StudySpec, tune: TuneSpec, result: TuneResult, history: list[dict[str, Any]],
            defaults: dict[str, float]) -> None:
-    write_json_atomic(out / "tune.json", {
-        "study": spec.name, "part": tune.part.name, "minimize": dict(tune.minimize),
-        "tuned_on": {"sources": list(tune.tune_sources), "seeds": list(tune.tune_seeds)},
-        "held_out": {"sources": list(tune.held_sources), "seeds": list(tune.held_seeds)},
-        "best_params": result.best_params, "best_value_tuned_on": result.best_value, "defaults": defaults,
-        "held_out_results": result.held_out, "trials": history, "wall_s": result.wall_s})
+    data = {"study": spec.name, "title": spec.title, "part": tune.part.name, "minimize": dict(tune.minimize),
+            "failure_penalty": tune.failure_penalty,
+            "tuned_on": {"sources": list(tune.tune_sources), "seeds": list(tune.tune_seeds)},
+            "held_out": {"sources": list(tune.held_sources), "seeds": list(tune.held_seeds)},
+            "best_params": result.best_params, "best_value_tuned_on": result.best_value, "defaults": defaults,
+            "held_out_results": result.held_out, "trials": history, "wall_s": result.wall_s}
+    write_json_atomic(out / "tune.json", data)
     write_text_atomic(out / "best.yaml", "# kartpilot study tune: the best trial, for --config\n"
                       + yaml.safe_dump(_overrides(result.best_params), sort_keys=True))
-    metrics = list(next(iter(result.held_out.values())))
-    lines = [f"# Tuning: {spec.title}", "",
-             f"{result.trials} trials on {', '.join(tune.tune_sources)} seeds {list(tune.tune_seeds)}; "
-             f"compared on held-out {', '.join(tune.held_sources)} seeds {list(tune.held_seeds)}.", "",
+    write_text_atomic(out / "tune.md", tune_page(data))
+
+
+def tune_page(data: Mapping[str, Any]) -> str:
+    """The tuning's report, from its ``tune.json``."""
+    held = {k: v for k, v in data["held_out_results"].items() if k != "change"}
+    change = data["held_out_results"]["change"]
+    metrics = list(next(iter(held.values())))
+    weights = " + ".join(f"{w:g} × {m}" for m, w in data["minimize"].items())
+    lines = [f"# Tuning: {data['title']}", "",
+             f"{len(data['trials'])} Optuna trials (TPE) of part '{data['part']}', each on "
+             f"{', '.join(data['tuned_on']['sources'])} seeds {data['tuned_on']['seeds']}, minimising the mean of "
+             f"{weights}, plus {data['failure_penalty']:g} for each failed run. The best trial and the defaults "
+             f"were then run on the held-out {', '.join(data['held_out']['sources'])} seeds "
+             f"{data['held_out']['seeds']}: only those numbers compare them.", "",
              "| setting | defaults | tuned |", "|---|---|---|"]
-    lines += [f"| {k} | {defaults[k]:g} | {v:.3g} |" for k, v in result.best_params.items()]
+    lines += [f"| {k} | {data['defaults'][k]:g} | {v:.3g} |" for k, v in data["best_params"].items()]
     lines += ["", "Held out (means over the held-out runs):", "", "| | " + " | ".join(metrics) + " |",
               "|---|" + "---|" * len(metrics)]
-    for name, summary in result.held_out.items():
+    for name, summary in held.items():
         lines.append(f"| {name} | " + " | ".join(f"{summary[m]:.4g}" for m in metrics) + " |")
-    write_text_atomic(out / "tune.md", "\n".join(lines) + "\n")
+    low, high = change["objective"] - change["half_width_95"], change["objective"] + change["half_width_95"]
+    verdict = ("the tuned settings are better beyond the 95 % interval: the tuning carries over" if high < 0 else
+               "the tuned settings are worse: keep the defaults" if low > 0 else
+               "the difference is within the run-to-run spread: the tuning does not clearly carry over")
+    lines += ["", f"On the held-out runs the tuned settings score {held['tuned']['objective']:.4g} against the "
+              f"defaults' {held['defaults']['objective']:.4g}; paired run by run, the change is "
+              f"{change['objective']:+.4g} ± {change['half_width_95']:.2g} (95 %): {verdict}."]
+    return "\n".join(lines) + "\n"
