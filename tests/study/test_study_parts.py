@@ -156,3 +156,22 @@ def test_the_filters_report_ranks_a_clear_effect_and_leaves_noise_alone(tmp_path
     assert "No setting of bucketing moves the drift" in answer
     assert "DataError: gone" in text  # the failed cell is listed
     assert {f.name for f in files} >= {"report.md", "rows.csv", "filters_ranking.png"}
+
+
+def test_the_command_refuses_an_unknown_study_or_a_typo_on_one_line_and_writes_nothing(tmp_path, capsys):
+    from kartpilot.cli.main import main
+
+    out = tmp_path / "out"
+    assert main(["study", "run", "featurez", "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("kartpilot: ") and "unknown study 'featurez'" in err and "\n" not in err
+    spec = tmp_path / "typo.yaml"
+    spec.write_text("name: t\nparts:\n  - {job: stereo_vo, sources: [synthetic], "
+                    "variants: [{name: x, overrides: {stereo_vo: {pnp: {reprojection: 2}}}}]}\n")
+    assert main(["study", "run", str(spec), "--out", str(out)]) == 1
+    assert "stereo_vo.pnp.reprojection" in capsys.readouterr().err
+    assert not out.exists()
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("mine")
+    assert main(["study", "run", "features", "--out", str(tmp_path / "other")]) == 2  # not a study's folder
+    assert "holds other files" in capsys.readouterr().err

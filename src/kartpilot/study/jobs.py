@@ -58,7 +58,7 @@ from kartpilot.sensors.kitti import KittiOdometrySource
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import SimConfig, Simulator
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
-from kartpilot.study.spec import REAL_SOURCES, Cell, JobParams, params_of, stack_of
+from kartpilot.study.spec import REAL_SOURCES, Cell, JobParams, code_version, params_of, stack_of
 
 __all__ = ["DEPTH_EDGES_M", "GRID_COLS", "GRID_ROWS", "JOBS", "Job", "JobContext", "run_cell"]
 
@@ -99,8 +99,10 @@ def _record(config: SimConfig, speed_mps: float, folder: Path) -> None:
 
 
 def recorded_drive(config: SimConfig, speed_mps: float, cache_dir: Path) -> Path:
-    """A centre-line drive recorded with ``config``: from the cache, or recorded once in a child process."""
-    blob = json.dumps({"sim": config_to_dict(config), "speed_mps": speed_mps}, sort_keys=True, default=str)
+    """A centre-line drive recorded with ``config``: from the cache, or recorded once in a child process (the
+    code's version is part of the key: a changed simulator records again)."""
+    blob = json.dumps({"sim": config_to_dict(config), "speed_mps": speed_mps, "code": code_version()},
+                      sort_keys=True, default=str)
     folder = cache_dir / "recordings" / hashlib.sha256(blob.encode()).hexdigest()[:16]
     folder.parent.mkdir(parents=True, exist_ok=True)
     with open(folder.with_suffix(".lock"), "w") as lock:
@@ -343,4 +345,5 @@ def run_cell(cell: Cell, context: JobContext) -> dict[str, Any]:
         row["status"] = "failed"
         row["error"] = f"{type(exc).__name__}: {exc}"[:500]
     row["cell_seconds"] = time.perf_counter() - start
+    row["worker_code_version"] = code_version()
     return row

@@ -10,7 +10,6 @@ A failed cell is stored with its error and run again by the next ``study run``.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import os
@@ -23,11 +22,10 @@ from typing import Any
 
 from tqdm import tqdm
 
-import kartpilot
 from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import read_text_file, write_json_atomic
 from kartpilot.study.jobs import JobContext, run_cell
-from kartpilot.study.spec import Cell, StudySpec, expand_cells
+from kartpilot.study.spec import Cell, StudySpec, code_version, expand_cells
 
 __all__ = ["CellRunner", "StudyRun", "code_version", "load_rows", "run_study", "study_context"]
 
@@ -42,17 +40,6 @@ class StudyRun:
     failed: int
     wall_s: float
     cpus: float
-
-
-def code_version() -> str:
-    """The package version and a hash of its source files: a row computed by other code is not reused."""
-    root = Path(kartpilot.__file__).parent
-    digest = hashlib.sha256()
-    for path in sorted(root.rglob("*")):
-        if path.suffix in (".py", ".yaml", ".dbc") and "__pycache__" not in path.parts:
-            digest.update(str(path.relative_to(root)).encode())
-            digest.update(path.read_bytes())
-    return f"{kartpilot.__version__}+{digest.hexdigest()[:12]}"
 
 
 def _cell_file(out: Path, key: str) -> Path:
@@ -164,6 +151,10 @@ class CellRunner:
                     row = dict(ray.get(ref))
                 except Exception as exc:  # the worker died (out of memory, a crash): the cell's error
                     row = _failed(cell, f"{type(exc).__name__}: {exc}")
+                worker = row.pop("worker_code_version", self.version)
+                if worker != self.version:  # a machine of the cluster has other code: its row is not this code's
+                    row = _failed(cell, f"the worker runs kartpilot {worker}, this study {self.version}: install "
+                                        "the same commit on every machine")
                 row["code_version"] = self.version
                 write_json_atomic(_cell_file(self.out, cell.key), row)
                 done[cell.key] = row

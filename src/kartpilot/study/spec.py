@@ -38,12 +38,13 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import kartpilot
 from kartpilot.core.config import config_to_dict, load_yaml_mapping, merge_config
 from kartpilot.core.errors import ConfigError
 from kartpilot.runtime.config import StackConfig
 
-__all__ = ["BUILT_IN", "Cell", "JobParams", "Part", "StudySpec", "Variant", "expand_cells", "load_spec",
-           "nested_override"]
+__all__ = ["BUILT_IN", "Cell", "JobParams", "Part", "StudySpec", "Variant", "code_version", "expand_cells",
+           "load_spec", "nested_override"]
 
 BUILT_IN = ("features", "filters", "detectors", "robustness", "lanes", "controllers")
 
@@ -266,6 +267,19 @@ def load_spec(name_or_path: str | Path) -> StudySpec:
     if path.suffix not in (".yaml", ".yml") and not path.exists():
         raise ConfigError(f"unknown study {text!r}: a built-in one ({', '.join(BUILT_IN)}) or a spec .yaml file")
     return parse_spec(load_yaml_mapping(path), str(path))
+
+
+def code_version() -> str:
+    """The package version and a hash of its source files (the study specs aside: a cell's key holds all of
+    its configuration), so a row computed by other code is not reused."""
+    root = Path(kartpilot.__file__).parent
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*")):
+        if path.suffix in (".py", ".yaml", ".dbc") and "__pycache__" not in path.parts and \
+                path.parent.name != "specs":
+            digest.update(str(path.relative_to(root)).encode())
+            digest.update(path.read_bytes())
+    return f"{kartpilot.__version__}+{digest.hexdigest()[:12]}"
 
 
 def _canonical(value: Any) -> str:
