@@ -95,8 +95,8 @@ def file_or_new_folder(text: str) -> Path:
 
 
 def results_folder(text: str) -> Path:
-    """A folder a command keeps adding to (a study's results): new, empty, or one it wrote before (``marker``
-    inside it: ``study.json``)."""
+    """A folder a command keeps adding to (a study's results): new, empty, or one it wrote before (it holds
+    ``study.json``)."""
     path = Path(text)
     if path.is_dir() and any(path.iterdir()) and not (path / "study.json").is_file():
         raise argparse.ArgumentTypeError(f"{text} holds other files and no study: give a new folder, or a "

@@ -173,6 +173,8 @@ def tune_study(spec: StudySpec, out: str | Path, data_dir: str | Path, quick: bo
     history: list[dict[str, Any]] = []
     start = time.perf_counter()
     with CellRunner(out, study_context(out, data_dir, None), address, cpus, progress) as runner:
+        write_json_atomic(out / "study.json", {"name": spec.name, "title": spec.title, "tune": True,
+                                               "quick": quick, "code_version": runner.version})
         per_trial = len(tune.tune_sources) * len(tune.tune_seeds)
         width = max(1, round(runner.start() / per_trial))  # trials at once: enough cells for every CPU
         while len(history) < count:
