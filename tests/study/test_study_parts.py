@@ -175,3 +175,16 @@ def test_the_command_refuses_an_unknown_study_or_a_typo_on_one_line_and_writes_n
     (tmp_path / "other" / "notes.txt").write_text("mine")
     assert main(["study", "run", "features", "--out", str(tmp_path / "other")]) == 2  # not a study's folder
     assert "holds other files" in capsys.readouterr().err
+
+
+def test_a_wobbled_reference_moves_sideways_smoothly_by_its_sigma():
+    from kartpilot.study.jobs import wobbled
+
+    xy = np.column_stack([np.arange(0.0, 400.0, 0.05), np.zeros(8000)])
+    rng = np.random.default_rng(0)
+    assert wobbled(xy, 0.0, 1.0, rng) is xy
+    moved = wobbled(xy, 0.03, 1.0, rng)
+    assert np.allclose(moved[:, 0], xy[:, 0])  # sideways only
+    # sigma at the knots, a metre apart; linear in between, the spread along the path is sqrt(2/3) of it
+    assert 0.7 * 0.03 < moved[:, 1].std() < 0.03
+    assert np.abs(np.diff(moved[:, 1])).max() < 0.05 * 0.15  # no jumps between samples 5 cm apart

@@ -27,8 +27,9 @@ def study_run(args: argparse.Namespace) -> int:
     spec = load_spec(args.spec)
     run = run_study(spec, args.out, args.data, quick=args.quick, address=args.address, cpus=args.cpus,
                     cache_dir=args.cache, progress=not args.no_progress and sys.stderr.isatty())
+    where = f"in {run.wall_s:.0f} s on {run.cpus:g} CPUs" if run.computed else "nothing to compute"
     print(f"{spec.name}: {len(run.rows)} cells, {run.computed} computed, {run.cached} from the cache, "
-          f"{run.failed} failed, in {run.wall_s:.0f} s on {run.cpus:g} CPUs")
+          f"{run.failed} failed, {where}")
     files = write_report(args.out)
     print(f"report: {files[0]}  rows: {files[1]}")
     return 1 if run.failed and run.failed == len({r['config_hash'] for r in run.rows}) else 0

@@ -45,7 +45,7 @@ from kartpilot.eval.trajectory_metrics import evaluate_trajectory
 from kartpilot.odometry.run import VORun, run_vo
 from kartpilot.odometry.stereo_vo import StereoVO, VODiagnostics
 from kartpilot.odometry.two_view import rotation_angle_deg, two_view_motion
-from kartpilot.planning.reference_path import build_reference_path, lateral_offset
+from kartpilot.planning.reference_path import advance_progress, build_reference_path, lateral_offset
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat
@@ -259,19 +259,34 @@ def lanes_job(cell: Cell, context: JobContext) -> dict[str, Any]:
     return _in_child(_lane_drive, stack, _sim_config(stack, cell, params, ()))
 
 
+def wobbled(xy: np.ndarray, sigma_m: float, spacing_m: float, rng: np.random.Generator) -> np.ndarray:
+    """``xy`` moved sideways by a smooth random offset (a value of standard deviation ``sigma_m`` every
+    ``spacing_m``, linear in between): the error of a reference taught with visual odometry."""
+    if sigma_m <= 0:
+        return xy
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    knots = np.arange(0.0, s[-1] + spacing_m, spacing_m)
+    offset = np.interp(s, knots, rng.normal(0.0, sigma_m, len(knots)))
+    tangent = np.gradient(xy, axis=0)
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
+    return xy + offset[:, None] * np.column_stack([-tangent[:, 1], tangent[:, 0]])
+
+
 def path_follow_job(cell: Cell, context: JobContext) -> dict[str, Any]:
-    """The path follower on the track's centre line (no cameras, dynamics only), given the true pose with
-    the noise and latency of ``params``: how the controller alone tracks as its gains, look-ahead and speed
-    (``drive.path.cruise_speed_mps``) change."""
+    """The path follower on the track's centre line (no cameras, dynamics only), with the errors of
+    ``params``: a reference off the centre line by a smooth random offset, and the true pose with noise and
+    latency, as visual odometry gives them. How the controller alone tracks the true centre line as its
+    gains, look-ahead and speed (``drive.path.cruise_speed_mps``) change."""
     stack, params = stack_of(cell), params_of(cell)
     config = replace(_sim_config(stack, cell, params, ()), render_images=False)
     follow = stack.drive.follow
     rng = np.random.default_rng(cell.seed)
     with Simulator(config) as sim:
         xy = np.roll(sim.track.route.xy_m, -sim.track.start_index, axis=0)
-        path = build_reference_path(xy, stack.drive.path)
+        truth = build_reference_path(xy, stack.drive.path)
+        path = build_reference_path(wobbled(xy, params.path_noise_m, 1.0, rng), stack.drive.path)
         state = PathFollowState.start(follow)
-        cross, steers, done, late = [], [], False, []
+        cross, steers, done, late, index = [], [], False, [], 0
         while not sim.done and not done:
             s = sim.state
             noise = rng.normal(0.0, 1.0, 3) * (params.pose_noise_m, params.pose_noise_m,
@@ -282,8 +297,8 @@ def path_follow_job(cell: Cell, context: JobContext) -> dict[str, Any]:
             out, state = path_follow_step(follow, state, path, pose, sim.dt_s, sim.vehicle.wheelbase_m,
                                           sim.vehicle.max_steer_rad)
             done = out.done
-            _, true_cross = lateral_offset(path, out.index, s.x_m, s.y_m)
-            cross.append(true_cross)
+            index = advance_progress(truth, s.x_m, s.y_m, index, 2.0)
+            cross.append(lateral_offset(truth, index, s.x_m, s.y_m)[1])
             steers.append(out.steer_rad)
             sim.send(ActuatorCommand(sim.time_ns, out.steer_rad, out.throttle, out.brake))
         result = sim.result(1.0)

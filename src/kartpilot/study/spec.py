@@ -65,6 +65,8 @@ class JobParams:
         pose_noise_m, heading_noise_deg, pose_latency_frames: what the path follower's pose is given in the
             ``path_follow`` job: the true pose with white noise (standard deviations), this many frames old,
             as visual odometry would give it.
+        path_noise_m: the ``path_follow`` job's reference is the centre line moved sideways by a smooth random
+            offset of this standard deviation (a new value every metre), as a reference taught with VO is.
     """
 
     vehicle: str = "rc-kart"
@@ -76,11 +78,12 @@ class JobParams:
     pose_noise_m: float = 0.0
     heading_noise_deg: float = 0.0
     pose_latency_frames: int = 0
+    path_noise_m: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.speed_mps > 0 or not self.camera_rate_hz > 0:
             raise ConfigError("study params.speed_mps and params.camera_rate_hz must be positive")
-        if min(self.seconds, self.frames, self.pose_noise_m, self.heading_noise_deg,
+        if min(self.seconds, self.frames, self.pose_noise_m, self.heading_noise_deg, self.path_noise_m,
                self.pose_latency_frames) < 0 or not self.near_m > 0:
             raise ConfigError("study params must not be negative (near_m positive)")
 

@@ -245,10 +245,10 @@ def tune_page(data: Mapping[str, Any]) -> str:
     for name, summary in held.items():
         lines.append(f"| {name} | " + " | ".join(f"{summary[m]:.4g}" for m in metrics) + " |")
     low, high = change["objective"] - change["half_width_95"], change["objective"] + change["half_width_95"]
-    verdict = ("the tuned settings are better beyond the 95 % interval: the tuning carries over" if high < 0 else
-               "the tuned settings are worse: keep the defaults" if low > 0 else
-               "the difference is within the run-to-run spread: the tuning does not clearly carry over")
+    verdict = ("better beyond the interval: the tuning carries over" if high < 0 else
+               "worse beyond the interval: keep the defaults" if low > 0 else
+               "within the run-to-run spread: the tuning does not clearly carry over")
     lines += ["", f"On the held-out runs the tuned settings score {held['tuned']['objective']:.4g} against the "
               f"defaults' {held['defaults']['objective']:.4g}; paired run by run, the change is "
-              f"{change['objective']:+.4g} ± {change['half_width_95']:.2g} (95 %): {verdict}."]
+              f"{change['objective']:+.4g} ± {change['half_width_95']:.2g} (95 %), {verdict}."]
     return "\n".join(lines) + "\n"
