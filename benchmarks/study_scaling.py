@@ -19,6 +19,7 @@ from typing import Any
 from common import write_json
 from kartpilot.study.run import run_study
 from kartpilot.study.spec import load_spec
+from vo_table import put_between_markers
 
 START, END = "<!-- study-scaling -->", "<!-- /study-scaling -->"
 
@@ -46,15 +47,6 @@ def render(results: dict[str, Any]) -> str:
             "so more machines add their cores.\n")
 
 
-def put_between_markers(path: Path, text: str) -> None:
-    page = path.read_text(encoding="utf-8")
-    start, end = page.find(START), page.find(END)
-    if start < 0 or end < start:
-        raise SystemExit(f"{path}: no {START} ... {END} markers")
-    path.write_text(page[:start + len(START)] + "\n" + text + page[end:], encoding="utf-8")
-    print(f"updated {path}")
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--study", default="features")
@@ -66,7 +58,7 @@ def main() -> int:
     if args.render:
         text = render(json.loads(args.render.read_text(encoding="utf-8")))
         for page in args.into:
-            put_between_markers(page, text)
+            put_between_markers(page, text, START, END)
         return 0
     runs = [measure(args.study, args.data, cpus) for cpus in (1, 2)]
     write_json(args.out, {"date": datetime.date.today().isoformat(), "study": args.study, "quick": True,

@@ -49,12 +49,12 @@ def render(results: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def put_between_markers(path: Path, table: str) -> None:
+def put_between_markers(path: Path, table: str, start_marker: str = START, end_marker: str = END) -> None:
     text = path.read_text(encoding="utf-8")
-    start, end = text.find(START), text.find(END)
+    start, end = text.find(start_marker), text.find(end_marker)
     if start < 0 or end < start:
-        raise SystemExit(f"{path}: no {START} ... {END} markers to put the table between")
-    path.write_text(text[:start + len(START)] + "\n" + table + text[end:], encoding="utf-8")
+        raise SystemExit(f"{path}: no {start_marker} ... {end_marker} markers to put the table between")
+    path.write_text(text[:start + len(start_marker)] + "\n" + table + text[end:], encoding="utf-8")
     print(f"updated {path}")
 
 

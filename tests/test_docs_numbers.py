@@ -11,12 +11,23 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _vo_table():
-    spec = importlib.util.spec_from_file_location("vo_table", ROOT / "benchmarks" / "vo_table.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+def _script(name: str):
+    """A script of benchmarks/ as a module (its folder on the path, as when it runs)."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
     return module
+
+
+def _vo_table():
+    return _script("vo_table")
 
 
 @pytest.mark.parametrize("page", ["README.md", "docs/results.md"])
@@ -61,11 +72,7 @@ def test_every_stack_config_example_in_the_docs_is_valid() -> None:
 
 
 def _study_docs():
-    spec = importlib.util.spec_from_file_location("study_docs", ROOT / "benchmarks" / "study_docs.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return _script("study_docs")
 
 
 STUDY_RESULTS = sorted((ROOT / "docs" / "results" / "study").glob("*.json"))
@@ -95,3 +102,12 @@ def test_every_study_spec_in_the_docs_is_valid() -> None:
                 parse_spec(data, str(page))
                 checked += 1
     assert checked >= 1
+
+
+@pytest.mark.parametrize("page", ["README.md", "docs/study/index.md"])
+def test_the_scaling_shown_is_the_measured_one(page: str) -> None:
+    scaling = _script("study_scaling")
+    results = json.loads((ROOT / "docs" / "results" / "study_scaling.json").read_text(encoding="utf-8"))
+    text = (ROOT / page).read_text(encoding="utf-8")
+    section = text[text.index(scaling.START) + len(scaling.START):text.index(scaling.END)]
+    assert section.strip() == scaling.render(results).strip()
