@@ -24,6 +24,7 @@ from kartpilot.core.trajectory import Trajectory, read_trajectory, write_traject
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.eval.disparity import bad_pixel_rate, disparity_search_range_px, load_middlebury_pair
 from kartpilot.eval.plots import plot_trajectories
+from kartpilot.eval.steering import steer_agreement
 from kartpilot.eval.trajectory_metrics import evaluate_trajectory
 from kartpilot.odometry.mono_localizer import MonoLocalizer
 from kartpilot.odometry.mono_vo import MonoVO
@@ -49,8 +50,7 @@ from kartpilot.sim.referee import RunResult
 from kartpilot.sim.simulator import SimConfig
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
 
-__all__ = ["add_parsers", "demo", "disparity", "evaluate", "lanes", "odometry", "simulate",
-           "steer_agreement"]
+__all__ = ["add_parsers", "demo", "disparity", "evaluate", "lanes", "odometry", "simulate"]
 
 
 def _open_source(args: argparse.Namespace) -> StereoSource:
@@ -252,21 +252,16 @@ def lanes(args: argparse.Namespace) -> int:
     write_csv_atomic(args.out, LANE_COLUMNS, rows)
     print(f"{len(steers)} frames ({kind}) -> {args.out}")
     if kind == "donkeycar-tub":
-        angles = np.array([r.angle for r in DonkeyTub(args.input).records])
-        report = steer_agreement(-np.asarray(steers), angles)  # Donkey Car's angle is positive to the right
-        print(f"steer vs the human's user/angle: correlation {report['correlation']:.3f}, "
-              f"sign agreement {100 * report['sign_agreement']:.1f} % over {report['frames_compared']} frames "
-              f"where the human steered")
+        records = DonkeyTub(args.input).records
+        angles = np.array([r.angle for r in records])
+        steps_ms = np.diff([r.stamp_ms for r in records])
+        rate_hz = 1000.0 / float(np.median(steps_ms)) if len(steps_ms) and np.median(steps_ms) > 0 else 20.0
+        # Donkey Car's angle is positive to the right, kartpilot's steer to the left
+        report = steer_agreement(-np.asarray(steers), angles, rate_hz)
+        print(f"steer vs the human's user/angle smoothed over 0.5 s: correlation {report.correlation:.3f}, sign "
+              f"agreement {100 * report.sign_agreement:.1f} % over the {report.turning_frames} frames where the "
+              "human clearly turns (smoothed beyond 0.3)")
     return 0
-
-
-def steer_agreement(steer_right: np.ndarray, human_right: np.ndarray, deadband: float = 0.05) -> dict[str, float]:
-    """Pearson correlation over all frames; sign agreement where the human steered beyond the deadband."""
-    corr = float(np.corrcoef(steer_right, human_right)[0, 1]) if np.std(steer_right) > 0 else float("nan")
-    steered = np.abs(human_right) > deadband
-    agree = float(np.mean(np.sign(steer_right[steered]) == np.sign(human_right[steered]))) if steered.any() else float(
-        "nan")
-    return {"correlation": corr, "sign_agreement": agree, "frames_compared": int(steered.sum())}
 
 
 class _Overlay:
