@@ -47,3 +47,23 @@ def test_bad_input_is_refused_by_name():
     with pytest.raises(EvaluationError, match="positive rate"):
         smoothed_steer(np.zeros(3), 0.0)
     assert math.isnan(steer_agreement(np.zeros(5), np.zeros(5), 20.0).correlation)
+
+
+def test_lanes_on_a_tub_compares_with_the_smoothed_human_at_the_tub_s_rate(tmp_path, capsys):
+    import json
+
+    import cv2
+    from tests.sensors.test_donkeycar import write_tub
+
+    from kartpilot.cli.main import main
+
+    angles = [0.9 if (i // 2) % 3 == 0 else 0.0 for i in range(40)]  # pulses to the right, 20 Hz
+    lines = [json.dumps({"_index": i, "_timestamp_ms": 1000 + 50 * i, "cam/image_array": f"{i}.jpg",
+                         "user/angle": a}) for i, a in enumerate(angles)]
+    write_tub(tmp_path / "tub", lines)
+    for i in range(40):
+        cv2.imwrite(str(tmp_path / "tub" / "images" / f"{i}.jpg"), np.full((120, 160, 3), 40, np.uint8))
+    assert main(["lanes", str(tmp_path / "tub"), "--out", str(tmp_path / "lanes.csv")]) == 0
+    printed = capsys.readouterr().out
+    turning = int((np.abs(smoothed_steer(np.array(angles), 20.0)) > 0.3).sum())
+    assert 0 < turning < 40 and f"over the {turning} frames where the human clearly turns" in printed
