@@ -13,38 +13,24 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import replace
-
-import numpy as np
+from typing import Any
 
 from common import write_json
 from kartpilot.control.lane_follow import LaneFollowConfig
-from kartpilot.core.types import ActuatorCommand, FrameSet
-from kartpilot.runtime.lane_policy import LanePolicy, LanePolicyConfig
-from kartpilot.runtime.loop import run_loop
-from kartpilot.sim.simulator import SimConfig, Simulator
+from kartpilot.runtime.config import StackConfig
+from kartpilot.runtime.lane_policy import LanePolicyConfig
+from kartpilot.sim.simulator import SimConfig
+from kartpilot.study.jobs import lane_drive
 
 THESIS = LaneFollowConfig(heading_gain=1.0, offset_gain=0.0, smoothing=0.0, max_steer_rate_radps=100.0,
                           missing_side="extreme", both_sides="left_first")
 
 
-def drive(follow: LaneFollowConfig, seconds: float, rate_hz: float, mode_kmh: float) -> dict[str, float | str | bool]:
+def drive(follow: LaneFollowConfig, seconds: float, rate_hz: float, mode_kmh: float) -> dict[str, Any]:
     config = SimConfig(track="sdc-assen", vehicle="sdc-kart", speed_mode_mps=mode_kmh / 3.6,
                        camera_rate_hz=rate_hz, max_time_s=seconds)
-    steers: list[float] = []
-    with Simulator(config) as sim:
-        policy = LanePolicy(sim.cameras, replace(LanePolicyConfig(), follow=follow), rate_hz)
-
-        def step(frames: FrameSet) -> ActuatorCommand:
-            command = policy(frames)
-            steers.append(command.steer_rad)
-            return command
-
-        run_loop(sim, step, sim)
-        result = sim.result(1.0)
-    rate = np.diff(steers) * rate_hz
-    return {"disqualified": result.disqualified, "reason": result.reason, "distance_m": result.distance_m,
-            "mean_center_offset_m": result.mean_center_offset_m, "max_center_offset_m": result.max_center_offset_m,
-            "steer_rate_rms_radps": float(np.sqrt(np.mean(rate**2))) if len(rate) else 0.0}
+    stack = replace(StackConfig(), lane_policy=replace(LanePolicyConfig(), follow=follow))
+    return lane_drive(stack, config)  # the lanes study's job, in this process
 
 
 def main() -> int:
@@ -59,7 +45,7 @@ def main() -> int:
     print(f"sdc-assen, sdc-kart, {args.mode:g} km/h mode, {args.rate:g} Hz, up to {args.seconds:g} s")
     print(f"{'rules':<14}{'verdict':<44}{'metres':>8}{'mean off':>10}{'max off':>9}{'steer rate rms':>16}")
     for name, row in rows.items():
-        verdict = f"DQ: {row['reason']}" if row["disqualified"] else str(row["reason"])
+        verdict = f"DQ: {row['reason']}" if row["touched"] else str(row["reason"])
         print(f"{name:<14}{verdict:<44}{row['distance_m']:>8.1f}{row['mean_center_offset_m']:>10.2f}"
               f"{row['max_center_offset_m']:>9.2f}{row['steer_rate_rms_radps']:>16.3f}")
     write_json(args.out, rows)

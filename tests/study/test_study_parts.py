@@ -181,9 +181,10 @@ def test_a_wobbled_reference_moves_sideways_smoothly_by_its_sigma():
     from kartpilot.study.jobs import wobbled
 
     xy = np.column_stack([np.arange(0.0, 400.0, 0.05), np.zeros(8000)])
+    normals = np.tile([0.0, 1.0], (8000, 1))
     rng = np.random.default_rng(0)
-    assert wobbled(xy, 0.0, 1.0, rng) is xy
-    moved = wobbled(xy, 0.03, 1.0, rng)
+    assert wobbled(xy, normals, 0.0, 1.0, rng) is xy
+    moved = wobbled(xy, normals, 0.03, 1.0, rng)
     assert np.allclose(moved[:, 0], xy[:, 0])  # sideways only
     # sigma at the knots, a metre apart; linear in between, the spread along the path is sqrt(2/3) of it
     assert 0.7 * 0.03 < moved[:, 1].std() < 0.03

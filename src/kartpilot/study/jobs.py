@@ -60,7 +60,7 @@ from kartpilot.sim.simulator import SimConfig, Simulator
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
 from kartpilot.study.spec import REAL_SOURCES, Cell, JobParams, code_version, params_of, stack_of
 
-__all__ = ["DEPTH_EDGES_M", "GRID_COLS", "GRID_ROWS", "JOBS", "Job", "JobContext", "run_cell"]
+__all__ = ["DEPTH_EDGES_M", "GRID_COLS", "GRID_ROWS", "JOBS", "Job", "JobContext", "lane_drive", "run_cell", "wobbled"]
 
 GRID_ROWS, GRID_COLS = 4, 6
 """The image grid the final points are counted over (the thesis's bar graphs, its Fig. 11 and 12)."""
@@ -165,7 +165,7 @@ def point_distribution(diagnostics: list[VODiagnostics], size_wh: tuple[int, int
 def trajectory_row(run: VORun, truth: Trajectory | None) -> dict[str, Any]:
     row: dict[str, Any] = {"frames": len(run.trajectory), "bridged_frames": run.bridged_frames,
                            "lost": any(e.status == "lost" for e in run.estimates),
-                           "distance_m": float(np.linalg.norm(np.diff(run.trajectory.positions, axis=0), axis=1).sum()),
+                           "distance_m": run.trajectory.path_length_m,
                            "ms_per_frame": 1000.0 / run.frames_per_second if run.frames_per_second > 0 else math.nan}
     if truth is not None:
         metrics = evaluate_trajectory(truth, run.trajectory, rpe_deltas_m=(1.0,))
@@ -232,7 +232,8 @@ def two_view_job(cell: Cell, context: JobContext) -> dict[str, Any]:
             "drift_percent": metrics.end_drift_percent, "ms_per_frame": 1000.0 * _mean(seconds)}
 
 
-def _lane_drive(stack: StackConfig, config: SimConfig) -> dict[str, Any]:
+def lane_drive(stack: StackConfig, config: SimConfig) -> dict[str, Any]:
+    """The lane follower closed loop in the simulator: touches, distance, centre offset and steer rate."""
     cv2.setNumThreads(1)
     steers: list[float] = []
     with Simulator(config) as sim:
@@ -256,20 +257,18 @@ def lanes_job(cell: Cell, context: JobContext) -> dict[str, Any]:
     """The lane follower closed loop in the simulator (the sdc-kart's three cameras; ``sim.speed_mode_mps``
     is the speed mode): touches, centre offset, steer rate."""
     stack, params = stack_of(cell), params_of(cell)
-    return _in_child(_lane_drive, stack, _sim_config(stack, cell, params, ()))
+    return _in_child(lane_drive, stack, _sim_config(stack, cell, params, ()))
 
 
-def wobbled(xy: np.ndarray, sigma_m: float, spacing_m: float, rng: np.random.Generator) -> np.ndarray:
-    """``xy`` moved sideways by a smooth random offset (a value of standard deviation ``sigma_m`` every
-    ``spacing_m``, linear in between): the error of a reference taught with visual odometry."""
+def wobbled(xy: np.ndarray, normals: np.ndarray, sigma_m: float, spacing_m: float, rng: np.random.Generator
+            ) -> np.ndarray:
+    """``xy`` moved along its unit ``normals`` by a smooth random offset (a value of standard deviation
+    ``sigma_m`` every ``spacing_m``, linear in between): the error of a reference taught with visual odometry."""
     if sigma_m <= 0:
         return xy
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
     knots = np.arange(0.0, s[-1] + spacing_m, spacing_m)
-    offset = np.interp(s, knots, rng.normal(0.0, sigma_m, len(knots)))
-    tangent = np.gradient(xy, axis=0)
-    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
-    return xy + offset[:, None] * np.column_stack([-tangent[:, 1], tangent[:, 0]])
+    return xy + np.interp(s, knots, rng.normal(0.0, sigma_m, len(knots)))[:, None] * normals
 
 
 def path_follow_job(cell: Cell, context: JobContext) -> dict[str, Any]:
@@ -282,9 +281,11 @@ def path_follow_job(cell: Cell, context: JobContext) -> dict[str, Any]:
     follow = stack.drive.follow
     rng = np.random.default_rng(cell.seed)
     with Simulator(config) as sim:
-        xy = np.roll(sim.track.route.xy_m, -sim.track.start_index, axis=0)
+        route, start = sim.track.route, sim.track.start_index
+        xy = np.roll(route.xy_m, -start, axis=0)
         truth = build_reference_path(xy, stack.drive.path)
-        path = build_reference_path(wobbled(xy, params.path_noise_m, 1.0, rng), stack.drive.path)
+        path = build_reference_path(wobbled(xy, np.roll(route.normal(), -start, axis=0), params.path_noise_m, 1.0,
+                                            rng), stack.drive.path)
         state = PathFollowState.start(follow)
         cross, steers, done, late, index = [], [], False, [], 0
         while not sim.done and not done:

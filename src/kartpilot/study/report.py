@@ -324,7 +324,7 @@ def _setting(row: Row) -> str:
 
 def _lanes(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]]:
     ok = _ok(rows)
-    _generic(rows, figures, "mean_center_offset_m")
+    sections = [_bar_figure(rows, figures, "mean_center_offset_m", "Centre offset"), _every_metric(rows)]
     answer = []
     for setting in dict.fromkeys(_setting(r) for r in ok):
         members = [r for r in ok if _setting(r) == setting]
@@ -337,13 +337,12 @@ def _lanes(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]]:
                          f"average, steer rate RMS {estimate(_value(r, 'steer_rate_rms_radps') for r in runs).text(3)}"
                          " rad/s")
         answer.append((f"With {setting}: " if setting else "") + "; ".join(parts))
-    sections = ["![Centre offset](figures/mean_center_offset_m.png)", _every_metric(rows)]
     return sections, {"lanes": ". ".join(answer) + "."}
 
 
 def _controllers(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]]:
     ok = _ok(rows)
-    _generic(rows, figures, "max_offset_m")
+    sections = [_bar_figure(rows, figures, "max_offset_m", "Largest offset"), _every_metric(rows)]
     variants = list(dict.fromkeys(r["variant"] for r in ok))
     safe = [v for v in variants if all(r.get("success") for r in ok if r["variant"] == v)]
     offset = _means(ok, "max_offset_m")
@@ -358,7 +357,7 @@ def _controllers(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, s
         thesis = next((v for v in variants if "k_heading=0.5" in v and "k_cross_track=1.2" in v), None)
         if thesis:
             answer += f"; the thesis's gains: {offset[thesis].text(3)} m, {rate[thesis].text(3)} rad/s"
-    return ["![Largest offset](figures/max_offset_m.png)", _every_metric(rows)], {"controllers": answer + "."}
+    return sections, {"controllers": answer + "."}
 
 
 # --- any study ----------------------------------------------------------------------------------------------
@@ -376,22 +375,23 @@ def _every_metric(rows: list[Row]) -> str:
     return _table(ok, [(k, k.replace("_", " "), 3) for k in _numeric(ok)])
 
 
-def _generic(rows: list[Row], figures: Path, metric: str = "") -> tuple[list[str], dict[str, str]]:
-    """A table of every metric, and a bar chart of ``metric`` (the first numeric one by default)."""
+def _bar_figure(rows: list[Row], figures: Path, metric: str, label: str = "") -> str:
+    """A bar chart of ``metric`` per variant (means and intervals over every run); its Markdown line."""
     ok = _ok(rows)
-    numeric = _numeric(ok)
-    sections = [_every_metric(rows)]
-    if metric or numeric:
-        metric = metric or numeric[0]
-        variants = list(dict.fromkeys(r["variant"] for r in ok))
-        values = [estimate(_value(r, metric) for r in ok if r["variant"] == v) for v in variants]
-        fig, ax = plt.subplots(figsize=(8, 0.35 * len(variants) + 1.2))
-        ax.barh(variants[::-1], [v.mean for v in values][::-1],
-                xerr=[0 if math.isnan(v.half_width) else v.half_width for v in values][::-1])
-        ax.set(xlabel=metric.replace("_", " "))
-        _save(fig, figures / f"{metric}.png")
-        sections.insert(0, f"![{metric}](figures/{metric}.png)")
-    return sections, {}
+    values = _means(ok, metric)
+    variants = list(values)[::-1]
+    fig, ax = plt.subplots(figsize=(8, 0.35 * len(variants) + 1.2))
+    ax.barh(variants, [values[v].mean for v in variants],
+            xerr=[0 if math.isnan(values[v].half_width) else values[v].half_width for v in variants])
+    ax.set(xlabel=metric.replace("_", " "))
+    _save(fig, figures / f"{metric}.png")
+    return f"![{label or metric}](figures/{metric}.png)"
+
+
+def _generic(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]]:
+    """A table of every metric, and a bar chart of the first numeric one."""
+    numeric = _numeric(_ok(rows))
+    return ([_bar_figure(rows, figures, numeric[0])] if numeric else []) + [_every_metric(rows)], {}
 
 
 REPORTS: dict[str, Callable[[list[Row], Path], tuple[list[str], dict[str, str]]]] = {

@@ -15,7 +15,7 @@ import logging
 import os
 import time
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -95,7 +95,7 @@ class CellRunner:
         self.version = code_version()
         self.computed = self.cached = 0
         self.cluster_cpus = 0.0
-        self._session: Any = None
+        self._session = ExitStack()
         self._ray: Any = None
         (out / "cells").mkdir(parents=True, exist_ok=True)
 
@@ -106,15 +106,13 @@ class CellRunner:
         self.close()
 
     def close(self) -> None:
-        if self._session is not None:
-            self._session.__exit__(None, None, None)
-            self._session = self._ray = None
+        self._session.close()
+        self._ray = None
 
     def start(self) -> float:
         """Start (or join) Ray now; returns the cluster's CPUs."""
         if self._ray is None:
-            self._session = _ray(self.address, self.cpus)
-            self._ray = self._session.__enter__()
+            self._ray = self._session.enter_context(_ray(self.address, self.cpus))
             self.cluster_cpus = float(self._ray.cluster_resources().get("CPU", 1.0))
         return self.cluster_cpus
 

@@ -29,11 +29,12 @@ two spellings of the same configuration share one cached result.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import itertools
 import json
-from collections.abc import Mapping
-from dataclasses import dataclass, field, fields, replace
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -43,8 +44,8 @@ from kartpilot.core.config import config_to_dict, load_yaml_mapping, merge_confi
 from kartpilot.core.errors import ConfigError
 from kartpilot.runtime.config import StackConfig
 
-__all__ = ["BUILT_IN", "Cell", "JobParams", "Part", "StudySpec", "Variant", "code_version", "expand_cells",
-           "load_spec", "nested_override"]
+__all__ = ["BUILT_IN", "Cell", "JobParams", "Part", "StudySpec", "Variant", "code_version", "dotted_overrides",
+           "expand_cells", "load_spec", "nested_override", "part_cells"]
 
 BUILT_IN = ("features", "filters", "detectors", "robustness", "lanes", "controllers")
 
@@ -162,6 +163,14 @@ def _deep_merge(a: Mapping[str, Any], b: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+def dotted_overrides(values: Mapping[str, Any], base: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """``{"a.b": 1, "a.c": 2}`` -> ``{"a": {"b": 1, "c": 2}}``, merged over ``base``."""
+    out = dict(base or {})
+    for key, value in values.items():
+        out = _deep_merge(out, nested_override(key, value))
+    return out
+
+
 def _strings(value: Any, where: str) -> tuple[str, ...]:
     if isinstance(value, str):
         value = [value]
@@ -209,9 +218,7 @@ def _variants(data: Mapping[str, Any], where: str) -> tuple[Variant, ...]:
     out = []
     for variant in listed:
         for combo in itertools.product(*sweep.values()):
-            overrides = dict(variant.overrides)
-            for key, value in zip(sweep, combo, strict=True):
-                overrides = _deep_merge(overrides, nested_override(key, value))
+            overrides = dotted_overrides(dict(zip(sweep, combo, strict=True)), variant.overrides)
             label = ", ".join(f"{key.split('.')[-1]}={value}" for key, value in zip(sweep, combo, strict=True))
             name = label if variant.name == "defaults" and len(listed) == 1 else f"{variant.name}, {label}"
             out.append(Variant(name, overrides, variant.group or ", ".join(k.split(".")[-1] for k in sweep)))
@@ -272,9 +279,11 @@ def load_spec(name_or_path: str | Path) -> StudySpec:
     return parse_spec(load_yaml_mapping(path), str(path))
 
 
+@functools.cache
 def code_version() -> str:
     """The package version and a hash of its source files (the study specs aside: a cell's key holds all of
-    its configuration), so a row computed by other code is not reused."""
+    its configuration), so a row computed by other code is not reused. Hashed once per process: the code a
+    process runs is the code it imported."""
     root = Path(kartpilot.__file__).parent
     digest = hashlib.sha256()
     for path in sorted(root.rglob("*")):
@@ -295,6 +304,18 @@ def cell_key(job: str, source: str, seed: int, params: Mapping[str, Any], stack:
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
+def part_cells(study: str, part: Part, variant: Variant, sources: Sequence[str], seeds: Sequence[int],
+               quick: bool) -> list[Cell]:
+    """The cells of one variant of ``part`` over ``sources`` × ``seeds`` (a real dataset: one cell, seed 0)."""
+    plain_params = config_to_dict(part.quick_params if quick else part.params)
+    stack = merge_config(merge_config(StackConfig(), part.base, "base"), variant.overrides,
+                         f"{part.name}/{variant.name}")
+    plain = config_to_dict(stack)
+    return [Cell(study, part.name, part.job, variant.name, variant.group, source, seed, plain_params, plain,
+                 cell_key(part.job, source, seed, plain_params, plain))
+            for source in sources for seed in ((0,) if source in REAL_SOURCES else seeds)]
+
+
 def expand_cells(spec: StudySpec, quick: bool) -> list[Cell]:
     """Every cell of the study, in a stable order (variants, then sources, then seeds). Cells of equal
     configuration share a key, and are computed once."""
@@ -302,18 +323,9 @@ def expand_cells(spec: StudySpec, quick: bool) -> list[Cell]:
     for part in spec.parts:
         if quick and not part.in_quick:
             continue
-        params = part.quick_params if quick else part.params
-        plain_params = {f.name: getattr(params, f.name) for f in fields(params)}
+        sources, seeds = (part.quick_sources, part.quick_seeds) if quick else (part.sources, part.seeds)
         for variant in part.variants:
-            where = f"{part.name}/{variant.name}"
-            stack = merge_config(merge_config(StackConfig(), part.base, "base"), variant.overrides, where)
-            plain = config_to_dict(stack)
-            for source in (part.quick_sources if quick else part.sources):
-                seeds = (0,) if source in REAL_SOURCES else (part.quick_seeds if quick else part.seeds)
-                for seed in seeds:
-                    key = cell_key(part.job, source, seed, plain_params, plain)
-                    cells.append(Cell(spec.name, part.name, part.job, variant.name, variant.group, source, seed,
-                                      plain_params, plain, key))
+            cells += part_cells(spec.name, part, variant, sources, seeds, quick)
     return cells
 
 

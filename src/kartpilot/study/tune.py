@@ -25,19 +25,19 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from kartpilot.core.config import config_to_dict, merge_config
+from kartpilot.core.config import merge_config
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.files import write_json_atomic, write_text_atomic
 from kartpilot.runtime.config import StackConfig
 from kartpilot.study.report import estimate
 from kartpilot.study.run import CellRunner, study_context
-from kartpilot.study.spec import Cell, Part, StudySpec, cell_key, nested_override
+from kartpilot.study.spec import Cell, Part, StudySpec, Variant, dotted_overrides, nested_override, part_cells
 
 __all__ = ["TuneResult", "TuneSpec", "parse_tune", "tune_page", "tune_study"]
 
@@ -114,44 +114,30 @@ def parse_tune(spec: StudySpec) -> TuneSpec:
                     held_sources, held_seeds, trials, int(quick.get("trials", max(4, trials // 4))))
 
 
-def _overrides(params: Mapping[str, float]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in params.items():
-        node = out
-        *path, last = key.split(".")
-        for part in path:
-            node = node.setdefault(part, {})
-        node[last] = value
-    return out
-
-
 def _cells(study: str, tune: TuneSpec, variant: str, params: Mapping[str, float], sources: Sequence[str],
            seeds: Sequence[int], quick: bool) -> list[Cell]:
-    job_params = tune.part.quick_params if quick else tune.part.params
-    plain_params = {f.name: getattr(job_params, f.name) for f in fields(job_params)}
-    stack = merge_config(merge_config(StackConfig(), tune.part.base, "base"), _overrides(params), "tune")
-    plain = config_to_dict(stack)
-    return [Cell(study, "tune", tune.part.job, variant, "tune", source, seed, plain_params, plain,
-                 cell_key(tune.part.job, source, seed, plain_params, plain))
-            for source in sources for seed in seeds]
+    return part_cells(study, tune.part, Variant(variant, dotted_overrides(params), "tune"), sources, seeds, quick)
+
+
+def _failed(row: Mapping[str, Any]) -> bool:
+    """A run that failed: the cell itself, or the drive (off the track, a touch)."""
+    return row.get("status") != "ok" or row.get("success") is False or row.get("touched") is True
 
 
 def objective(rows: Sequence[Mapping[str, Any]], tune: TuneSpec) -> float:
     """The weighted metrics' mean over the cells, plus the penalty for each run that failed."""
     total = 0.0
     for row in rows:
-        failed = row.get("status") != "ok" or row.get("success") is False or row.get("touched") is True
         for metric, weight in tune.minimize.items():
             value = row.get(metric)
             total += weight * (float(value) if isinstance(value, (int, float)) and math.isfinite(value) else 0.0)
-        total += tune.failure_penalty * failed
+        total += tune.failure_penalty * _failed(row)
     return total / max(len(rows), 1)
 
 
 def _summary(rows: Sequence[Mapping[str, Any]], tune: TuneSpec) -> dict[str, float]:
     out = {"objective": objective(rows, tune), "runs": float(len(rows)),
-           "failed_runs": float(sum(1 for r in rows if r.get("status") != "ok" or r.get("success") is False
-                                    or r.get("touched") is True))}
+           "failed_runs": float(sum(map(_failed, rows)))}
     for metric in tune.minimize:
         values = [float(r[metric]) for r in rows if isinstance(r.get(metric), (int, float))]
         out[metric] = sum(values) / len(values) if values else math.nan
@@ -222,7 +208,7 @@ def _write(out: Path, spec: StudySpec, tune: TuneSpec, result: TuneResult, histo
             "held_out_results": result.held_out, "trials": history, "wall_s": result.wall_s}
     write_json_atomic(out / "tune.json", data)
     write_text_atomic(out / "best.yaml", "# kartpilot study tune: the best trial, for --config\n"
-                      + yaml.safe_dump(_overrides(result.best_params), sort_keys=True))
+                      + yaml.safe_dump(dotted_overrides(result.best_params), sort_keys=True))
     write_text_atomic(out / "tune.md", tune_page(data))
 
 
