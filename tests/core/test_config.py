@@ -73,14 +73,16 @@ def test_one_lane_config_with_named_presets(tmp_path) -> None:
     from kartpilot.perception.lanes import LaneConfig
     from kartpilot.runtime.lane_policy import LANE_PRESETS
 
-    assert load_stack_config(None).lane_policy.lanes == LANE_PRESETS["kart"] != LaneConfig()
+    assert load_stack_config(None).lane_policy.lanes == LANE_PRESETS["kart"].lanes != LaneConfig()
     assert load_stack_config(None, "dashcam").lane_policy.lanes == LaneConfig()
     path = tmp_path / "lanes.yaml"
     path.write_text("lane_policy:\n  lanes: {paint: dark}\n")
     dark = load_stack_config(path, "dashcam").lane_policy.lanes
     assert dark.paint == "dark" and dark.roi_top_width == LaneConfig().roi_top_width
-    with pytest.raises(ConfigError, match="unknown lane preset 'tape'"):
-        load_stack_config(None, "tape")
+    tape = load_stack_config(None, "tape").lane_policy
+    assert tape.boundaries == "tape" and tape.follow == LANE_PRESETS["kart"].follow
+    with pytest.raises(ConfigError, match="unknown lane preset 'paint'"):
+        load_stack_config(None, "paint")
     path.write_text("lane_detection: {paint: dark}\n")  # the old second section is gone: a clear error
     with pytest.raises(ConfigError, match="lane_detection"):
         load_stack_config(path)

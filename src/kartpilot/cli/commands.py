@@ -16,7 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from kartpilot.cli.values import file_or_new_folder, new_folder, number, output_file
-from kartpilot.control.lane_follow import LaneFollowState, lane_follow_step
+from kartpilot.control.lane_follow import LaneFollowState, heading_follow_step, lane_follow_step
 from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import write_csv_atomic, write_text_atomic
 from kartpilot.core.geometry import mount_pose
@@ -34,6 +34,7 @@ from kartpilot.odometry.stereo_vo import StereoVO
 from kartpilot.odometry.vo import VisualOdometry
 from kartpilot.perception.lanes import LaneStages, detect_lanes, draw_lanes
 from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
+from kartpilot.perception.tape import detect_tape_track, draw_tape_track
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
 from kartpilot.record.video import VideoFile
@@ -218,14 +219,18 @@ def simulate(args: argparse.Namespace) -> int:
 
 LANE_COLUMNS = ("frame", "left_x1", "left_y1", "left_x2", "left_y2", "right_x1", "right_y1", "right_x2", "right_y2",
                 "left_source", "right_source", "steer", "confidence")
+TAPE_COLUMNS = ("frame", "target_bearing_rad", "target_x_m", "target_z_m", "steer", "confidence")
 
 
 def lanes(args: argparse.Namespace) -> int:
-    """Lane boundaries per frame to CSV (steer in radians, positive left), with optional overlays; on a
-    Donkey Car tub, the agreement of the steer with the human driver's."""
+    """Lane boundaries (or, on a taped track, the target on the track) per frame to CSV (steer in radians,
+    positive left), with optional overlays; on a Donkey Car tub, the agreement of the steer with the human
+    driver's, at the tub's own rate."""
     stack = load_stack_config(args.config, args.preset)
+    policy = stack.lane_policy
     kind, frames = open_frames(args.input)
-    follow = stack.lane_policy.follow
+    tub = DonkeyTub(args.input) if kind == "donkeycar-tub" else None
+    rate_hz = _tub_rate_hz(tub) if tub is not None else 30.0
     state = LaneFollowState()
     overlay = _Overlay(args.overlay) if args.overlay else None
     steers: list[float] = []
@@ -233,35 +238,48 @@ def lanes(args: argparse.Namespace) -> int:
     try:
         for frame_set in frames:
             image = frame_set.images["center"]
-            stages = LaneStages() if args.stages else None
-            observation = detect_lanes(image, stack.lane_policy.lanes, stages)
-            decision, state = lane_follow_step(follow, state, observation)
-            steers.append(decision.steer_rad)
             row: list[object] = [frame_set.index]
-            for line, source in ((observation.left, observation.left_source),
-                                 (observation.right, observation.right_source)):
-                row += [f"{v:.1f}" for v in line.as_tuple()] if source == "detected" else ["", "", "", ""]
-            row += [observation.left_source, observation.right_source, f"{decision.steer_rad:.5f}",
-                    f"{observation.confidence:.3f}"]
+            if policy.boundaries == "tape":
+                tape = detect_tape_track(image, policy.tape)
+                decision, state = heading_follow_step(policy.follow, state,
+                                                      tape.bearing_rad if tape.any_detected else None, 1 / rate_hz)
+                row += [f"{tape.bearing_rad:.5f}", f"{tape.target_m[0]:.4f}", f"{tape.target_m[1]:.4f}"
+                        ] if tape.any_detected else ["", "", ""]
+                row += [f"{decision.steer_rad:.5f}", f"{tape.confidence:.3f}"]
+                drawn = draw_tape_track(image, tape, decision.steer_rad) if overlay is not None else None
+            else:
+                stages = LaneStages() if args.stages else None
+                observation = detect_lanes(image, policy.lanes, stages)
+                decision, state = lane_follow_step(policy.follow, state, observation, dt_s=1 / rate_hz)
+                for line, source in ((observation.left, observation.left_source),
+                                     (observation.right, observation.right_source)):
+                    row += [f"{v:.1f}" for v in line.as_tuple()] if source == "detected" else ["", "", "", ""]
+                row += [observation.left_source, observation.right_source, f"{decision.steer_rad:.5f}",
+                        f"{observation.confidence:.3f}"]
+                drawn = draw_lanes(image, observation, decision.steer_rad, stages) if overlay is not None else None
+            steers.append(decision.steer_rad)
             rows.append(row)
-            if overlay is not None:
-                overlay.write(frame_set.index, draw_lanes(image, observation, decision.steer_rad, stages))
+            if overlay is not None and drawn is not None:
+                overlay.write(frame_set.index, drawn)
     finally:
         if overlay is not None:
             overlay.close()
-    write_csv_atomic(args.out, LANE_COLUMNS, rows)
+    write_csv_atomic(args.out, TAPE_COLUMNS if policy.boundaries == "tape" else LANE_COLUMNS, rows)
     print(f"{len(steers)} frames ({kind}) -> {args.out}")
-    if kind == "donkeycar-tub":
-        records = DonkeyTub(args.input).records
-        angles = np.array([r.angle for r in records])
-        steps_ms = np.diff([r.stamp_ms for r in records])
-        rate_hz = 1000.0 / float(np.median(steps_ms)) if len(steps_ms) and np.median(steps_ms) > 0 else 20.0
+    if tub is not None:
+        angles = np.array([r.angle for r in tub.records])
         # Donkey Car's angle is positive to the right, kartpilot's steer to the left
         report = steer_agreement(-np.asarray(steers), angles, rate_hz)
         print(f"steer vs the human's user/angle smoothed over 0.5 s: correlation {report.correlation:.3f}, sign "
               f"agreement {100 * report.sign_agreement:.1f} % over the {report.turning_frames} frames where the "
               "human clearly turns (smoothed beyond 0.3)")
     return 0
+
+
+def _tub_rate_hz(tub: DonkeyTub) -> float:
+    """The tub's frame rate from its time stamps' median step (20 Hz, Donkey Car's default, if they say nothing)."""
+    steps_ms = np.diff([r.stamp_ms for r in tub.records])
+    return 1000.0 / float(np.median(steps_ms)) if len(steps_ms) and np.median(steps_ms) > 0 else 20.0
 
 
 class _Overlay:
@@ -433,8 +451,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                               help="write the frames with the lanes drawn: a .mp4 file or a folder")
     lanes_parser.add_argument("--stages", action="store_true", help="draw the raw and clustered lines too")
     lanes_parser.add_argument("--preset", choices=tuple(LANE_PRESETS), default="kart",
-                              help="the detector's settings: kart (a camera close to the ground, the lane pipeline's "
-                                   "own) or dashcam (a car's dash camera)")
+                              help="the kind of track and camera: kart (road lines, a camera close to the ground, the "
+                                   "lane pipeline's own), dashcam (road lines, a car's dash camera) or tape (a small "
+                                   "car's wide-angle camera on a taped track)")
     lanes_parser.add_argument("--config", help="YAML file merged over the preset (section lane_policy: lanes, "
                                                "follow)")
     lanes_parser.set_defaults(handler=lanes)

@@ -319,7 +319,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     rep.add_argument("--vehicle", help="the kart (wheelbase, steering range; default: the one the recording was made "
                                        "on)")
     rep.add_argument("--preset", choices=tuple(LANE_PRESETS), default="kart",
-                     help="lanes: the detector's settings (kart: a camera close to the ground; dashcam: a car's)")
+                     help="lanes: the kind of track and camera (kart: road lines, a camera close to the ground; "
+                          "dashcam: a car's; tape: a small car's wide-angle camera on a taped track)")
     rep.add_argument("--config", help="YAML file merged over the defaults")
     rep.set_defaults(handler=replay)
 

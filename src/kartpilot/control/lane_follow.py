@@ -12,12 +12,13 @@ rule for both side cameras at once that steers away from the nearer boundary.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 from typing import Literal
 
 from kartpilot.perception.lanes import LaneLine, LaneObservation, heading_deviation_rad, intersection
 
-__all__ = ["LaneDecision", "LaneFollowConfig", "LaneFollowState", "lane_follow_step"]
+__all__ = ["LaneDecision", "LaneFollowConfig", "LaneFollowState", "heading_follow_step", "lane_follow_step"]
 
 
 @dataclass(frozen=True)
@@ -82,29 +83,18 @@ def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: L
         centre: the centre camera's observation (None when the camera delivered nothing).
         away_from_left, away_from_right: the side cameras' steers away from a boundary, 0 to 1.
     """
-    max_step = config.max_steer_rate_radps * dt_s
-
-    def limited(target: float) -> float:
-        target = max(-config.max_steer_rad, min(config.max_steer_rad, target))
-        return state.steer_rad + max(-max_step, min(max_step, target - state.steer_rad))
-
     if away_from_left > 0 or away_from_right > 0:
         if away_from_left > 0 and away_from_right > 0:
             use_left = config.both_sides == "left_first" or away_from_left >= away_from_right
         else:
             use_left = away_from_left > 0
         steer = -away_from_left * config.max_steer_rad if use_left else away_from_right * config.max_steer_rad
-        steer = limited(steer)
+        steer = _rate_limited(config, state, steer, dt_s)
         decision = LaneDecision(steer, config.throttle_turn, 0.0, "side-left" if use_left else "side-right")
         return decision, LaneFollowState(steer, 0, state.lane_width_bottom_px, state.lane_width_top_px)
 
     if centre is None or not centre.any_detected:
-        missing = state.frames_without_lane + 1
-        if missing <= config.hold_frames:
-            hold = LaneDecision(state.steer_rad, config.throttle_turn, 0.0, "hold")
-            return hold, LaneFollowState(state.steer_rad, missing, state.lane_width_bottom_px, state.lane_width_top_px)
-        return LaneDecision(state.steer_rad, 0.0, 1.0, "halt"), LaneFollowState(
-            state.steer_rad, missing, state.lane_width_bottom_px, state.lane_width_top_px)
+        return _nothing_seen(config, state)
 
     width_b, width_t = state.lane_width_bottom_px, state.lane_width_top_px
     reason: Literal["centre", "split"] = "centre"
@@ -129,11 +119,44 @@ def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: L
         lane_centre = (left.x_bottom + right.x_bottom) / 2
         lane_width = max(right.x_bottom - left.x_bottom, 1.0)
         steer_right += config.offset_gain * (lane_centre - (centre.width_px - 1) / 2) / lane_width
-    target_steer = -steer_right
-    smoothed = config.smoothing * state.steer_rad + (1 - config.smoothing) * target_steer
-    steer = limited(smoothed)
-    throttle = config.throttle_turn if abs(steer) > config.turn_threshold_rad else config.throttle_straight
-    return LaneDecision(steer, throttle, 0.0, reason), LaneFollowState(steer, 0, width_b, width_t)
+    steer = _smoothed(config, state, -steer_right, dt_s)
+    return LaneDecision(steer, _throttle(config, steer), 0.0, reason), LaneFollowState(steer, 0, width_b, width_t)
+
+
+def heading_follow_step(config: LaneFollowConfig, state: LaneFollowState, deviation_rad: float | None,
+                        dt_s: float = 1 / 30) -> tuple[LaneDecision, LaneFollowState]:
+    """One control step toward a target bearing (positive to the right) found by other means than two lines,
+    such as a taped track's centre (:func:`kartpilot.perception.tape.detect_tape_track`): the heading term
+    alone, with the same smoothing, rate limit, turn throttle and hold-then-halt as :func:`lane_follow_step`.
+    ``None``: nothing was seen."""
+    if deviation_rad is None or not math.isfinite(deviation_rad):
+        return _nothing_seen(config, state)
+    steer = _smoothed(config, state, -config.heading_gain * deviation_rad, dt_s)
+    return LaneDecision(steer, _throttle(config, steer), 0.0, "centre"), replace(state, steer_rad=steer,
+                                                                                 frames_without_lane=0)
+
+
+def _rate_limited(config: LaneFollowConfig, state: LaneFollowState, target: float, dt_s: float) -> float:
+    max_step = config.max_steer_rate_radps * dt_s
+    target = max(-config.max_steer_rad, min(config.max_steer_rad, target))
+    return state.steer_rad + max(-max_step, min(max_step, target - state.steer_rad))
+
+
+def _smoothed(config: LaneFollowConfig, state: LaneFollowState, target: float, dt_s: float) -> float:
+    return _rate_limited(config, state, config.smoothing * state.steer_rad + (1 - config.smoothing) * target, dt_s)
+
+
+def _throttle(config: LaneFollowConfig, steer: float) -> float:
+    return config.throttle_turn if abs(steer) > config.turn_threshold_rad else config.throttle_straight
+
+
+def _nothing_seen(config: LaneFollowConfig, state: LaneFollowState) -> tuple[LaneDecision, LaneFollowState]:
+    """The last steer for ``hold_frames``, then a halt with full brake."""
+    missing = state.frames_without_lane + 1
+    if missing <= config.hold_frames:
+        return LaneDecision(state.steer_rad, config.throttle_turn, 0.0, "hold"), replace(
+            state, frames_without_lane=missing)
+    return LaneDecision(state.steer_rad, 0.0, 1.0, "halt"), replace(state, frames_without_lane=missing)
 
 
 def _keep_one_side(side: str, left: LaneLine, right: LaneLine, width_b: float, width_t: float

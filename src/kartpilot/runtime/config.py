@@ -62,11 +62,11 @@ class StackConfig:
 
 
 def load_stack_config(path: str | Path | None, lane_preset: str | None = None) -> StackConfig:
-    """Defaults, with the lane detector's preset (``LANE_PRESETS``: ``kart``, the default, or ``dashcam``)
-    and then the YAML file at ``path`` merged over them when given."""
+    """Defaults, with the lane pipeline's preset for the kind of track (``LANE_PRESETS``: ``kart``, the
+    default, ``dashcam`` or ``tape``) and then the YAML file at ``path`` merged over them when given."""
     base = StackConfig()
     if lane_preset is not None:
         if lane_preset not in LANE_PRESETS:
             raise ConfigError(f"unknown lane preset {lane_preset!r} ({', '.join(LANE_PRESETS)})")
-        base = replace(base, lane_policy=replace(base.lane_policy, lanes=LANE_PRESETS[lane_preset]))
+        base = replace(base, lane_policy=LANE_PRESETS[lane_preset])
     return base if path is None else merge_config(base, load_yaml_mapping(path))

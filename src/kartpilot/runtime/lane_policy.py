@@ -14,10 +14,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import Literal
 
 import numpy as np
 
-from kartpilot.control.lane_follow import LaneDecision, LaneFollowConfig, LaneFollowState, lane_follow_step
+from kartpilot.control.lane_follow import (
+    LaneDecision,
+    LaneFollowConfig,
+    LaneFollowState,
+    heading_follow_step,
+    lane_follow_step,
+)
 from kartpilot.control.longitudinal import SpeedPIConfig, SpeedPIState, speed_pi
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import CalibrationError, ConfigError
@@ -31,21 +38,20 @@ from kartpilot.perception.lanes import (
     detect_side_boundary,
     draw_lanes,
 )
+from kartpilot.perception.tape import TapeConfig, TapeObservation, detect_tape_track, draw_tape_track
 
 __all__ = ["LANE_PRESETS", "LanePolicy", "LanePolicyConfig", "side_search_band"]
 
-LANE_PRESETS: dict[str, LaneConfig] = {
-    # a kart's camera sees a wide road from close to the ground: the boundaries run out to the image's
-    # sides at shallow slopes, so the region is a full-width band and shallow lines are kept
-    "kart": LaneConfig(roi_top_width=1.0, min_abs_slope=0.1),
-    # a car's dash camera, higher up and looking further: a trapezoid narrowing to the vanishing point
-    "dashcam": LaneConfig(),
-}
+_KART_LINES = LaneConfig(roi_top_width=1.0, min_abs_slope=0.1)
 
 
 @dataclass(frozen=True)
 class LanePolicyConfig:
     """Attributes:
+        boundaries: what marks the track: ``lines`` (painted road lines, :mod:`kartpilot.perception.lanes`)
+            or ``tape`` (a small-scale taped track seen through a wide-angle lens,
+            :mod:`kartpilot.perception.tape`).
+        lanes, tape: the two detectors' settings.
         near_m, far_m: the side cameras' region of search, as distances from the kart's side.
         kart_half_width_m: half the kart's width (where "beside the kart" starts).
         roi_far_m: the centre camera's region of interest starts at the row where the ground this far
@@ -55,7 +61,9 @@ class LanePolicyConfig:
         speed_pi: the speed controller's gains.
     """
 
-    lanes: LaneConfig = field(default_factory=lambda: LANE_PRESETS["kart"])
+    boundaries: Literal["lines", "tape"] = "lines"
+    lanes: LaneConfig = field(default_factory=lambda: _KART_LINES)
+    tape: TapeConfig = field(default_factory=TapeConfig)
     side: SideSearchConfig = field(default_factory=SideSearchConfig)
     follow: LaneFollowConfig = field(default_factory=LaneFollowConfig)
     near_m: float = 0.15
@@ -68,6 +76,17 @@ class LanePolicyConfig:
     def __post_init__(self) -> None:
         if not self.speed_mps >= 0:
             raise ConfigError("lane_policy.speed_mps must be 0 (open loop) or positive")
+
+
+LANE_PRESETS: dict[str, LanePolicyConfig] = {
+    # a kart's camera sees a wide road from close to the ground: the boundaries run out to the image's
+    # sides at shallow slopes, so the region is a full-width band and shallow lines are kept
+    "kart": LanePolicyConfig(),
+    # a car's dash camera, higher up and looking further: a trapezoid narrowing to the vanishing point
+    "dashcam": LanePolicyConfig(lanes=LaneConfig()),
+    # a small car on a taped indoor track, through a wide-angle lens (a Donkey Car or a PiRacer)
+    "tape": LanePolicyConfig(boundaries="tape"),
+}
 
 
 def side_search_band(camera: PinholeCamera, side: str, near_m: float, far_m: float, half_width_m: float
@@ -118,6 +137,7 @@ class LanePolicy:
         self.state = LaneFollowState()
         self.dt_s = 1.0 / rate_hz
         self.last_observation: LaneObservation | None = None
+        self.last_tape: TapeObservation | None = None
         self.last_decision: LaneDecision | None = None
         self.last_command: ActuatorCommand | None = None
         self.measured_speed_mps: float | None = None
@@ -129,6 +149,8 @@ class LanePolicy:
 
     def __call__(self, frames: FrameSet) -> ActuatorCommand:
         centre_image = frames.images.get("center")
+        if self.config.boundaries == "tape":
+            return self._follow_tape(frames.stamp_ns, centre_image)
         observation = detect_lanes(centre_image, self.config.lanes) if centre_image is not None else None
         away = {}
         for side, (band, column) in self.bands.items():
@@ -136,13 +158,26 @@ class LanePolicy:
             away[side] = detect_side_boundary(image, band, column, self.config.side).steer if image is not None else 0.0
         decision, self.state = lane_follow_step(self.config.follow, self.state, observation, away.get("left", 0.0),
                                                 away.get("right", 0.0), self.dt_s)
-        self.last_observation, self.last_decision = observation, decision
+        self.last_observation = observation
+        return self._command(frames.stamp_ns, decision)
+
+    def _follow_tape(self, stamp_ns: int, image: Image | None) -> ActuatorCommand:
+        observation = detect_tape_track(image, self.config.tape) if image is not None else None
+        seen = observation is not None and observation.any_detected
+        decision, self.state = heading_follow_step(self.config.follow, self.state,
+                                                   observation.bearing_rad if seen and observation else None,
+                                                   self.dt_s)
+        self.last_tape = observation
+        return self._command(stamp_ns, decision)
+
+    def _command(self, stamp_ns: int, decision: LaneDecision) -> ActuatorCommand:
+        self.last_decision = decision
         throttle, brake = decision.throttle, decision.brake
         if self.config.speed_mps > 0 and self.measured_speed_mps is not None and decision.reason != "halt":
             throttle, brake, self.speed_state = speed_pi(self.config.speed_pi, self.speed_state,
                                                          self.config.speed_mps * decision.throttle,
                                                          self.measured_speed_mps, self.dt_s)
-        self.last_command = ActuatorCommand(frames.stamp_ns, decision.steer_rad, throttle, brake)
+        self.last_command = ActuatorCommand(stamp_ns, decision.steer_rad, throttle, brake)
         return self.last_command
 
     def fault(self) -> str:
@@ -158,6 +193,15 @@ class LanePolicy:
         if decision is None or command is None:
             return {}
         values: dict[str, float | int | str] = {}
+        if self.config.boundaries == "tape":
+            tape = self.last_tape
+            seen = tape is not None and tape.any_detected
+            values["target_bearing_rad"] = tape.bearing_rad if seen and tape else math.nan
+            values["target_x_m"], values["target_z_m"] = tape.target_m if seen and tape else (math.nan, math.nan)
+            values["confidence"] = tape.confidence if tape is not None else 0.0
+            values.update(steer_rad=command.steer_rad, throttle=command.throttle, brake=command.brake,
+                          rule=decision.reason)
+            return {"lanes": values}
         for side in ("left", "right"):
             source = getattr(observation, f"{side}_source") if observation is not None else "none"
             ends = getattr(observation, side).as_tuple() if source == "detected" else (math.nan,) * 4
@@ -175,6 +219,8 @@ class LanePolicy:
         """The pipeline's view: the centre image with the boundaries it found and where they meet (the
         video's caption gives the steer)."""
         image = frames.images.get("center")
+        if image is not None and self.config.boundaries == "tape" and self.last_tape is not None:
+            return draw_tape_track(image, self.last_tape)
         if image is None or self.last_observation is None:
             return None
         return draw_lanes(image, self.last_observation)
