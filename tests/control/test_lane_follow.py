@@ -75,9 +75,60 @@ def test_at_a_split_the_preferred_side_is_followed():
     config = LaneFollowConfig(smoothing=0.0, max_steer_rate_radps=100.0, split_preference="right")
     warmup = [observation(100, 860)] * 10
     # the left boundary jumps far out (a branch opens on the left) while the right one stays
-    decisions, _ = run(config, [*warmup, observation(-600, 860)])
+    decisions, _ = run(config, [*warmup, *[observation(-600, 860)] * config.split_confirm_frames])
     assert decisions[-1].reason == "split"
     assert abs(decisions[-1].steer_rad) < 0.1  # keeps following the right boundary, does not veer left
     # one side missing: a remembered lane width stands in for it
     decisions, _ = run(config, [*warmup, observation(100, 860, left=False)])
     assert decisions[-1].steer_rad == pytest.approx(0.0, abs=0.02)
+
+
+def far_split(left_top_shift: float, right_top_shift: float = 0.0) -> LaneObservation:
+    """The usual lane near the kart, with the boundaries' far ends moved apart (a branch opening ahead)."""
+    base = observation(100, 860)
+    left = LaneLine(base.left.x_bottom, base.left.y_bottom, base.left.x_top - left_top_shift, base.left.y_top)
+    right = LaneLine(base.right.x_bottom, base.right.y_bottom, base.right.x_top + right_top_shift, base.right.y_top)
+    return LaneObservation(W, H, left, right, "detected", "detected", intersection(left, right), 1.0)
+
+
+def test_at_speed_a_split_is_seen_far_ahead_first_and_confirmed_over_frames():
+    """The near width has not changed yet; the far row has. One odd frame is not a split, and a bad fit (the
+    boundaries crossing) does not drag the remembered width down so that the next frame looks like one."""
+    config = LaneFollowConfig()
+    warmup = [observation(100, 860)] * 10
+    decisions, _ = run(config, [*warmup, far_split(120), observation(100, 860)])
+    assert all(d.reason == "centre" for d in decisions)
+    crossing = observation(700, 300)
+    decisions, _ = run(config, [*warmup, crossing, *[observation(100, 860)] * 3])
+    assert all(d.reason == "centre" for d in decisions[-3:])
+    decisions, state = run(config, [*warmup, *[far_split(120)] * config.split_confirm_frames])
+    assert decisions[-1].reason == "split" and state.split_left_s > 0
+    assert decisions[-1].throttle <= config.throttle_split
+
+
+def test_at_a_split_the_fork_s_inner_line_is_not_taken_for_the_kept_boundary():
+    config = LaneFollowConfig(smoothing=0.0, max_steer_rate_radps=100.0)
+    warmup = [observation(100, 860)] * 10
+    opening = [far_split(120, 60)] * config.split_confirm_frames
+    kept = run(config, [*warmup, *opening])[0][-1].steer_rad
+    # the next frame's "right boundary" is the branch's inner line, well to the left of the kept one
+    inner = observation(100, 600, vp_x=420)
+    decisions, _ = run(config, [*warmup, *opening, inner])
+    assert decisions[-1].reason == "split"
+    assert decisions[-1].steer_rad == pytest.approx(kept, abs=0.02)  # steered by the kept line, not the inner one
+    # the thesis's lane follower would turn toward the inner line: to the left
+    assert run(config, [*warmup, inner])[0][-1].steer_rad > kept + 0.05
+
+
+def test_the_speed_plan_slows_before_a_bend_when_unsure_and_throttles_up_on_a_straight():
+    config = LaneFollowConfig()
+    straight = run(config, [observation(100, 860)] * 5)[0][-1]
+    assert straight.throttle == pytest.approx(config.throttle_straight, abs=0.01)
+    # the boundaries meet to the right, far ahead: slower before the steer has grown
+    bend = run(config, [observation(100, 860, vp_x=480 + 60)])[0][-1]
+    assert abs(bend.steer_rad) < config.turn_threshold_rad and bend.throttle < config.throttle_straight
+    unsure = observation(100, 860)
+    unsure = LaneObservation(W, H, unsure.left, unsure.right, "detected", "detected", unsure.intersection_px, 0.2)
+    assert run(config, [unsure] * 5)[0][-1].throttle < straight.throttle
+    thesis = LaneFollowConfig(speed_plan="steer")
+    assert run(thesis, [observation(100, 860, vp_x=480 + 60)])[0][-1].throttle == thesis.throttle_straight

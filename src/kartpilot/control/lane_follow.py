@@ -31,10 +31,22 @@ class LaneFollowConfig:
         smoothing: weight of the previous steer in the exponential smoothing (0: none, the thesis).
         max_steer_rate_radps: how fast the commanded steer may change.
         hold_frames: frames the last steer is kept when no boundary is seen; then the kart halts.
-        throttle_straight, throttle_turn, turn_threshold_rad: fixed throttles, the lower one when the
-            commanded steer exceeds the threshold.
+        speed_plan: ``ahead`` (the throttle eases from ``throttle_straight`` to ``throttle_turn`` as the
+            steer nears ``turn_threshold_rad`` or the boundaries' meeting point, far ahead, turns
+            ``bend_ahead_rad`` aside; lower at splits and when unsure) or ``steer`` (the thesis's two fixed
+            throttles, the lower one when the steer exceeds ``turn_threshold_rad``).
+        throttle_split: the most throttle while a split lasts.
+        full_confidence: below this detection confidence the throttle falls in proportion (to
+            ``throttle_turn`` times itself at least).
         split_preference: which side's boundary to follow when the lane suddenly widens (a split).
-        split_width_ratio: how much wider than usual the lane must look to count as a split.
+        split_width_ratio: how much wider than usual the lane must look at the region's bottom to count
+            as a split.
+        split_far_ratio, split_far_row: the same, at a row far ahead (a fraction of the region's height from
+            its top), where a split shows first: at speed the near widening is seen too late.
+        split_confirm_frames: a widening counts as a split when seen in this many frames in a row.
+        split_hold_s: how long the split's rule holds after the last widening seen.
+        split_gate: at a split, the kept boundary may not jump toward the other side by more than this
+            fraction of the image's width at the far row (the fork's inner line is not it).
         both_sides: with both side cameras steering, ``nearer`` steers away from the nearer boundary;
             ``left_first`` always takes the left camera's steer to the right (the thesis's rule).
         missing_side: with one boundary seen, put the other a remembered lane width away (``lane_width``)
@@ -50,18 +62,36 @@ class LaneFollowConfig:
     throttle_straight: float = 1.0
     throttle_turn: float = 0.6
     turn_threshold_rad: float = 0.12
+    speed_plan: Literal["ahead", "steer"] = "ahead"
+    bend_ahead_rad: float = 0.15
+    throttle_split: float = 0.6
+    full_confidence: float = 0.5
     split_preference: Literal["right", "left"] = "right"
     split_width_ratio: float = 1.45
+    split_far_ratio: float = 1.45
+    split_far_row: float = 0.05
+    split_hold_s: float = 1.5
+    split_confirm_frames: int = 3
+    split_gate: float = 0.05
     both_sides: Literal["nearer", "left_first"] = "nearer"
     missing_side: Literal["lane_width", "extreme"] = "lane_width"
 
 
 @dataclass(frozen=True)
 class LaneFollowState:
+    """What the follower remembers: its last steer, how long it has seen nothing, the lane's usual width at
+    the region's bottom, top and far row, how long a split still lasts, the boundary kept there and for how
+    many frames it has not been seen, and for how many frames in a row the lane has looked wider."""
+
     steer_rad: float = 0.0
     frames_without_lane: int = 0
     lane_width_bottom_px: float = 0.0
     lane_width_top_px: float = 0.0
+    lane_width_far_px: float = 0.0
+    split_left_s: float = 0.0
+    kept_line: LaneLine | None = None
+    kept_age: int = 0
+    split_votes: int = 0
 
 
 @dataclass(frozen=True)
@@ -91,28 +121,53 @@ def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: L
         steer = -away_from_left * config.max_steer_rad if use_left else away_from_right * config.max_steer_rad
         steer = _rate_limited(config, state, steer, dt_s)
         decision = LaneDecision(steer, config.throttle_turn, 0.0, "side-left" if use_left else "side-right")
-        return decision, LaneFollowState(steer, 0, state.lane_width_bottom_px, state.lane_width_top_px)
+        return decision, replace(state, steer_rad=steer, frames_without_lane=0)
 
     if centre is None or not centre.any_detected:
         return _nothing_seen(config, state)
 
-    width_b, width_t = state.lane_width_bottom_px, state.lane_width_top_px
+    width_b, width_t, width_f = state.lane_width_bottom_px, state.lane_width_top_px, state.lane_width_far_px
+    split_left_s, kept, kept_age, votes = state.split_left_s, state.kept_line, state.kept_age, 0
     reason: Literal["centre", "split"] = "centre"
     left, right, target = centre.left, centre.right, centre.intersection_px
+    far_row = left.y_top + config.split_far_row * (left.y_bottom - left.y_top)
+    preferred = config.split_preference
     virtual = False
     if centre.both_detected:
         now_b, now_t = right.x_bottom - left.x_bottom, right.x_top - left.x_top
-        if width_b > 0 and now_b > config.split_width_ratio * width_b:
-            reason = "split"
-            left, right = _keep_one_side(config.split_preference, left, right, width_b, width_t)
-            target, virtual = intersection(left, right), True
-        else:
+        now_f = right.x_at(far_row) - left.x_at(far_row)
+        if (width_b > 0 and now_b > config.split_width_ratio * width_b) or (
+                width_f > 0 and now_f > config.split_far_ratio * width_f):
+            votes = state.split_votes + 1  # the lane widens: near, or far ahead first at speed
+            if votes >= config.split_confirm_frames:
+                split_left_s = config.split_hold_s
+        elif split_left_s <= 0 and _plausible(now_b, width_b) and _plausible(now_f, width_f):
             width_b = now_b if width_b <= 0 else 0.9 * width_b + 0.1 * now_b
             width_t = now_t if width_t <= 0 else 0.9 * width_t + 0.1 * now_t
-    elif config.missing_side == "lane_width" and width_b > 0:
+            width_f = now_f if width_f <= 0 else 0.9 * width_f + 0.1 * now_f
+    if split_left_s > 0 and width_b > 0:
+        # keep the preferred side's boundary, as long as it does not jump toward the other side (the fork's
+        # inner line, taken for it); without it, the last one that was kept
+        reason = "split"
+        line = right if preferred == "right" else left
+        source = centre.right_source if preferred == "right" else centre.left_source
+        gate = config.split_gate * centre.width_px
+        jumped = kept is not None and (line.x_at(far_row) < kept.x_at(far_row) - gate if preferred == "right"
+                                       else line.x_at(far_row) > kept.x_at(far_row) + gate)
+        if source == "detected" and not jumped:
+            kept, kept_age = line, 0
+        else:
+            kept_age += 1
+        if kept is not None and kept_age <= config.hold_frames:
+            left, right = _keep_one_side(preferred, kept if preferred == "left" else left,
+                                         kept if preferred == "right" else right, width_b, width_t)
+            target, virtual = intersection(left, right), True
+    elif not centre.both_detected and config.missing_side == "lane_width" and width_b > 0:
         seen = "right" if centre.right_source == "detected" else "left"
         left, right = _keep_one_side(seen, left, right, width_b, width_t)
         target, virtual = intersection(left, right), True
+    if split_left_s <= 0:
+        kept, kept_age = None, 0
     deviation = heading_deviation_rad(centre, target)  # positive: the lane goes right
     steer_right = config.heading_gain * deviation
     if centre.both_detected or virtual:
@@ -120,7 +175,14 @@ def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: L
         lane_width = max(right.x_bottom - left.x_bottom, 1.0)
         steer_right += config.offset_gain * (lane_centre - (centre.width_px - 1) / 2) / lane_width
     steer = _smoothed(config, state, -steer_right, dt_s)
-    return LaneDecision(steer, _throttle(config, steer), 0.0, reason), LaneFollowState(steer, 0, width_b, width_t)
+    throttle = _throttle(config, steer, deviation, centre.confidence, reason == "split")
+    return LaneDecision(steer, throttle, 0.0, reason), LaneFollowState(
+        steer, 0, width_b, width_t, width_f, max(0.0, split_left_s - dt_s), kept, kept_age, votes)
+
+
+def _plausible(now_px: float, usual_px: float) -> bool:
+    """A width worth remembering: positive, and not far from the usual one (a bad fit would drag it)."""
+    return now_px > 0 and (usual_px <= 0 or 0.67 < now_px / usual_px < 1.5)
 
 
 def heading_follow_step(config: LaneFollowConfig, state: LaneFollowState, deviation_rad: float | None,
@@ -132,8 +194,8 @@ def heading_follow_step(config: LaneFollowConfig, state: LaneFollowState, deviat
     if deviation_rad is None or not math.isfinite(deviation_rad):
         return _nothing_seen(config, state)
     steer = _smoothed(config, state, -config.heading_gain * deviation_rad, dt_s)
-    return LaneDecision(steer, _throttle(config, steer), 0.0, "centre"), replace(state, steer_rad=steer,
-                                                                                 frames_without_lane=0)
+    return LaneDecision(steer, _throttle(config, steer, deviation_rad), 0.0, "centre"), replace(
+        state, steer_rad=steer, frames_without_lane=0)
 
 
 def _rate_limited(config: LaneFollowConfig, state: LaneFollowState, target: float, dt_s: float) -> float:
@@ -146,8 +208,20 @@ def _smoothed(config: LaneFollowConfig, state: LaneFollowState, target: float, d
     return _rate_limited(config, state, config.smoothing * state.steer_rad + (1 - config.smoothing) * target, dt_s)
 
 
-def _throttle(config: LaneFollowConfig, steer: float) -> float:
-    return config.throttle_turn if abs(steer) > config.turn_threshold_rad else config.throttle_straight
+def _throttle(config: LaneFollowConfig, steer: float, ahead_rad: float = 0.0, confidence: float = 1.0,
+              split: bool = False) -> float:
+    """The speed plan: full throttle on a straight, down to ``throttle_turn`` as the steer or the bend ahead
+    grows, at most ``throttle_split`` at a split, and in proportion to the confidence below
+    ``full_confidence``."""
+    if config.speed_plan == "steer":
+        return config.throttle_turn if abs(steer) > config.turn_threshold_rad else config.throttle_straight
+    bend = max(abs(steer) / config.turn_threshold_rad, abs(ahead_rad) / config.bend_ahead_rad)
+    throttle = config.throttle_straight - (config.throttle_straight - config.throttle_turn) * min(1.0, bend)
+    if split:
+        throttle = min(throttle, config.throttle_split)
+    if confidence < config.full_confidence:
+        throttle *= max(confidence / config.full_confidence, config.throttle_turn)
+    return throttle
 
 
 def _nothing_seen(config: LaneFollowConfig, state: LaneFollowState) -> tuple[LaneDecision, LaneFollowState]:
