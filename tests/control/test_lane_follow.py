@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -129,6 +131,7 @@ def test_the_speed_plan_slows_before_a_bend_when_unsure_and_throttles_up_on_a_st
     assert abs(bend.steer_rad) < config.turn_threshold_rad and bend.throttle < config.throttle_straight
     unsure = observation(100, 860)
     unsure = LaneObservation(W, H, unsure.left, unsure.right, "detected", "detected", unsure.intersection_px, 0.2)
-    assert run(config, [unsure] * 5)[0][-1].throttle < straight.throttle
+    assert run(replace(config, full_confidence=0.5), [unsure] * 5)[0][-1].throttle < straight.throttle
+    assert run(config, [unsure] * 5)[0][-1].throttle == pytest.approx(straight.throttle)
     thesis = LaneFollowConfig(speed_plan="steer")
     assert run(thesis, [observation(100, 860, vp_x=480 + 60)])[0][-1].throttle == thesis.throttle_straight

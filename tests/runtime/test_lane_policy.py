@@ -40,3 +40,28 @@ def test_open_loop_by_default_and_a_negative_speed_is_refused(cameras):
     assert policy(FrameSet(0, 0, {})).throttle == policy.config.follow.throttle_turn
     with pytest.raises(ConfigError, match="speed_mps"):
         LanePolicyConfig(speed_mps=-1.0)
+
+
+def test_a_lanes_drive_on_the_sdc_kart_runs_at_the_fastest_known_good_speed_mode_unless_told(capsys):
+    """A user's first `kartpilot sim --driver lanes` used to run at the kart's top speed and touch a line."""
+    from kartpilot.cli.main import main
+    from kartpilot.runtime.lane_policy import KNOWN_GOOD_SPEED_MODE_KMH, lane_speed_mode_mps
+
+    assert lane_speed_mode_mps("lanes", "sdc-kart", 0.0) == pytest.approx(KNOWN_GOOD_SPEED_MODE_KMH / 3.6)
+    assert lane_speed_mode_mps("lanes", "sdc-kart", 15 / 3.6) == pytest.approx(15 / 3.6)  # asked for
+    assert lane_speed_mode_mps("stereo-vo", "rc-kart", 0.0) == 0.0
+    main(["sim", "--track", "sdc-assen", "--vehicle", "sdc-kart", "--driver", "lanes", "--no-render"])
+    assert f"speed mode {KNOWN_GOOD_SPEED_MODE_KMH:g} km/h" in capsys.readouterr().out
+
+
+def test_on_a_taped_track_the_policy_steers_toward_the_track_and_records_its_target(cameras):
+    import numpy as np
+    from tests.perception.test_tape import render, straight
+
+    policy = LanePolicy(cameras, LanePolicyConfig(boundaries="tape"))
+    command = policy(FrameSet(0, 0, {"center": render(straight(0.1))}))  # the track's centre is to the right
+    assert command.steer_rad < 0 and policy.outputs()["lanes"]["target_bearing_rad"] > 0
+    assert policy.overlay(FrameSet(0, 0, {"center": render(straight(0.1))})) is not None
+    for k in range(1, 12):  # a black camera: hold, then halt
+        halted = policy(FrameSet(k, k, {"center": np.zeros((120, 160, 3), np.uint8)}))
+    assert halted.brake == 1.0 and policy.fault()

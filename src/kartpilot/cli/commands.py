@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from kartpilot.cli.drive_commands import with_default_speed_mode
 from kartpilot.cli.values import file_or_new_folder, new_folder, number, output_file
 from kartpilot.control.lane_follow import LaneFollowState, heading_follow_step, lane_follow_step
 from kartpilot.core.errors import ConfigError, DataError
@@ -205,6 +206,7 @@ def simulate(args: argparse.Namespace) -> int:
     driver = replace(driver, **{k: v for k, v in driver_overrides.items() if v is not None})
     if args.speed_mode is not None:
         config = replace(config, speed_mode_mps=args.speed_mode / 3.6)
+    config = with_default_speed_mode(config, args.driver)
     top = get_vehicle(config.vehicle).top_speed_mps
     if args.speed is not None and args.speed > top:
         raise ConfigError(f"--speed {args.speed:g} m/s is above the {config.vehicle}'s top speed, {top:.1f} m/s")
@@ -423,7 +425,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     sim.add_argument("--vehicle", choices=("rc-kart", "sdc-kart"))
     sim.add_argument("--driver", choices=("centerline", "commands", "lanes"), default="centerline",
                      help="lanes: the lane-following pipeline on the rendered cameras (sdc-kart)")
-    sim.add_argument("--speed-mode", type=number(above=0),
+    sim.add_argument("--speed-mode", type=number(above=0),  # lanes on the sdc-kart: a known-good mode by default
                      help="cap the top speed, km/h (the SDC kart's 5/15/30/60 modes)")
     sim.add_argument("--commands", help="recording (or its commands.csv) whose commands the commands driver replays")
     sim.add_argument("--laps", type=number(int, minimum=1))

@@ -29,7 +29,7 @@ from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
 from kartpilot.runtime.faults import parse_injection
-from kartpilot.runtime.lane_policy import LANE_PRESETS
+from kartpilot.runtime.lane_policy import LANE_PRESETS, lane_speed_mode_mps
 from kartpilot.runtime.live_drive import LiveDriveSetup, run_live_drive
 from kartpilot.runtime.pipelines import PIPELINES, Route
 from kartpilot.runtime.replay import replay_recording
@@ -96,6 +96,15 @@ def _visual_map(args: argparse.Namespace) -> VisualMap | None:
     return None
 
 
+def with_default_speed_mode(config: SimConfig, pipeline: str) -> SimConfig:
+    """The lanes pipeline on the sdc-kart, with no speed mode asked for: the fastest known to be safe, said."""
+    mode = lane_speed_mode_mps(pipeline, config.vehicle, config.speed_mode_mps)
+    if mode != config.speed_mode_mps:
+        print(f"speed mode {mode * 3.6:g} km/h: the fastest the lane pipeline is known to drive safely "
+              "(--speed-mode to choose)")
+    return replace(config, speed_mode_mps=mode)
+
+
 def _drive_vehicle(args: argparse.Namespace) -> VehicleParams:
     if args.pipeline == "stereo-vo":
         return _stereo_vehicle(args.vehicle or "rc-kart")[0]
@@ -131,6 +140,7 @@ def drive(args: argparse.Namespace) -> int:
                      "speed_mode_mps": args.speed_mode / 3.6 if args.speed_mode else None}
         sim: SimConfig = replace(stack.sim, cameras=cameras,
                                  **{k: v for k, v in overrides.items() if v is not None})
+        sim = with_default_speed_mode(sim, args.pipeline)
         if args.steer_bias is not None:
             sim = replace(sim, disturbances=replace(sim.disturbances, steer_bias_rad=args.steer_bias))
         if args.bus == "socketcan":

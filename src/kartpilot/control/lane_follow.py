@@ -4,8 +4,10 @@ The thesis steered toward the boundaries' intersection (its equations 1 and 2), 
 for a few frames when no boundary was seen and then halted, used a slower throttle in turns, and let
 the side cameras' off-track steer override the centre camera. It oscillated and settled off-centre.
 Added here: a lateral-offset term (the lane centre against the image centre), exponential smoothing
-and a rate limit on the steer, a side preference at splits (the lane suddenly widening), and a fusion
-rule for both side cameras at once that steers away from the nearer boundary.
+and a rate limit on the steer, a side preference at splits (the lane suddenly widening, seen far ahead
+first at speed, with the kept boundary guarded against the fork's inner line), a speed plan from what
+the camera sees (slower before a bend and through a split) in place of the thesis's fixed slower throttle
+in turns, and a fusion rule for both side cameras at once that steers away from the nearer boundary.
 
 ``lane_follow_step`` is a pure function: state in, decision and state out.
 """
@@ -37,7 +39,8 @@ class LaneFollowConfig:
             throttles, the lower one when the steer exceeds ``turn_threshold_rad``).
         throttle_split: the most throttle while a split lasts.
         full_confidence: below this detection confidence the throttle falls in proportion (to
-            ``throttle_turn`` times itself at least).
+            ``throttle_turn`` times itself at least); 0, the default: off. At the 30 km/h mode on sdc-assen the
+            throttle's dips in an unsure corner set off a weave that touched a line (docs/lanes.md).
         split_preference: which side's boundary to follow when the lane suddenly widens (a split).
         split_width_ratio: how much wider than usual the lane must look at the region's bottom to count
             as a split.
@@ -65,7 +68,7 @@ class LaneFollowConfig:
     speed_plan: Literal["ahead", "steer"] = "ahead"
     bend_ahead_rad: float = 0.15
     throttle_split: float = 0.6
-    full_confidence: float = 0.5
+    full_confidence: float = 0.0
     split_preference: Literal["right", "left"] = "right"
     split_width_ratio: float = 1.45
     split_far_ratio: float = 1.45

@@ -248,7 +248,8 @@ def lane_drive(stack: StackConfig, config: SimConfig) -> dict[str, Any]:
         result = sim.result(1.0)
     rate = np.diff(steers) * config.camera_rate_hz
     return {"touched": result.disqualified, "reason": result.reason, "distance_m": result.distance_m,
-            "sim_time_s": result.sim_time_s, "mean_center_offset_m": result.mean_center_offset_m,
+            "sim_time_s": result.sim_time_s, "finished": result.finished, "lap_time_s": result.lap_time_s,
+            "mean_center_offset_m": result.mean_center_offset_m,
             "max_center_offset_m": result.max_center_offset_m,
             "steer_rate_rms_radps": float(np.sqrt(np.mean(rate**2))) if len(rate) else 0.0}
 
