@@ -111,3 +111,15 @@ def test_the_scaling_shown_is_the_measured_one(page: str) -> None:
     text = (ROOT / page).read_text(encoding="utf-8")
     section = text[text.index(scaling.START) + len(scaling.START):text.index(scaling.END)]
     assert section.strip() == scaling.render(results).strip()
+
+
+@pytest.mark.parametrize("marker", ["lane-race", "lane-speed", "tape-tracks"])
+def test_the_lane_results_shown_are_the_measured_ones(marker: str) -> None:
+    lane_docs = _script("lane_docs")
+    name, render = lane_docs.SECTIONS[marker]
+    results = json.loads((ROOT / "docs" / "results" / f"{name}.json").read_text(encoding="utf-8"))
+    text = (ROOT / "docs" / "lanes.md").read_text(encoding="utf-8")
+    start, end = f"<!-- {marker} -->", f"<!-- /{marker} -->"
+    section = text[text.index(start) + len(start):text.index(end)]
+    assert section.strip() == render(results).strip(), (
+        f"docs/lanes.md's {marker} section differs from docs/results/{name}.json: run benchmarks/lane_docs.py")
