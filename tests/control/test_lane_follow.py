@@ -135,3 +135,14 @@ def test_the_speed_plan_slows_before_a_bend_when_unsure_and_throttles_up_on_a_st
     assert run(config, [unsure] * 5)[0][-1].throttle == pytest.approx(straight.throttle)
     thesis = LaneFollowConfig(speed_plan="steer")
     assert run(thesis, [observation(100, 860, vp_x=480 + 60)])[0][-1].throttle == thesis.throttle_straight
+
+
+def test_out_of_range_settings_are_refused_by_name():
+    from kartpilot.core.config import merge_config
+    from kartpilot.core.errors import ConfigError
+    from kartpilot.runtime.config import StackConfig
+
+    with pytest.raises(ConfigError, match=r"'lane_policy\.follow': bend_ahead_rad is out of range"):
+        merge_config(StackConfig(), {"lane_policy": {"follow": {"bend_ahead_rad": 0.0}}})
+    with pytest.raises(ValueError, match="split_confirm_frames"):
+        LaneFollowConfig(split_confirm_frames=0)

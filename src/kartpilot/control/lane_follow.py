@@ -76,6 +76,15 @@ class LaneFollowConfig:
     split_hold_s: float = 1.5
     split_confirm_frames: int = 3
     split_gate: float = 0.05
+
+    def __post_init__(self) -> None:
+        checks = {"turn_threshold_rad": self.turn_threshold_rad > 0, "bend_ahead_rad": self.bend_ahead_rad > 0,
+                  "throttle_split": 0 <= self.throttle_split <= 1, "full_confidence": 0 <= self.full_confidence <= 1,
+                  "split_far_row": 0 <= self.split_far_row < 1, "split_confirm_frames": self.split_confirm_frames >= 1,
+                  "split_hold_s": self.split_hold_s >= 0, "split_gate": self.split_gate >= 0}
+        bad = [name for name, ok in checks.items() if not ok]
+        if bad:
+            raise ValueError(f"{bad[0]} is out of range ({getattr(self, bad[0])!r})")
     both_sides: Literal["nearer", "left_first"] = "nearer"
     missing_side: Literal["lane_width", "extreme"] = "lane_width"
 
