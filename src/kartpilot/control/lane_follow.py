@@ -33,9 +33,9 @@ class LaneFollowConfig:
         smoothing: weight of the previous steer in the exponential smoothing (0: none, the thesis).
         max_steer_rate_radps: how fast the commanded steer may change.
         hold_frames: frames the last steer is kept when no boundary is seen; then the kart halts.
-        speed_plan: ``ahead`` (the throttle eases from ``throttle_straight`` to ``throttle_turn`` as the
-            steer nears ``turn_threshold_rad`` or the boundaries' meeting point, far ahead, turns
-            ``bend_ahead_rad`` aside; lower at splits and when unsure) or ``steer`` (the thesis's two fixed
+        speed_plan: ``ahead`` (full throttle while the steer and the boundaries' meeting point, far ahead,
+            stay within a quarter of ``turn_threshold_rad`` and ``bend_ahead_rad``; then it eases to
+            ``throttle_turn`` as either reaches its threshold; lower at splits and when unsure) or ``steer`` (the thesis's two fixed
             throttles, the lower one when the steer exceeds ``turn_threshold_rad``).
         throttle_split: the most throttle while a split lasts.
         full_confidence: below this detection confidence the throttle falls in proportion (to
@@ -220,6 +220,9 @@ def _smoothed(config: LaneFollowConfig, state: LaneFollowState, target: float, d
     return _rate_limited(config, state, config.smoothing * state.steer_rad + (1 - config.smoothing) * target, dt_s)
 
 
+_STRAIGHT = 0.25  # below this share of turn_threshold_rad and bend_ahead_rad, the road counts as straight
+
+
 def _throttle(config: LaneFollowConfig, steer: float, ahead_rad: float = 0.0, confidence: float = 1.0,
               split: bool = False) -> float:
     """The speed plan: full throttle on a straight, down to ``throttle_turn`` as the steer or the bend ahead
@@ -228,7 +231,8 @@ def _throttle(config: LaneFollowConfig, steer: float, ahead_rad: float = 0.0, co
     if config.speed_plan == "steer":
         return config.throttle_turn if abs(steer) > config.turn_threshold_rad else config.throttle_straight
     bend = max(abs(steer) / config.turn_threshold_rad, abs(ahead_rad) / config.bend_ahead_rad)
-    throttle = config.throttle_straight - (config.throttle_straight - config.throttle_turn) * min(1.0, bend)
+    ease = min(1.0, max(0.0, (bend - _STRAIGHT) / (1.0 - _STRAIGHT)))  # a straight's small corrections: none
+    throttle = config.throttle_straight - (config.throttle_straight - config.throttle_turn) * ease
     if split:
         throttle = min(throttle, config.throttle_split)
     if confidence < config.full_confidence:
