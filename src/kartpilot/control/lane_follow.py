@@ -35,8 +35,8 @@ class LaneFollowConfig:
         hold_frames: frames the last steer is kept when no boundary is seen; then the kart halts.
         speed_plan: ``ahead`` (full throttle while the steer and the boundaries' meeting point, far ahead,
             stay within a quarter of ``turn_threshold_rad`` and ``bend_ahead_rad``; then it eases to
-            ``throttle_turn`` as either reaches its threshold; lower at splits and when unsure) or ``steer`` (the thesis's two fixed
-            throttles, the lower one when the steer exceeds ``turn_threshold_rad``).
+            ``throttle_turn`` as either reaches its threshold; lower at splits and when unsure) or ``steer``
+            (the thesis's two fixed throttles, the lower one when the steer exceeds ``turn_threshold_rad``).
         throttle_split: the most throttle while a split lasts.
         full_confidence: below this detection confidence the throttle falls in proportion (to
             ``throttle_turn`` times itself at least); 0, the default: off. At the 30 km/h mode on sdc-assen the
