@@ -8,11 +8,13 @@ import math
 from dataclasses import asdict
 
 from kartpilot.calibration.rig import apply_camera_maps, load_rig
-from kartpilot.cli.values import new_folder, number
+from kartpilot.cli.values import new_folder, number, output_file
+from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import mount_pose
 from kartpilot.record.convert import export_recording, import_donkey_tub, import_stereo_source
 from kartpilot.record.info import recording_info
 from kartpilot.record.live import record_live
+from kartpilot.record.mcap_export import export_mcap
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.sensors.capture import LiveFrameSource
@@ -111,9 +113,18 @@ def recordings_import_kitti(args: argparse.Namespace) -> int:
 
 
 def recordings_export(args: argparse.Namespace) -> int:
-    """A recording as a folder of images plus one CSV."""
-    rows = export_recording(args.recording, args.out, args.cameras.split(",") if args.cameras else None)
-    print(f"exported {rows} sets to {args.out} (frames.csv, images/)")
+    """A recording as a folder of images plus one CSV, or as one MCAP file for Foxglove."""
+    cameras = args.cameras.split(",") if args.cameras else None
+    try:
+        out = output_file(args.out) if args.format == "mcap" else new_folder(args.out)
+    except argparse.ArgumentTypeError as exc:
+        raise ConfigError(f"--out: {exc}") from exc
+    if args.format == "mcap":
+        counts = export_mcap(args.recording, out, cameras)
+        print(f"exported {sum(counts.values())} messages on {len(counts)} topics to {out} (MCAP; Foxglove opens it)")
+        return 0
+    rows = export_recording(args.recording, out, cameras)
+    print(f"exported {rows} sets to {out} (frames.csv, images/)")
     return 0
 
 
@@ -159,8 +170,11 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                        help="its pitch below level, deg")
     kitti.set_defaults(handler=recordings_import_kitti)
 
-    export = rec_sub.add_parser("export", help="a recording as a folder of images plus one CSV")
+    export = rec_sub.add_parser("export", help="a recording as a folder of images plus one CSV, or one MCAP file")
     export.add_argument("recording")
-    export.add_argument("--out", required=True, type=new_folder)
+    export.add_argument("--out", required=True, help="folder: a new folder; mcap: the file to write")
+    export.add_argument("--format", choices=("folder", "mcap"), default="folder",
+                        help="folder: images and frames.csv; mcap: images, calibration, transforms, ground truth, "
+                             "commands, CAN and outputs in Foxglove's schemas")
     export.add_argument("--cameras", help="comma-separated cameras (default: all)")
     export.set_defaults(handler=recordings_export)
