@@ -193,8 +193,9 @@ def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: L
 
 
 def _plausible(now_px: float, usual_px: float) -> bool:
-    """A width worth remembering: positive, and not far from the usual one (a bad fit would drag it)."""
-    return now_px > 0 and (usual_px <= 0 or 0.67 < now_px / usual_px < 1.5)
+    """A width worth remembering: positive, and near the usual one. A bad fit would drag the memory; and a
+    lane that widens gradually (a split's ramp) must not be learnt as the usual width before it counts."""
+    return now_px > 0 and (usual_px <= 0 or 0.8 < now_px / usual_px < 1.2)
 
 
 def heading_follow_step(config: LaneFollowConfig, state: LaneFollowState, deviation_rad: float | None,
