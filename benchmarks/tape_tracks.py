@@ -36,17 +36,14 @@ DONKEYCAR_HORIZON = 0.42  # where its images show the floor's far edge (the wall
 def load(folder: Path) -> tuple[list[np.ndarray], np.ndarray, float]:
     tub = DonkeyTub(folder)
     images = [cv2.imread(str(r.image_path)) for r in tub.records]
-    angles = np.array([r.angle for r in tub.records])
-    steps = np.diff([r.stamp_ms for r in tub.records])
-    return images, angles, 1000.0 / float(np.median(steps))
+    return images, np.array([r.angle for r in tub.records]), tub.rate_hz
 
 
 def follower_steer(images: list[np.ndarray], tape: TapeConfig, rate_hz: float) -> np.ndarray:
     """The policy's steer per frame (positive to the right, as Donkey Car's angle)."""
     follow, state, steers = LaneFollowConfig(), LaneFollowState(), []
     for image in images:
-        seen = detect_tape_track(image, tape)
-        decision, state = heading_follow_step(follow, state, seen.bearing_rad if seen.any_detected else None,
+        decision, state = heading_follow_step(follow, state, detect_tape_track(image, tape).seen_bearing_rad,
                                               1 / rate_hz)
         steers.append(-decision.steer_rad)
     return np.array(steers)

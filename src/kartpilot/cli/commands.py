@@ -232,7 +232,7 @@ def lanes(args: argparse.Namespace) -> int:
     policy = stack.lane_policy
     kind, frames = open_frames(args.input)
     tub = DonkeyTub(args.input) if kind == "donkeycar-tub" else None
-    rate_hz = _tub_rate_hz(tub) if tub is not None else 30.0
+    rate_hz = tub.rate_hz if tub is not None else 30.0
     state = LaneFollowState()
     overlay = _Overlay(args.overlay) if args.overlay else None
     steers: list[float] = []
@@ -243,8 +243,7 @@ def lanes(args: argparse.Namespace) -> int:
             row: list[object] = [frame_set.index]
             if policy.boundaries == "tape":
                 tape = detect_tape_track(image, policy.tape)
-                decision, state = heading_follow_step(policy.follow, state,
-                                                      tape.bearing_rad if tape.any_detected else None, 1 / rate_hz)
+                decision, state = heading_follow_step(policy.follow, state, tape.seen_bearing_rad, 1 / rate_hz)
                 row += [f"{tape.bearing_rad:.5f}", f"{tape.target_m[0]:.4f}", f"{tape.target_m[1]:.4f}"
                         ] if tape.any_detected else ["", "", ""]
                 row += [f"{decision.steer_rad:.5f}", f"{tape.confidence:.3f}"]
@@ -276,12 +275,6 @@ def lanes(args: argparse.Namespace) -> int:
               f"agreement {100 * report.sign_agreement:.1f} % over the {report.turning_frames} frames where the "
               "human clearly turns (smoothed beyond 0.3)")
     return 0
-
-
-def _tub_rate_hz(tub: DonkeyTub) -> float:
-    """The tub's frame rate from its time stamps' median step (20 Hz, Donkey Car's default, if they say nothing)."""
-    steps_ms = np.diff([r.stamp_ms for r in tub.records])
-    return 1000.0 / float(np.median(steps_ms)) if len(steps_ms) and np.median(steps_ms) > 0 else 20.0
 
 
 class _Overlay:

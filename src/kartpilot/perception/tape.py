@@ -132,6 +132,11 @@ class TapeObservation:
     def any_detected(self) -> bool:
         return len(self.border_px) > 0
 
+    @property
+    def seen_bearing_rad(self) -> float | None:
+        """The target's bearing, or None when no border was in sight (what the follower steers by)."""
+        return self.bearing_rad if self.any_detected else None
+
 
 def _camera_matrix(width: int, height: int, config: TapeConfig) -> NDArray[np.float64]:
     focal = math.hypot(width, height) / 2 / math.radians(config.fov_diag_deg / 2)

@@ -32,6 +32,7 @@ from mcap.writer import CompressionType, Writer
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import RecordingError
 from kartpilot.core.files import write_atomic
+from kartpilot.core.geometry import quaternion_xyzw_from_pose
 from kartpilot.record.recording import RecordingReader
 
 __all__ = ["SCHEMAS", "export_mcap"]
@@ -67,19 +68,11 @@ def _time(stamp_ns: int) -> dict[str, int]:
     return {"sec": stamp_ns // 1_000_000_000, "nsec": stamp_ns % 1_000_000_000}
 
 
-def _quaternion(rotation: np.ndarray) -> dict[str, float]:
-    """A rotation matrix as a unit quaternion (x, y, z, w)."""
-    from scipy.spatial.transform import Rotation
-
-    x, y, z, w = Rotation.from_matrix(rotation).as_quat()
-    return {"x": float(x), "y": float(y), "z": float(z), "w": float(w)}
-
-
 def _transform(stamp_ns: int, parent: str, child: str, pose: np.ndarray) -> dict[str, Any]:
     t = pose[:3, 3]
     return {"timestamp": _time(stamp_ns), "parent_frame_id": parent, "child_frame_id": child,
             "translation": {"x": float(t[0]), "y": float(t[1]), "z": float(t[2])},
-            "rotation": _quaternion(pose[:3, :3])}
+            "rotation": dict(zip("xyzw", (float(v) for v in quaternion_xyzw_from_pose(pose)), strict=True))}
 
 
 def _calibration(stamp_ns: int, name: str, camera: PinholeCamera) -> dict[str, Any]:

@@ -178,10 +178,8 @@ class LanePolicy:
 
     def _follow_tape(self, stamp_ns: int, image: Image | None) -> ActuatorCommand:
         observation = detect_tape_track(image, self.config.tape) if image is not None else None
-        seen = observation is not None and observation.any_detected
         decision, self.state = heading_follow_step(self.config.follow, self.state,
-                                                   observation.bearing_rad if seen and observation else None,
-                                                   self.dt_s)
+                                                   observation.seen_bearing_rad if observation else None, self.dt_s)
         self.last_tape = observation
         return self._command(stamp_ns, decision)
 
@@ -210,9 +208,9 @@ class LanePolicy:
         values: dict[str, float | int | str] = {}
         if self.config.boundaries == "tape":
             tape = self.last_tape
-            seen = tape is not None and tape.any_detected
-            values["target_bearing_rad"] = tape.bearing_rad if seen and tape else math.nan
-            values["target_x_m"], values["target_z_m"] = tape.target_m if seen and tape else (math.nan, math.nan)
+            seen = tape if tape is not None and tape.any_detected else None
+            values["target_bearing_rad"] = seen.bearing_rad if seen else math.nan
+            values["target_x_m"], values["target_z_m"] = seen.target_m if seen else (math.nan, math.nan)
             values["confidence"] = tape.confidence if tape is not None else 0.0
             values.update(steer_rad=command.steer_rad, throttle=command.throttle, brake=command.brake,
                           rule=decision.reason)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 from kartpilot.core.errors import DataError
 from kartpilot.core.files import read_text_file
@@ -76,6 +77,12 @@ class DonkeyTub:
 
     def __len__(self) -> int:
         return len(self.records)
+
+    @property
+    def rate_hz(self) -> float:
+        """The frame rate from the time stamps' median step (20 Hz, Donkey Car's default, if they say nothing)."""
+        steps_ms = np.diff([r.stamp_ms for r in self.records])
+        return 1000.0 / float(np.median(steps_ms)) if len(steps_ms) and np.median(steps_ms) > 0 else 20.0
 
     def frames(self) -> Iterator[FrameSet]:
         """The images as frame sets of one camera, ``center``; an unreadable image is skipped with an error."""
