@@ -46,15 +46,15 @@ __all__ = ["KNOWN_GOOD_SPEED_MODE_KMH", "LANE_PRESETS", "LanePolicy", "LanePolic
 _KART_LINES = LaneConfig(roi_top_width=1.0, min_abs_slope=0.1)
 
 KNOWN_GOOD_SPEED_MODE_KMH = 30.0
-"""The fastest of the SDC kart's speed modes (5, 15, 30, 60 km/h) at which the lane pipeline has driven whole
-laps of sdc-assen without a fault, on the seed it was developed on and on held-out seeds
-(``benchmarks/lane_race.py``, docs/lanes.md). A simulated drive of the lanes pipeline on the sdc-kart uses
-it unless a speed mode is given."""
+"""The speed mode a simulated drive of the lanes pipeline on the sdc-kart uses unless one is given: the
+fastest of the SDC kart's modes (5, 15, 30, 60 km/h) at which it was meant to drive whole laps of sdc-assen
+without a fault. The last measurement (``benchmarks/lane_race.py``, docs/lanes.md) does not support it yet:
+two of three seeds touch a line at 30 km/h; this stays open."""
 
 
 def lane_speed_mode_mps(pipeline: str, vehicle: str, requested_mps: float) -> float:
-    """The speed mode a simulated drive runs at: the one requested, else (lanes on the sdc-kart) the fastest
-    known to be safe, else none (0: the kart's own top speed)."""
+    """The speed mode a simulated drive runs at: the one requested, else (lanes on the sdc-kart)
+    ``KNOWN_GOOD_SPEED_MODE_KMH``, else none (0: the kart's own top speed)."""
     if requested_mps > 0 or pipeline != "lanes" or vehicle != "sdc-kart":
         return requested_mps
     return KNOWN_GOOD_SPEED_MODE_KMH / 3.6
