@@ -77,5 +77,6 @@ def test_the_cli_exports_whole_or_not_at_all(recording, tmp_path, capsys):
                  "--cameras", "centre"]) != 0
     assert "no camera 'centre'" in capsys.readouterr().err
     assert not (tmp_path / "x.mcap").exists() and not list(tmp_path.glob(".*partial"))
-    assert main(["recordings", "export", str(recording), "--format", "mcap", "--out", str(tmp_path)]) != 0
+    # a usage error, as for the folder format
+    assert main(["recordings", "export", str(recording), "--format", "mcap", "--out", str(tmp_path)]) == 2
     assert "is a folder" in capsys.readouterr().err

@@ -46,6 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
+        if getattr(args, "check", None) is not None:  # a subcommand's check across its options (a usage error)
+            args.check(args)
     except SystemExit as exc:  # --help, --version, or a usage error (already printed on one line)
         return exc.code if isinstance(exc.code, int) else 0
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,

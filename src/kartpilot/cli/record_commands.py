@@ -5,11 +5,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from collections.abc import Callable
 from dataclasses import asdict
 
 from kartpilot.calibration.rig import apply_camera_maps, load_rig
 from kartpilot.cli.values import new_folder, number, output_file
-from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import mount_pose
 from kartpilot.record.convert import export_recording, import_donkey_tub, import_stereo_source
 from kartpilot.record.info import recording_info
@@ -114,11 +114,7 @@ def recordings_import_kitti(args: argparse.Namespace) -> int:
 
 def recordings_export(args: argparse.Namespace) -> int:
     """A recording as a folder of images plus one CSV, or as one MCAP file for Foxglove."""
-    cameras = args.cameras.split(",") if args.cameras else None
-    try:
-        out = output_file(args.out) if args.format == "mcap" else new_folder(args.out)
-    except argparse.ArgumentTypeError as exc:
-        raise ConfigError(f"--out: {exc}") from exc
+    cameras, out = args.cameras.split(",") if args.cameras else None, args.out
     if args.format == "mcap":
         counts = export_mcap(args.recording, out, cameras)
         print(f"exported {sum(counts.values())} messages on {len(counts)} topics to {out} (MCAP; Foxglove opens it)")
@@ -126,6 +122,17 @@ def recordings_export(args: argparse.Namespace) -> int:
     rows = export_recording(args.recording, out, cameras)
     print(f"exported {rows} sets to {out} (frames.csv, images/)")
     return 0
+
+
+def _export_out(parser: argparse.ArgumentParser) -> Callable[[argparse.Namespace], None]:
+    """The check of ``recordings export --out``, which depends on ``--format``: a file to write for ``mcap``, a
+    new folder otherwise; a usage error as argparse's own types give."""
+    def check(args: argparse.Namespace) -> None:
+        try:
+            args.out = output_file(args.out) if args.format == "mcap" else new_folder(args.out)
+        except argparse.ArgumentTypeError as exc:
+            parser.error(f"argument --out: {exc}")
+    return check
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
@@ -177,4 +184,4 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                         help="folder: images and frames.csv; mcap: images, calibration, transforms, ground truth, "
                              "commands, CAN and outputs in Foxglove's schemas")
     export.add_argument("--cameras", help="comma-separated cameras (default: all)")
-    export.set_defaults(handler=recordings_export)
+    export.set_defaults(handler=recordings_export, check=_export_out(export))
