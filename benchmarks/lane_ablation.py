@@ -23,7 +23,7 @@ from kartpilot.sim.simulator import SimConfig
 from kartpilot.study.jobs import lane_drive
 
 THESIS = LaneFollowConfig(heading_gain=1.0, offset_gain=0.0, smoothing=0.0, max_steer_rate_radps=100.0,
-                          missing_side="extreme", both_sides="left_first")
+                          missing_side="extreme", both_sides="left_first", side_rule="override")
 
 
 def drive(follow: LaneFollowConfig, seconds: float, rate_hz: float, mode_kmh: float) -> dict[str, Any]:

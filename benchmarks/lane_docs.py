@@ -31,8 +31,9 @@ def race(results: dict[str, Any]) -> str:
                      and not d["speed_loop"])
     lines = [f"One lap of {results['track']}, the {results['vehicle']} on its three cameras at "
              f"{results['camera_rate_hz']:g} Hz (`benchmarks/lane_race.py`). Seed 1 is the one the split rule "
-             "and the 60 km/h settings were developed on; seeds 2 and 3 (tyre marks, textures and noise drawn "
-             "anew) are held out. *Throttle*: open loop (a fraction of the mode's top speed, as the thesis drove), "
+             "and the 60 km/h settings were developed on, seeds 1 and 2 the ones the side cameras' blend was "
+             "checked on; seeds 3 to 5 (tyre marks, textures and noise drawn anew) are held out. "
+             "*Throttle*: open loop (a fraction of the mode's top speed, as the thesis drove), "
              "or the speed held on the kart's measured speed (`lane_policy.speed_mps`, braking too).", "",
              "| speed mode | seed | follower | throttle | verdict | driven | lap | vs 15 km/h | max off centre |",
              "|---:|---:|---|---|---|---:|---:|---:|---:|"]

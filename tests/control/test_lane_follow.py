@@ -62,15 +62,33 @@ def test_no_lane_holds_then_halts():
     assert decisions[-1].throttle == 0.0 and decisions[-1].brake == 1.0
 
 
-def test_side_cameras_override_and_the_nearer_boundary_wins():
-    config = LaneFollowConfig(max_steer_rate_radps=100.0)
+def test_a_side_camera_eases_the_centres_turn_and_the_nearer_boundary_wins():
+    config = LaneFollowConfig(smoothing=0.0, max_steer_rate_radps=100.0)
     state = LaneFollowState()
-    left_only, _ = lane_follow_step(config, state, observation(100, 860), away_from_left=0.5)
-    assert left_only.reason == "side-left" and left_only.steer_rad == pytest.approx(-0.5 * config.max_steer_rad)
+    # a left bend with the left (inner) boundary close beside the kart
+    bend = observation(100, 860, vp_x=320)
+    centre_only, _ = lane_follow_step(config, state, bend)
+    blended, _ = lane_follow_step(config, state, bend, away_from_left=0.5)
+    assert centre_only.steer_rad > 0.05  # the bend alone: steer left
+    assert blended.reason == "side-left"
+    assert blended.steer_rad == pytest.approx(centre_only.steer_rad - 0.5 * config.max_steer_rad, abs=1e-9)
+    assert blended.throttle <= config.throttle_turn
+    # the thesis's rule replaces the centre's steer: a left bend's turn becomes a steer right
+    override = replace(config, side_rule="override")
+    replaced, _ = lane_follow_step(override, state, bend, away_from_left=0.5)
+    assert replaced.steer_rad == pytest.approx(-0.5 * config.max_steer_rad)
+    # nothing seen ahead: the side camera's steer alone, under either rule
+    alone, _ = lane_follow_step(config, state, None, away_from_left=0.5)
+    assert alone.steer_rad == pytest.approx(-0.5 * config.max_steer_rad) and alone.reason == "side-left"
     both, _ = lane_follow_step(config, state, observation(100, 860), away_from_left=0.2, away_from_right=0.7)
     assert both.reason == "side-right" and both.steer_rad > 0
     thesis = LaneFollowConfig(max_steer_rate_radps=100.0, both_sides="left_first")
     assert lane_follow_step(thesis, state, None, 0.2, 0.7)[0].reason == "side-left"
+
+
+def test_out_of_range_side_gain_is_refused_by_name():
+    with pytest.raises(ValueError, match="side_gain"):
+        LaneFollowConfig(side_gain=-1.0)
 
 
 def test_at_a_split_the_preferred_side_is_followed():

@@ -7,7 +7,9 @@ Added here: a lateral-offset term (the lane centre against the image centre), ex
 and a rate limit on the steer, a side preference at splits (the lane suddenly widening, seen far ahead
 first at speed, with the kept boundary guarded against the fork's inner line), a speed plan from what
 the camera sees (slower before a bend and through a split) in place of the thesis's fixed slower throttle
-in turns, and a fusion rule for both side cameras at once that steers away from the nearer boundary.
+in turns, a fusion rule for both side cameras at once that steers away from the nearer boundary, and the
+side cameras' steer added to the centre camera's instead of replacing it (in a corner the two took turns
+and the kart weaved).
 
 ``lane_follow_step`` is a pure function: state in, decision and state out.
 """
@@ -50,6 +52,11 @@ class LaneFollowConfig:
         split_hold_s: how long the split's rule holds after the last widening seen.
         split_gate: at a split, the kept boundary may not jump toward the other side by more than this
             fraction of the image's width at the far row (the fork's inner line is not it).
+        side_rule: how a side camera's steer away from a boundary meets the centre camera's: ``blend`` adds it
+            (``side_gain`` times the maximum steer at the nearest), so in a corner the centre's turn is eased
+            rather than reversed; ``override`` replaces the centre's steer (the thesis's rule), which in a
+            corner hands the steer back and forth between the two and makes the kart weave.
+        side_gain: the side camera's steer at the nearest boundary, as a share of ``max_steer_rad``.
         both_sides: with both side cameras steering, ``nearer`` steers away from the nearer boundary;
             ``left_first`` always takes the left camera's steer to the right (the thesis's rule).
         missing_side: with one boundary seen, put the other a remembered lane width away (``lane_width``)
@@ -76,17 +83,20 @@ class LaneFollowConfig:
     split_hold_s: float = 1.5
     split_confirm_frames: int = 3
     split_gate: float = 0.05
+    side_rule: Literal["blend", "override"] = "blend"
+    side_gain: float = 1.0
+    both_sides: Literal["nearer", "left_first"] = "nearer"
+    missing_side: Literal["lane_width", "extreme"] = "lane_width"
 
     def __post_init__(self) -> None:
         checks = {"turn_threshold_rad": self.turn_threshold_rad > 0, "bend_ahead_rad": self.bend_ahead_rad > 0,
                   "throttle_split": 0 <= self.throttle_split <= 1, "full_confidence": 0 <= self.full_confidence <= 1,
                   "split_far_row": 0 <= self.split_far_row < 1, "split_confirm_frames": self.split_confirm_frames >= 1,
-                  "split_hold_s": self.split_hold_s >= 0, "split_gate": self.split_gate >= 0}
+                  "split_hold_s": self.split_hold_s >= 0, "split_gate": self.split_gate >= 0,
+                  "side_gain": self.side_gain >= 0}
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
             raise ValueError(f"{bad[0]} is out of range ({getattr(self, bad[0])!r})")
-    both_sides: Literal["nearer", "left_first"] = "nearer"
-    missing_side: Literal["lane_width", "extreme"] = "lane_width"
 
 
 @dataclass(frozen=True)
@@ -125,15 +135,20 @@ def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: L
         centre: the centre camera's observation (None when the camera delivered nothing).
         away_from_left, away_from_right: the side cameras' steers away from a boundary, 0 to 1.
     """
+    side: Literal["side-left", "side-right"] | None = None
+    side_steer = 0.0
     if away_from_left > 0 or away_from_right > 0:
         if away_from_left > 0 and away_from_right > 0:
             use_left = config.both_sides == "left_first" or away_from_left >= away_from_right
         else:
             use_left = away_from_left > 0
-        steer = -away_from_left * config.max_steer_rad if use_left else away_from_right * config.max_steer_rad
-        steer = _rate_limited(config, state, steer, dt_s)
-        decision = LaneDecision(steer, config.throttle_turn, 0.0, "side-left" if use_left else "side-right")
-        return decision, replace(state, steer_rad=steer, frames_without_lane=0)
+        side = "side-left" if use_left else "side-right"
+        side_steer = -away_from_left if use_left else away_from_right
+        if config.side_rule == "override" or centre is None or not centre.any_detected:
+            steer = _rate_limited(config, state, side_steer * config.max_steer_rad, dt_s)
+            return LaneDecision(steer, config.throttle_turn, 0.0, side), replace(
+                state, steer_rad=steer, frames_without_lane=0)
+        side_steer *= config.side_gain * config.max_steer_rad
 
     if centre is None or not centre.any_detected:
         return _nothing_seen(config, state)
@@ -186,9 +201,13 @@ def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: L
         lane_centre = (left.x_bottom + right.x_bottom) / 2
         lane_width = max(right.x_bottom - left.x_bottom, 1.0)
         steer_right += config.offset_gain * (lane_centre - (centre.width_px - 1) / 2) / lane_width
-    steer = _smoothed(config, state, -steer_right, dt_s)
-    throttle = _throttle(config, steer, deviation, centre.confidence, reason == "split")
-    return LaneDecision(steer, throttle, 0.0, reason), LaneFollowState(
+    if side is None:
+        steer = _smoothed(config, state, -steer_right, dt_s)
+        throttle = _throttle(config, steer, deviation, centre.confidence, reason == "split")
+    else:  # the side camera's steer away eases the centre's, and the kart slows as in a turn
+        steer = _smoothed(config, state, side_steer - steer_right, dt_s)
+        throttle = min(config.throttle_turn, _throttle(config, steer, deviation, centre.confidence, reason == "split"))
+    return LaneDecision(steer, throttle, 0.0, side or reason), LaneFollowState(
         steer, 0, width_b, width_t, width_f, max(0.0, split_left_s - dt_s), kept, kept_age, votes)
 
 
