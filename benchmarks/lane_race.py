@@ -4,11 +4,11 @@ Each drive is one lap of the sdc-kart on its three rendered cameras at 30 Hz, wi
 (the defaults, and variants of the follower's throttle rule). The referee's verdict, the lap time and the
 centre offsets go to JSON; the 15 km/h mode's lap is the reference the faster modes are compared with. Seed 1
 is the seed the split rule and the 60 km/h settings were developed on, and seeds 1 and 2 the ones the side
-cameras' blend was checked on; seeds 3 to 5 (tyre marks, textures and noise drawn anew) are held out. Open-
-loop drives run the policy on the simulator directly; the speed-loop drives hold the speed on the kart's
-measured speed, which comes from its CAN report, so they drive through the simulated bus (as
-``kartpilot drive --sim``). Drives run in separate processes, two at a time by default; ``--keep`` drives only
-what the output does not hold yet.
+cameras' blend was checked on; seeds 3 to 5 (tyre marks, textures and noise drawn anew) are held out.
+Open-loop drives run the policy on the simulator directly; the speed-loop drives hold the speed on the kart's
+measured speed, which comes from its CAN report, so they drive through the simulated bus (as ``kartpilot drive
+--sim``). Drives run in separate processes, two at a time by default; ``--keep`` drives only what the output
+does not hold yet.
 
     python benchmarks/lane_race.py --out docs/results/lane_race.json
 """
