@@ -10,18 +10,21 @@ from dataclasses import asdict
 
 from kartpilot.calibration.rig import apply_camera_maps, load_rig
 from kartpilot.cli.values import new_folder, number, output_file
+from kartpilot.core.config import load_yaml_mapping, merge_config
 from kartpilot.core.geometry import mount_pose
+from kartpilot.core.vehicle import VEHICLES, get_vehicle
 from kartpilot.record.convert import export_recording, import_donkey_tub, import_stereo_source
 from kartpilot.record.info import recording_info
 from kartpilot.record.live import record_live
 from kartpilot.record.mcap_export import export_mcap
 from kartpilot.record.recording import RecordingReader, RecordingWriter
+from kartpilot.record.rosbag import BagImportConfig, export_ros2_bag, import_bag
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.sensors.capture import LiveFrameSource
 from kartpilot.sensors.kitti import KittiOdometrySource
 
-__all__ = ["add_parsers", "record", "recordings_export", "recordings_import_kitti", "recordings_import_tub",
-           "recordings_info"]
+__all__ = ["add_parsers", "record", "recordings_export", "recordings_import_bag", "recordings_import_kitti",
+           "recordings_import_tub", "recordings_info"]
 
 RECORD_QUEUE_FRAMES = 16  # per camera: half a second at 30 fps before frames are dropped (and counted)
 
@@ -119,8 +122,28 @@ def recordings_export(args: argparse.Namespace) -> int:
         counts = export_mcap(args.recording, out, cameras)
         print(f"exported {sum(counts.values())} messages on {len(counts)} topics to {out} (MCAP; Foxglove opens it)")
         return 0
+    if args.format == "ros2":
+        counts = export_ros2_bag(args.recording, out, get_vehicle(args.vehicle) if args.vehicle else None)
+        print(f"exported {sum(counts.values())} messages on {len(counts)} topics to {out} (a ROS 2 bag)")
+        return 0
     rows = export_recording(args.recording, out, cameras)
     print(f"exported {rows} sets to {out} (frames.csv, images/)")
+    return 0
+
+
+def recordings_import_bag(args: argparse.Namespace) -> int:
+    """A ROS 1 or ROS 2 bag as a kartpilot recording: cameras, commands and ground truth; the rest is listed."""
+    config = merge_config(BagImportConfig(), load_yaml_mapping(args.topics) if args.topics else None, "topics")
+    result = import_bag(args.bag, args.out, config, get_vehicle(args.vehicle))
+    frames = ", ".join(f"{name} {count}" for name, count in result.frames.items())
+    print(f"imported {args.bag} into {args.out}: frames {frames}; {result.commands} commands; "
+          f"{result.groundtruth_poses} ground-truth poses")
+    for note in result.notes:
+        print(f"  note: {note}")
+    for name, count in result.unsynchronised.items():
+        print(f"  {name}: {count} frames within no set of the reference camera (sync_tolerance_ms)")
+    for topic, msgtype, reason in result.unmapped:
+        print(f"  not imported: {topic} ({msgtype}): {reason}")
     return 0
 
 
@@ -130,6 +153,10 @@ def _export_out(parser: argparse.ArgumentParser) -> Callable[[argparse.Namespace
     def check(args: argparse.Namespace) -> None:
         try:
             args.out = output_file(args.out) if args.format == "mcap" else new_folder(args.out)
+            if args.vehicle and args.format != "ros2":
+                parser.error("--vehicle is for --format ros2 (the commands' speed)")
+            if args.cameras and args.format == "ros2":
+                parser.error("--cameras is for the folder and mcap formats; a ROS 2 bag takes every camera")
         except argparse.ArgumentTypeError as exc:
             parser.error(f"argument --out: {exc}")
     return check
@@ -177,11 +204,26 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                        help="its pitch below level, deg")
     kitti.set_defaults(handler=recordings_import_kitti)
 
-    export = rec_sub.add_parser("export", help="a recording as a folder of images plus one CSV, or one MCAP file")
+    bag = rec_sub.add_parser("import-bag", help="a ROS 1 or ROS 2 bag as a recording (cameras, commands, ground "
+                                                "truth; the topics it cannot map are listed)")
+    bag.add_argument("bag", help="a ROS 1 .bag file or a ROS 2 bag folder")
+    bag.add_argument("--out", required=True, type=new_folder)
+    bag.add_argument("--topics", help="YAML topic map: cameras (name, image, info), stereo_pair, commands, "
+                                      "groundtruth, base_frame, sync_tolerance_ms (default: found by type)")
+    bag.add_argument("--vehicle", choices=sorted(VEHICLES), default="sdc-kart",
+                     help="its top speed and wheelbase turn commanded speeds and yaw rates into throttle and steer")
+    bag.set_defaults(handler=recordings_import_bag)
+
+    export = rec_sub.add_parser("export", help="a recording as a folder of images plus one CSV, one MCAP file or a "
+                                               "ROS 2 bag")
     export.add_argument("recording")
-    export.add_argument("--out", required=True, help="folder: a new folder; mcap: the file to write")
-    export.add_argument("--format", choices=("folder", "mcap"), default="folder",
+    export.add_argument("--out", required=True, help="folder and ros2: a new folder; mcap: the file to write")
+    export.add_argument("--format", choices=("folder", "mcap", "ros2"), default="folder",
                         help="folder: images and frames.csv; mcap: images, calibration, transforms, ground truth, "
-                             "commands, CAN and outputs in Foxglove's schemas")
+                             "commands, CAN and outputs in Foxglove's schemas; ros2: images, camera info, mounts, "
+                             "ground truth and Ackermann commands as a ROS 2 bag")
     export.add_argument("--cameras", help="comma-separated cameras (default: all)")
+    export.add_argument("--vehicle", choices=sorted(VEHICLES),
+                        help="ros2: the top speed a full throttle stands for in the commands (default: the speed is "
+                             "the throttle)")
     export.set_defaults(handler=recordings_export, check=_export_out(export))

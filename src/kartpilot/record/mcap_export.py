@@ -111,7 +111,7 @@ def export_mcap(folder: str | Path, out: str | Path, cameras: Sequence[str] | No
             messages.append((stamp, f"/{name}/image", "foxglove.CompressedImage",
                              {"timestamp": _time(stamp), "frame_id": name, "format": path.suffix.lstrip(".").lower(),
                               "data": base64.b64encode(path.read_bytes()).decode("ascii")}))
-    truth = reader.groundtruth()
+    truth = reader.body_poses()
     if truth is not None:
         for stamp_s, pose in zip(truth.stamps_s, truth.poses, strict=True):
             stamp = round(float(stamp_s) * 1e9)  # the ground-truth file keeps seconds

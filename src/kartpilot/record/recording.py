@@ -456,6 +456,18 @@ class RecordingReader:
         cam_to_cam = invert_pose(self.cameras[measured].pose_body_cam_array) @ self.cameras[camera].pose_body_cam_array
         return Trajectory(truth.stamps_s, truth.poses @ cam_to_cam)
 
+    def body_poses(self) -> Trajectory | None:
+        """The kart's poses in the world (its body frame's), from the ground truth through the mount of the
+        camera it was measured at; None without ground truth. A ground truth that names no camera is the
+        kart's own."""
+        truth = self.groundtruth()
+        if truth is None:
+            return None
+        measured = self.manifest.get("metadata", {}).get("groundtruth_camera")
+        if measured not in self.cameras:
+            return truth
+        return Trajectory(truth.stamps_s, truth.poses @ invert_pose(self.cameras[measured].pose_body_cam_array))
+
     def pose_indices(self, camera: str, poses: Trajectory, max_gap_s: float = POSE_GAP_S) -> list[int | None]:
         """For each frame of ``camera``, the index of the pose within ``max_gap_s`` of its time (None: none)."""
         stamps = np.round(poses.stamps_s * 1e9).astype(np.int64)  # once, not per frame
