@@ -26,9 +26,10 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Literal, Protocol
 
 import can
+import cantools
 
-from kartpilot.actuation.kartpilot_protocol import KartpilotProtocol, check_ecus
-from kartpilot.actuation.rdw_protocol import RdwConfig, RdwProtocol
+from kartpilot.actuation.kartpilot_protocol import KartpilotProtocol, check_ecus, load_dbc
+from kartpilot.actuation.rdw_protocol import RdwConfig, RdwProtocol, load_rdw_dbc
 from kartpilot.core.errors import ActuationError, ConfigError
 from kartpilot.core.types import ActuatorCommand, VehicleFeedback
 from kartpilot.core.vehicle import SteeringCalibration, VehicleParams
@@ -39,14 +40,27 @@ __all__ = [
     "CanConfig",
     "KartProtocol",
     "PeriodicSchedule",
+    "fan_out_frames",
     "limit_command",
     "make_protocol",
     "open_bus",
+    "protocol_database",
 ]
 
 log = logging.getLogger(__name__)
 
 FrameLog = Callable[[int, int, bytes, str], None]  # stamp_ns, id, data, "tx"/"rx" (RecordingWriter.write_can)
+
+
+def fan_out_frames(logs: list[FrameLog]) -> FrameLog | None:
+    """One CAN frame log that writes to each of ``logs`` (the recording, the view); None for none."""
+    if not logs:
+        return None
+
+    def log_frame(stamp_ns: int, arbitration_id: int, data: bytes, direction: str) -> None:
+        for frame_log in logs:
+            frame_log(stamp_ns, arbitration_id, data, direction)
+    return log_frame
 
 
 class KartProtocol(Protocol):
@@ -109,6 +123,12 @@ def make_protocol(config: CanConfig, vehicle: VehicleParams, steering: SteeringC
     if name == "rdw":
         return RdwProtocol(steering or vehicle.steering, config.rdw, start_ns)
     return KartpilotProtocol(config.dbc, config.ecus, config.status_timeout_s, start_ns)
+
+
+def protocol_database(config: CanConfig, vehicle: VehicleParams) -> cantools.database.can.Database:
+    """The messages of the protocol the kart speaks (as :func:`make_protocol` picks it), to decode its traffic."""
+    name = vehicle.protocol if config.protocol == "vehicle" else config.protocol
+    return load_rdw_dbc() if name == "rdw" else load_dbc(config.dbc)
 
 
 @dataclass(frozen=True)

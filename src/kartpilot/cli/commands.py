@@ -16,7 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from kartpilot.cli.drive_commands import with_default_speed_mode
-from kartpilot.cli.values import file_or_new_folder, new_folder, number, output_file
+from kartpilot.cli.values import VIEW_HELP, file_or_new_folder, new_folder, number, output_file, view_target
 from kartpilot.control.lane_follow import LaneFollowState, heading_follow_step, lane_follow_step
 from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import write_csv_atomic, write_text_atomic
@@ -211,9 +211,10 @@ def simulate(args: argparse.Namespace) -> int:
     if args.speed is not None and args.speed > top:
         raise ConfigError(f"--speed {args.speed:g} m/s is above the {config.vehicle}'s top speed, {top:.1f} m/s")
     run = run_simulation(config, args.driver, driver, args.commands, stack, outputs=SessionOutputs(
-        args.record, args.result, args.video, progress=not args.no_progress))
+        args.record, args.result, args.video, progress=not args.no_progress, view=args.view))
     _print_result(run.result, run)
-    for label, path in (("recording", args.record), ("video", args.video), ("result", args.result)):
+    for label, path in (("recording", args.record), ("video", args.video), ("result", args.result),
+                        ("Rerun view", args.view if args.view != "live" else None)):
         if path:
             print(f"{label} written to {path}")
     return 0
@@ -434,6 +435,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                      help="write a recording (frames, commands, ground truth, result.json) here")
     sim.add_argument("--video", type=output_file, help="write the camera view with the referee's state here (MP4)")
     sim.add_argument("--result", type=output_file, help="write the referee's result JSON here")
+    sim.add_argument("--view", type=view_target, help=VIEW_HELP)
     sim.add_argument("--config", help="YAML file merged over the defaults (sections sim, centerline_driver)")
     sim.add_argument("--no-progress", action="store_true")
     sim.set_defaults(handler=simulate)

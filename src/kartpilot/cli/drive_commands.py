@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from kartpilot.calibration.rig import load_rig
-from kartpilot.cli.values import new_folder, number, output_file
+from kartpilot.cli.values import VIEW_HELP, new_folder, number, output_file, view_target
 from kartpilot.control.path_follow import steer_bias_of_drive
 from kartpilot.core.errors import ConfigError, KartpilotError, RecordingError
 from kartpilot.core.geometry import ground_poses
@@ -148,7 +148,8 @@ def drive(args: argparse.Namespace) -> int:
         run = run_supervised_drive(
             sim, args.pipeline, replace(stack, drive=drive_config), args.bus or "virtual", args.duration,
             [parse_injection(text) for text in args.inject or []], route,
-            SessionOutputs(args.record, args.result, args.video, args.log, progress=not args.no_progress))
+            SessionOutputs(args.record, args.result, args.video, args.log, progress=not args.no_progress,
+                           view=args.view))
         print(drive_summary(run.payload))
         if run.error is not None:
             where = f"; its traceback is in {Path(args.record) / 'error.txt'}" if args.record else ""
@@ -156,7 +157,8 @@ def drive(args: argparse.Namespace) -> int:
         return 0
     if args.replay:
         replayed = replay_recording(args.replay, args.pipeline, replace(stack, drive=drive_config), route,
-                                    args.vehicle, SessionOutputs(args.record, args.result, drive_log=args.log))
+                                    args.vehicle, SessionOutputs(args.record, args.result, drive_log=args.log,
+                                                                 view=args.view))
         print(json.dumps(replayed.to_json()))
         return 0
     if args.live:
@@ -169,7 +171,7 @@ def drive(args: argparse.Namespace) -> int:
         if args.cameras_json:
             rig = replace(rig, camera_maps=tuple(args.cameras_json))
         setup = LiveDriveSetup(rig, args.pipeline, vehicle, route, args.gamepad, args.web,
-                               SessionOutputs(args.record, args.result), args.duration)
+                               SessionOutputs(args.record, args.result, view=args.view), args.duration)
         summary = run_live_drive(setup, replace(stack, can=can))
         print(json.dumps({k: summary[k] for k in ("ended", "seconds", "final_state", "error")}))
         for transition in summary["transitions"]:
@@ -219,7 +221,8 @@ def replay(args: argparse.Namespace) -> int:
     if args.pipeline == "stereo-vo" and args.vehicle:
         _stereo_vehicle(args.vehicle)
     result = replay_recording(args.recording, args.pipeline, stack, Route(path, visual_map, places), args.vehicle,
-                              SessionOutputs(record_dir=args.out, drive_log=args.log), realtime=args.realtime,
+                              SessionOutputs(record_dir=args.out, drive_log=args.log, view=args.view),
+                              realtime=args.realtime,
                               with_frames=args.with_frames)
     steer = np.array([c.steer_rad for c in result.commands])
     braking = np.mean([c.brake > 0 for c in result.commands]) if result.commands else 0.0
@@ -307,6 +310,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                               help="write the camera view with the referee's state here (MP4)")
     drive_parser.add_argument("--result", type=output_file,
                               help="write the result JSON here (transitions, fault_to_stop_s, timing)")
+    drive_parser.add_argument("--view", type=view_target, help=VIEW_HELP)
     drive_parser.add_argument("--log", type=output_file,
                               help="stereo-vo, mono-vo: write the pipeline's per-step log here (CSV)")
     drive_parser.add_argument("--config", help="YAML file merged over the defaults (sections sim, lane_policy, "
@@ -324,6 +328,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                                          "mono-vo: default the place database's drive)")
     rep.add_argument("--places", help="mono-vo: the place database of the reference drive (kartpilot places build)")
     rep.add_argument("--log", type=output_file, help="stereo-vo, mono-vo: write the pipeline's per-step log here (CSV)")
+    rep.add_argument("--view", type=view_target, help=VIEW_HELP)
     rep.add_argument("--map", help="stereo-vo: the visual map (default: the reference's .map.npz, if there)")
     rep.add_argument("--no-map", action="store_true", help="stereo-vo: localise with VO alone")
     rep.add_argument("--vehicle", help="the kart (wheelbase, steering range; default: the one the recording was made "

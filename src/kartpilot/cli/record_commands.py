@@ -8,8 +8,9 @@ import math
 from collections.abc import Callable
 from dataclasses import asdict
 
+from kartpilot.actuation.can_bus import protocol_database
 from kartpilot.calibration.rig import apply_camera_maps, load_rig
-from kartpilot.cli.values import new_folder, number, output_file
+from kartpilot.cli.values import new_folder, number, output_file, view_target
 from kartpilot.core.config import load_yaml_mapping, merge_config
 from kartpilot.core.geometry import mount_pose
 from kartpilot.core.vehicle import VEHICLES, get_vehicle
@@ -24,7 +25,7 @@ from kartpilot.sensors.capture import LiveFrameSource
 from kartpilot.sensors.kitti import KittiOdometrySource
 
 __all__ = ["add_parsers", "record", "recordings_export", "recordings_import_bag", "recordings_import_kitti",
-           "recordings_import_tub", "recordings_info"]
+           "recordings_import_tub", "recordings_info", "view"]
 
 RECORD_QUEUE_FRAMES = 16  # per camera: half a second at 30 fps before frames are dropped (and counted)
 
@@ -131,6 +132,25 @@ def recordings_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def view(args: argparse.Namespace) -> int:
+    """A recording and its outputs as a Rerun view: a .rrd file, or a viewer."""
+    reader = RecordingReader(args.recording)
+    database = None
+    if reader.can_frames():
+        name = args.vehicle or reader.vehicle
+        stack = load_stack_config(args.config)
+        database = protocol_database(stack.can, get_vehicle(name)) if name else None
+    from kartpilot.record.rerun_view import view_recording  # rerun takes half a second to import
+
+    target = args.out or "live"
+    sets = view_recording(args.recording, target, database=database)
+    if database is None and reader.can_frames():
+        print("  the CAN frames are shown raw: the recording does not say which kart it was made on (--vehicle)")
+    print(f"{sets} sets of {args.recording} " + (f"written to {args.out} (open it with: rerun {args.out})"
+                                                 if args.out else "sent to the Rerun viewer"))
+    return 0
+
+
 def recordings_import_bag(args: argparse.Namespace) -> int:
     """A ROS 1 or ROS 2 bag as a kartpilot recording: cameras, commands and ground truth; the rest is listed."""
     config = merge_config(BagImportConfig(), load_yaml_mapping(args.topics) if args.topics else None, "topics")
@@ -203,6 +223,15 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     kitti.add_argument("--camera-pitch-down", type=number(minimum=-90, maximum=90), default=0.0,
                        help="its pitch below level, deg")
     kitti.set_defaults(handler=recordings_import_kitti)
+
+    viewer = sub.add_parser("view", help="a recording and its outputs in the Rerun viewer, or as a .rrd file")
+    viewer.add_argument("recording")
+    viewer.add_argument("--out", type=view_target, help="write a .rrd file here (default: send to a viewer, started "
+                                                        "if none is running)")
+    viewer.add_argument("--vehicle", choices=sorted(VEHICLES),
+                        help="the kart whose CAN messages to decode (default: the one the recording names)")
+    viewer.add_argument("--config", help="YAML file merged over the defaults (section can: the DBC file)")
+    viewer.set_defaults(handler=view)
 
     bag = rec_sub.add_parser("import-bag", help="a ROS 1 or ROS 2 bag as a recording (cameras, commands, ground "
                                                 "truth; the topics it cannot map are listed)")

@@ -16,7 +16,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
-__all__ = ["OneLineParser", "file_or_new_folder", "new_folder", "number", "output_file", "results_folder"]
+__all__ = ["VIEW_HELP", "OneLineParser", "file_or_new_folder", "new_folder", "number", "output_file", "results_folder",
+           "view_target"]
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -71,6 +72,18 @@ def output_file(text: str) -> Path:
     if not os.access(parent, os.W_OK | os.X_OK):
         raise argparse.ArgumentTypeError(f"the folder {parent} cannot be written to")
     return path
+
+
+VIEW_HELP = "a Rerun view of the run as it goes: a .rrd file, or 'live' for a viewer (docs/live-and-replay.md)"
+
+
+def view_target(text: str) -> str:
+    """Where a Rerun view goes: ``live`` (a viewer, started if none is running) or a ``.rrd`` file to write."""
+    if text == "live":
+        return text
+    if Path(text).suffix != ".rrd":
+        raise argparse.ArgumentTypeError(f"{text!r}: give a .rrd file or 'live'")
+    return str(output_file(text))
 
 
 def new_folder(text: str) -> Path:

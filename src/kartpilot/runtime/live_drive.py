@@ -18,7 +18,7 @@ from contextlib import ExitStack
 from dataclasses import dataclass, field
 from typing import Any
 
-from kartpilot.actuation.can_bus import CanActuator, make_protocol, open_bus
+from kartpilot.actuation.can_bus import CanActuator, fan_out_frames, make_protocol, open_bus, protocol_database
 from kartpilot.calibration.rectify import stereo_setup
 from kartpilot.calibration.rig import Rig, apply_camera_maps
 from kartpilot.core.config import config_to_dict
@@ -101,9 +101,14 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
                                      metadata={"source": "kartpilot drive --live", "pipeline": setup.pipeline,
                                                "vehicle": vehicle.name, "can": config_to_dict(stack.can)})
             closing.callback(writer.close)
+        view = setup.outputs.open_view({n: rig.cameras[n] for n in source.threads},
+                                       protocol_database(stack.can, vehicle))
+        if view is not None:
+            closing.callback(view.close)
         protocol = make_protocol(stack.can, vehicle, rig.steering, time.monotonic_ns())
         actuator = CanActuator(open_bus(stack.can), protocol, stack.can, stack.limits.for_vehicle(vehicle),
-                               log_frame=writer.write_can if writer is not None else None).start()
+                               log_frame=fan_out_frames([s.write_can for s in (writer, view) if s is not None])
+                               ).start()
         closing.callback(actuator.close)  # the stop command, one last time (before the recording closes)
         supervisor = Supervisor(stack.supervisor)
         drive = SupervisedDrive(pipeline, supervisor, Watchdogs(list(source.threads), period_s, stack.watchdogs,
@@ -118,7 +123,7 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
                             brake=round(command.brake, 3), camera_problems=source.problems)
 
         try:
-            stats = run_loop(timed, drive, actuator, [writer] if writer is not None else [], on_step,
+            stats = run_loop(timed, drive, actuator, [r for r in (writer, view) if r is not None], on_step,
                              period_s=period_s)
         except KeyboardInterrupt:
             timed.ended = "stopped by the user (Ctrl-C)"

@@ -160,10 +160,20 @@ def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, rout
         policy = _Told(policy, recorded)
     writer = _replay_writer(reader, pipeline, params.name, stack, outputs.record_dir)
     recorders: list[Recorder] = [] if writer is None else [writer if with_frames else _WithoutFrames(writer)]
+    view = outputs.open_view(reader.cameras)
+    if view is not None:
+        recorders.append(view)
     sink = _CommandLog()
     try:
         stats = run_loop(_Paced(source) if realtime else source, policy, sink, recorders, period_s=1.0 / rate)
     finally:
+        if view is not None:
+            truth = reader.body_poses()
+            if truth is not None:
+                view.write_groundtruth(truth)
+            if path_policy is not None:
+                view.write_reference(np.column_stack([path_policy.path.x_m, path_policy.path.y_m]))
+            view.close()
         if path_policy is not None:
             path_policy.close()
             if outputs.drive_log is not None:

@@ -15,11 +15,17 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import write_json_atomic, write_text_atomic
 from kartpilot.runtime.loop import STAGE_STATS
+
+if TYPE_CHECKING:  # rerun takes half a second to import: only a drive with a view loads it
+    import cantools
+
+    from kartpilot.record.rerun_view import RerunView
 
 __all__ = ["BACKENDS", "SCHEMA_VERSION", "SessionOutputs", "SessionResult"]
 
@@ -35,6 +41,8 @@ class SessionOutputs:
         video_path: the pipeline's view as a video.
         drive_log: the path follower's log, one row per step (path-following pipelines).
         progress: a progress bar on the terminal.
+        view: a Rerun view of the drive as it goes: a ``.rrd`` file, or ``live`` for a viewer
+            (:mod:`kartpilot.record.rerun_view`).
     """
 
     record_dir: str | Path | None = None
@@ -42,12 +50,16 @@ class SessionOutputs:
     video_path: str | Path | None = None
     drive_log: str | Path | None = None
     progress: bool = False
+    view: str | Path | None = None
 
     def check(self) -> None:
         """Refuse, before anything runs, an output that could only fail once the session is over: a file
         target that is a folder, or sits under a file, or in a folder that cannot be written."""
+        view = None if self.view is None or str(self.view) == "live" else self.view
+        if view is not None and Path(view).suffix != ".rrd":
+            raise ConfigError(f"the view would go to {view}: a Rerun file ends in .rrd (or give 'live')")
         for what, target in (("the result", self.result_path), ("the video", self.video_path),
-                             ("the drive log", self.drive_log)):
+                             ("the drive log", self.drive_log), ("the view", view)):
             if target is None:
                 continue
             path = Path(target)
@@ -60,6 +72,15 @@ class SessionOutputs:
                 raise ConfigError(f"{what} would go to {path}, but {parent} is a file")
             if not os.access(parent, os.W_OK):
                 raise ConfigError(f"{what} would go to {path}, but {parent} cannot be written")
+
+    def open_view(self, cameras: Mapping[str, PinholeCamera],
+                  database: cantools.database.can.Database | None = None) -> RerunView | None:
+        """The Rerun view asked for (None: none), a sink beside the recorder."""
+        if self.view is None:
+            return None
+        from kartpilot.record.rerun_view import RerunView
+
+        return RerunView(self.view, cameras, database=database)
 
     def write_result(self, result: SessionResult, name: str = "result.json", error_text: str = "") -> dict[str, Any]:
         """The result where it was asked for and beside the recording (as ``name``), with the pipeline's

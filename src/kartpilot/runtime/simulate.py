@@ -7,15 +7,25 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 from tqdm import tqdm
 
-from kartpilot.actuation.can_bus import CanActuator, CanConfig, make_protocol, open_bus
+from kartpilot.actuation.can_bus import (
+    CanActuator,
+    CanConfig,
+    FrameLog,
+    fan_out_frames,
+    make_protocol,
+    open_bus,
+    protocol_database,
+)
 from kartpilot.calibration.rectify import StereoSetup
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError, RecordingError
+from kartpilot.core.geometry import invert_pose
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, CommandSink, FrameSet, FrameSource, Image
 from kartpilot.record.recording import RecordingReader, RecordingWriter
@@ -23,7 +33,7 @@ from kartpilot.record.video import VideoFile
 from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.drive import ScriptedOperator, SupervisedDrive, Watchdogs
 from kartpilot.runtime.faults import FaultyBus, InjectedSource, Injection, RaisingPipeline, failing_vo
-from kartpilot.runtime.loop import LoopStats, Policy, run_loop
+from kartpilot.runtime.loop import LoopStats, Policy, Recorder, run_loop
 from kartpilot.runtime.path_policy import DriveSample, PathFollowPolicy, write_drive_log
 from kartpilot.runtime.pipelines import (
     PIPELINES,
@@ -39,6 +49,9 @@ from kartpilot.sim.can_ecu import ECU_FAULTS, AppliedCommand, KartpilotEcus, Rdw
 from kartpilot.sim.drivers import CenterlineDriver, CenterlineDriverConfig, CommandsDriver
 from kartpilot.sim.referee import RunResult
 from kartpilot.sim.simulator import SimConfig, Simulator
+
+if TYPE_CHECKING:
+    from kartpilot.record.rerun_view import RerunView
 
 __all__ = ["DRIVERS", "SimRun", "SupervisedRun", "load_commands", "run_simulation", "run_supervised_drive",
            "sim_context"]
@@ -99,7 +112,8 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
         writer = _writer(sim, outputs, {"source": "kartpilot sim", "driver": driver, "sim": config_to_dict(config),
                                         "groundtruth_camera": _gt_camera(sim)})
         source = _UntilStopped(sim, path_policy) if path_policy is not None else sim
-        stats, wall_s = _run(sim, source, policy, sim, writer, outputs, path_policy)
+        view = outputs.open_view(sim.cameras if config.render_images else {})
+        stats, wall_s = _run(sim, source, policy, sim, writer, outputs, path_policy, view=view)
         result = sim.result(wall_s)
         pipeline_ms, summary = path_policy.summary(stats.steps) if path_policy is not None else ({}, {})
         ended = "the pipeline stopped the kart" if path_policy is not None and path_policy.stopped else \
@@ -145,13 +159,13 @@ def _writer(sim: Simulator, outputs: SessionOutputs, metadata: dict[str, object]
 
 def _run(sim: Simulator, source: FrameSource, policy: Policy, sink: CommandSink, writer: RecordingWriter | None,
          outputs: SessionOutputs, path_policy: PathFollowPolicy | None,
-         before_close: Callable[[], None] | None = None) -> tuple[LoopStats, float]:
-    """The loop over the simulator, with the video and the progress bar; however it ends, the video, the
-    pipeline, its drive log (which says why a failed run failed) and the recording (with the ground truth) are
-    closed, ``before_close`` first. Returns the loop's statistics and the wall time."""
-    view = policy.pipeline if isinstance(policy, SupervisedDrive) else policy
+         before_close: Callable[[], None] | None = None, view: RerunView | None = None) -> tuple[LoopStats, float]:
+    """The loop over the simulator, with the video, the Rerun view and the progress bar; however it ends, the
+    video, the pipeline, its drive log (which says why a failed run failed), the recording and the view (with
+    the ground truth) are closed, ``before_close`` first. Returns the loop's statistics and the wall time."""
+    drawn = policy.pipeline if isinstance(policy, SupervisedDrive) else policy
     supervisor = policy.supervisor if isinstance(policy, SupervisedDrive) else None
-    video = (_VideoSink(outputs.video_path, sim, getattr(view, "overlay", None), supervisor)
+    video = (_VideoSink(outputs.video_path, sim, getattr(drawn, "overlay", None), supervisor)
              if outputs.video_path else None)
     bar = tqdm(total=round(_goal_m(sim), 1), unit="m", disable=(not outputs.progress) or None, leave=False)
 
@@ -162,7 +176,8 @@ def _run(sim: Simulator, source: FrameSource, policy: Policy, sink: CommandSink,
 
     start = time.perf_counter()
     try:
-        stats = run_loop(source, policy, sink, [writer] if writer is not None else [], on_step, period_s=sim.dt_s)
+        recorders: list[Recorder] = [r for r in (writer, view) if r is not None]
+        stats = run_loop(source, policy, sink, recorders, on_step, period_s=sim.dt_s)
     finally:
         bar.close()
         wall_s = time.perf_counter() - start
@@ -178,7 +193,16 @@ def _run(sim: Simulator, source: FrameSource, policy: Policy, sink: CommandSink,
             if sim.stamps_ns:
                 writer.write_groundtruth(sim.ground_truth(_gt_camera(sim)))
             writer.close()
+        if view is not None:
+            if sim.stamps_ns and sim.cameras:
+                truth = sim.ground_truth(_gt_camera(sim))  # the kart's own poses, through the camera's mount
+                view.write_groundtruth(Trajectory(truth.stamps_s, truth.poses @ invert_pose(
+                    sim.cameras[_gt_camera(sim)].pose_body_cam_array)))
+            if path_policy is not None:
+                view.write_reference(np.column_stack([path_policy.path.x_m, path_policy.path.y_m]))
+            view.close()
     return stats, wall_s
+
 
 
 def sim_context(sim: Simulator, stack: StackConfig, route: Route) -> PipelineContext:
@@ -342,10 +366,10 @@ class _CanSink:
         self.stall_at_s = at.get("loop-stall")
 
     @classmethod
-    def open(cls, sim: Simulator, stack: StackConfig, at: dict[str, float], writer: RecordingWriter | None
+    def open(cls, sim: Simulator, stack: StackConfig, at: dict[str, float], log_frame: FrameLog | None
              ) -> _CanSink:
         """The kart's actuator on a virtual bus of its own, the simulated ECUs of its protocol behind it, and the
-        bus faults of ``at`` armed; the traffic goes into the recording."""
+        bus faults of ``at`` armed; the traffic goes to ``log_frame`` (the recording and the view)."""
         can_config = replace(stack.can, interface="virtual", channel=f"kartpilot-sim-{id(sim)}")
         clock = _BusClock()
         protocol = make_protocol(can_config, sim.vehicle)
@@ -356,8 +380,7 @@ class _CanSink:
             raise ConfigError(f"{', '.join(unsupported)}: the {protocol.name} protocol's simulated ECUs cannot "
                               f"show it ({sim.vehicle.name}; the rdw protocol's can)")
         actuator = CanActuator(FaultyBus(open_bus(can_config), clock, at.get("can-bus-off")), protocol, can_config,
-                               stack.limits.for_vehicle(sim.vehicle), clock,
-                               writer.write_can if writer is not None else None)
+                               stack.limits.for_vehicle(sim.vehicle), clock, log_frame)
         return cls(sim, actuator, ecus, clock, at)
 
     @property
@@ -462,7 +485,10 @@ def run_supervised_drive(config: SimConfig, pipeline: str, stack: StackConfig | 
         writer = _writer(sim, outputs, {"source": "kartpilot drive --sim", "pipeline": pipeline, "bus": bus,
                                         "vehicle": sim.vehicle.name, "sim": config_to_dict(config),
                                         "injections": [f"{i.kind}@{i.at_s:g}" for i in injections]})
-        sink = _CanSink.open(sim, stack, at, writer) if bus == "virtual" else _DirectSink(sim)
+        view = outputs.open_view(sim.cameras if config.render_images else {},
+                                 protocol_database(stack.can, sim.vehicle) if bus == "virtual" else None)
+        log_frame = fan_out_frames([s.write_can for s in (writer, view) if s is not None])
+        sink = _CanSink.open(sim, stack, at, log_frame) if bus == "virtual" else _DirectSink(sim)
         actuator = sink.actuator if isinstance(sink, _CanSink) else None
         supervisor = Supervisor(stack.supervisor)
         watchdogs = Watchdogs(list(sim.cameras) if config.render_images else [], sim.dt_s, stack.watchdogs, actuator)
@@ -470,7 +496,7 @@ def run_supervised_drive(config: SimConfig, pipeline: str, stack: StackConfig | 
         source = _UntilSettled(InjectedSource(sim, list(injections)), sim, drive, path_policy)
 
         stats, wall_s = _run(sim, source, drive, sink, writer, outputs, path_policy,
-                             sink.close if isinstance(sink, _CanSink) else None)
+                             sink.close if isinstance(sink, _CanSink) else None, view)
         result = sim.result(wall_s)
         pipeline_ms, summary = path_policy.summary(stats.steps) if path_policy is not None else ({}, {})
         details = {**result.to_json(), "track": sim.track.name, "seed": config.seed, "bus": bus,

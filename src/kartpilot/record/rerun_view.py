@@ -1,0 +1,307 @@
+"""A drive as a Rerun view: every camera with what the pipeline saw, the trajectories, commands and CAN over time.
+
+:class:`RerunView` is a sink like the recorder (frames, commands, the pipeline's outputs, CAN frames), so the
+loop feeds a drive, a simulated run or a replay to it as it goes, and :func:`view_recording` feeds it a
+recording afterwards: the same view either way. The loop only queues what a step produced; one background
+thread encodes and logs it, so the loop keeps its rate. When the queue is full the step's images are dropped
+and counted (the scalars are kept). Entities (one timeline, ``stamp``: the sets' time stamps, nanoseconds):
+
+* ``cameras/<name>``: each camera's image (JPEG, scaled by ``image_scale``), and the camera's pinhole;
+* ``cameras/center/lanes``: the detected lane boundaries and their meeting point (the ``lanes`` output);
+* ``world/estimate``: the pipeline's pose (the ``pose`` output), ``world/truth`` and ``world/reference``: the
+  ground truth and the reference path, as lines;
+* ``commands/<steer_rad|throttle|brake>``: the commands;
+* ``outputs/<topic>/<value>``: every number the pipeline recorded (confidence, cross-track error, speed, the
+  kart's decoded CAN report in the ``kart`` topic), and ``events/<topic>``: its text values when they change
+  (the supervisor's state and reason, the lane rule);
+* ``can/<message>/<signal>``: each CAN frame decoded with the bus's DBC (``can/raw/<id>``: a frame it lacks).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import queue
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cantools
+import cv2
+import numpy as np
+import rerun as rr
+
+from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.errors import DataError
+from kartpilot.core.trajectory import Trajectory
+from kartpilot.core.types import ActuatorCommand, FrameSet, Image
+from kartpilot.record.recording import RecordingReader
+
+__all__ = ["LIVE", "RerunView", "ViewConfig", "view_recording"]
+
+log = logging.getLogger(__name__)
+
+LIVE = "live"  # the target that streams to a Rerun viewer instead of a file
+
+
+@dataclass(frozen=True)
+class ViewConfig:
+    """Attributes:
+        image_scale: the images are logged at this scale (JPEG): a 960x540 camera at 0.5 is about 25 kB a frame.
+        image_every: the images of every n-th set are logged (the numbers of every set are).
+        jpeg_quality: 1 to 100.
+        queue_steps: steps waiting for the logging thread; beyond them a step's images are dropped and counted.
+    """
+
+    image_scale: float = 0.5
+    image_every: int = 1
+    jpeg_quality: int = 80
+    queue_steps: int = 16
+
+    def __post_init__(self) -> None:
+        checks = {"image_scale": 0 < self.image_scale <= 1, "image_every": self.image_every >= 1,
+                  "jpeg_quality": 1 <= self.jpeg_quality <= 100, "queue_steps": self.queue_steps >= 1}
+        bad = [name for name, ok in checks.items() if not ok]
+        if bad:
+            raise ValueError(f"{bad[0]} is out of range ({getattr(self, bad[0])!r})")
+
+
+class RerunView:
+    """Logs a drive to a ``.rrd`` file or a live viewer (``target`` ``"live"``). A sink: ``write_frames``,
+    ``send``, ``write_outputs``, ``write_can``; ``write_groundtruth`` and ``write_reference`` for the lines;
+    ``close`` waits for the queue and closes the file."""
+
+    def __init__(self, target: str | Path, cameras: Mapping[str, PinholeCamera], config: ViewConfig = ViewConfig(),
+                 database: cantools.database.can.Database | None = None, name: str = "kartpilot",
+                 drop_when_full: bool = True) -> None:
+        """``database``: the bus's messages, to decode the CAN frames with. ``drop_when_full``: a live loop drops
+        a step's images when the logging thread lags; a recording's view (False) waits for it instead."""
+        self.config = config
+        self._drop_when_full = drop_when_full
+        self.cameras = dict(cameras)
+        self.stream = rr.RecordingStream("kartpilot", recording_id=f"{name}-{time.time_ns()}")
+        if str(target) == LIVE:
+            self.stream.spawn()
+        else:
+            Path(target).parent.mkdir(parents=True, exist_ok=True)
+            self.stream.save(str(target))
+        self.database = database
+        self.dropped_images = 0
+        self.logged_steps = 0
+        self.worker_s = 0.0  # the logging thread's time, for the cost per frame
+        self._sets = 0
+        self._text: dict[str, str] = {}
+        self._jobs: queue.Queue[tuple[str, int, Any] | None] = queue.Queue(maxsize=config.queue_steps)
+        self._scalars: queue.Queue[tuple[str, int, Any] | None] = queue.Queue()
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._drain, name="rerun-view", daemon=True)
+        self._thread.start()
+        for camera_name, camera in self.cameras.items():
+            scale = config.image_scale
+            self.stream.log(f"cameras/{camera_name}", rr.Pinhole(
+                image_from_camera=np.diag([scale, scale, 1.0]) @ camera.matrix,
+                resolution=[round(camera.width_px * scale), round(camera.height_px * scale)]), static=True)
+
+    # --- the sink: the loop's side only queues -----------------------------------------------------------
+
+    def write_frames(self, frames: FrameSet) -> None:
+        self._sets += 1
+        if (self._sets - 1) % self.config.image_every:
+            return
+        try:
+            self._jobs.put(("frames", frames.stamp_ns, frames.images), block=not self._drop_when_full)
+        except queue.Full:
+            self.dropped_images += 1
+
+    def send(self, command: ActuatorCommand) -> None:
+        self._scalars.put(("command", command.stamp_ns, command))
+
+    def write_outputs(self, stamp_ns: int, outputs: Mapping[str, Mapping[str, float | int | str]]) -> None:
+        self._scalars.put(("outputs", stamp_ns, {k: dict(v) for k, v in outputs.items()}))
+
+    def write_can(self, stamp_ns: int, arbitration_id: int, data: bytes, direction: str = "tx") -> None:
+        self._scalars.put(("can", stamp_ns, (arbitration_id, bytes(data), direction)))
+
+    def write_groundtruth(self, trajectory: Trajectory) -> None:
+        """The true trajectory, as one line (positions of the poses it holds)."""
+        self._scalars.put(("line", 0, ("world/truth", trajectory.poses[:, :3, 3], (0, 200, 0))))
+
+    def write_reference(self, xy_m: np.ndarray) -> None:
+        """The reference path on the ground, as one line."""
+        points = np.column_stack([xy_m[:, 0], xy_m[:, 1], np.zeros(len(xy_m))])
+        self._scalars.put(("line", 0, ("world/reference", points, (80, 80, 255))))
+
+    def close(self) -> None:
+        self._jobs.put(None)
+        self._thread.join()
+        self.stream.flush()
+        self.stream.disconnect()
+        if self._error is not None:
+            raise DataError(f"the Rerun view failed: {self._error}") from self._error
+
+    # --- the logging thread ------------------------------------------------------------------------------
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                job = self._jobs.get(timeout=0.05)
+            except queue.Empty:
+                job = ("idle", 0, None)
+            start = time.perf_counter()
+            try:
+                self._log_scalars()
+                if job is None:
+                    return
+                if job[0] == "frames":
+                    self._log_frames(job[1], job[2])
+                    self.logged_steps += 1
+            except Exception as exc:  # the view must never stop the drive: the error is raised on close
+                if self._error is None:
+                    log.exception("the Rerun view failed")
+                self._error = exc
+            finally:
+                self.worker_s += time.perf_counter() - start
+
+    def _time(self, stamp_ns: int) -> None:
+        self.stream.set_time("stamp", timestamp=np.datetime64(int(stamp_ns), "ns"))
+
+    def _log_frames(self, stamp_ns: int, images: Mapping[str, Image]) -> None:
+        self._time(stamp_ns)
+        scale = self.config.image_scale
+        for name, image in images.items():
+            small = image if scale == 1 else cv2.resize(image, None, fx=scale, fy=scale,
+                                                        interpolation=cv2.INTER_AREA)
+            ok, jpeg = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, self.config.jpeg_quality])
+            if ok:
+                self.stream.log(f"cameras/{name}", rr.EncodedImage(contents=jpeg.tobytes(), media_type="image/jpeg"))
+
+    def _log_scalars(self) -> None:
+        while True:
+            try:
+                job = self._scalars.get_nowait()
+            except queue.Empty:
+                return
+            if job is None:
+                continue
+            kind, stamp_ns, item = job
+            if kind == "line":
+                entity, points, colour = item
+                self.stream.log(entity, rr.LineStrips3D([points], colors=[colour]), static=True)
+                continue
+            self._time(stamp_ns)
+            if kind == "command":
+                for key in ("steer_rad", "throttle", "brake"):
+                    self.stream.log(f"commands/{key}", rr.Scalars(getattr(item, key)))
+            elif kind == "outputs":
+                for topic, values in item.items():
+                    self._log_topic(topic, values)
+            elif kind == "can":
+                self._log_can(*item)
+
+    def _log_topic(self, topic: str, values: Mapping[str, float | int | str]) -> None:
+        texts = []
+        for key, value in values.items():
+            if isinstance(value, str):
+                texts.append(f"{key}: {value}")
+            elif math.isfinite(value):
+                self.stream.log(f"outputs/{topic}/{key}", rr.Scalars(float(value)))
+        text = ", ".join(texts)
+        if texts and self._text.get(topic) != text:  # a state change, not a line per frame
+            self._text[topic] = text
+            self.stream.log(f"events/{topic}", rr.TextLog(text))
+        if topic == "lanes" and "left_x_bottom_px" in values:
+            self._log_lanes(values)
+        if topic == "pose" and "x_m" in values:
+            x, y = float(values["x_m"]), float(values["y_m"])
+            if math.isfinite(x) and math.isfinite(y):
+                self.stream.log("world/estimate", rr.Points3D([[x, y, 0.0]], colors=[(255, 120, 0)], radii=0.05))
+
+    def _log_lanes(self, values: Mapping[str, float | int | str]) -> None:
+        scale = self.config.image_scale
+        strips = []
+        for side in ("left", "right"):
+            ends = [values.get(f"{side}_{k}_px") for k in ("x_bottom", "y_bottom", "x_top", "y_top")]
+            if all(isinstance(v, (int, float)) and math.isfinite(v) for v in ends):
+                xb, yb, xt, yt = (float(v) * scale for v in ends)  # type: ignore[arg-type]
+                strips.append([[xb, yb], [xt, yt]])
+        self.stream.log("cameras/center/lanes", rr.LineStrips2D(strips, colors=[(0, 255, 0)], radii=1.5))
+        meet = (values.get("intersection_x_px"), values.get("intersection_y_px"))
+        if all(isinstance(v, (int, float)) and math.isfinite(v) for v in meet):
+            self.stream.log("cameras/center/lanes/meeting_point", rr.Points2D(
+                [[float(meet[0]) * scale, float(meet[1]) * scale]], colors=[(255, 0, 255)], radii=4.0))  # type: ignore[arg-type]
+
+    def _log_can(self, arbitration_id: int, data: bytes, direction: str) -> None:
+        message = None
+        if self.database is not None:
+            try:
+                message = self.database.get_message_by_frame_id(arbitration_id)
+            except KeyError:
+                message = None
+        if message is None:
+            self.stream.log(f"can/raw/{arbitration_id:#x}", rr.Scalars(float(len(data))))
+            return
+        try:
+            signals = message.decode(data, decode_choices=False)
+        except Exception:  # a frame the DBC cannot decode is shown raw
+            signals = None
+        if not isinstance(signals, dict):
+            self.stream.log(f"can/raw/{arbitration_id:#x}", rr.Scalars(float(len(data))))
+            return
+        for signal, value in signals.items():
+            if isinstance(value, (int, float)):
+                self.stream.log(f"can/{message.name}/{signal}", rr.Scalars(float(value)))
+
+
+def view_recording(folder: str | Path, target: str | Path, config: ViewConfig = ViewConfig(),
+                   database: cantools.database.can.Database | None = None) -> int:
+    """Feed the recording at ``folder`` (its frames, commands, outputs, CAN traffic and ground truth) to a
+    :class:`RerunView` at ``target``, in time order; returns the number of sets. A file is written whole or not
+    at all."""
+    reader = RecordingReader(folder)
+    live = str(target) == LIVE
+    partial = Path(target).with_name(f".{Path(target).name}.partial") if not live else Path(target)
+    view = RerunView(partial if not live else LIVE, reader.cameras, config, database, name=Path(folder).name,
+                     drop_when_full=False)
+    sets: dict[int, dict[str, Path]] = {}
+    done = False
+    try:
+        for name in reader.cameras:
+            for stamp, path in reader.frames(name):
+                sets.setdefault(stamp, {})[name] = path
+        events: list[tuple[int, int, Any]] = [(stamp, 0, paths) for stamp, paths in sets.items()]
+        events += [(c.stamp_ns, 1, c) for c in reader.commands()]
+        rows: dict[int, dict[str, dict[str, Any]]] = {}
+        for topic in reader.output_topics():
+            for row in reader.outputs(topic):
+                rows.setdefault(int(row["stamp_ns"]), {})[topic] = {k: v for k, v in row.items() if k != "stamp_ns"}
+        events += [(stamp, 2, topics) for stamp, topics in rows.items()]
+        events += [(stamp, 3, (i, d, direction)) for stamp, direction, i, d in reader.can_frames()]
+        for index, (stamp, kind, item) in enumerate(sorted(events, key=lambda e: (e[0], e[1]))):
+            if kind == 0:
+                images = {name: cv2.imread(str(path), cv2.IMREAD_UNCHANGED) for name, path in item.items()}
+                unreadable = [name for name, image in images.items() if image is None]
+                if unreadable:
+                    raise DataError(f"cannot read {item[unreadable[0]]}")
+                view.write_frames(FrameSet(index, stamp, images))
+            elif kind == 1:
+                view.send(item)
+            elif kind == 2:
+                view.write_outputs(stamp, item)
+            else:
+                view.write_can(stamp, *item)
+        truth = reader.body_poses()
+        if truth is not None:
+            view.write_groundtruth(truth)
+        done = True
+    finally:
+        view.close()
+        if not live:
+            if done:
+                os.replace(partial, target)
+            else:
+                partial.unlink(missing_ok=True)
+    return len(sets)
