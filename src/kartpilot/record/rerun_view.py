@@ -22,9 +22,9 @@ from __future__ import annotations
 import logging
 import math
 import os
-import queue
 import threading
 import time
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,6 +75,9 @@ class RerunView:
     ``send``, ``write_outputs``, ``write_can``; ``write_groundtruth`` and ``write_reference`` for the lines;
     ``close`` waits for the queue and closes the file."""
 
+    SCALAR_BATCH = 30  # values of a time series sent at once: a second of a 30 Hz drive
+    POLL_S = 0.002  # how often the thread looks for work when it has none
+
     def __init__(self, target: str | Path, cameras: Mapping[str, PinholeCamera], config: ViewConfig = ViewConfig(),
                  database: cantools.database.can.Database | None = None, name: str = "kartpilot",
                  drop_when_full: bool = True) -> None:
@@ -95,8 +98,12 @@ class RerunView:
         self.worker_s = 0.0  # the logging thread's time, for the cost per frame
         self._sets = 0
         self._text: dict[str, str] = {}
-        self._jobs: queue.Queue[tuple[str, int, Any] | None] = queue.Queue(maxsize=config.queue_steps)
-        self._scalars: queue.Queue[tuple[str, int, Any] | None] = queue.Queue()
+        self._series: dict[str, tuple[list[int], list[float]]] = {}
+        # plain deques, polled by the thread: appending never waits on a lock the thread holds (a queue's
+        # hand-over cost the loop 1 to 2 ms a frame on a busy machine)
+        self._frames: deque[tuple[int, Mapping[str, Image]]] = deque()
+        self._scalars: deque[tuple[str, int, Any]] = deque()
+        self._closing = False
         self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._drain, name="rerun-view", daemon=True)
         self._thread.start()
@@ -112,31 +119,33 @@ class RerunView:
         self._sets += 1
         if (self._sets - 1) % self.config.image_every:
             return
-        try:
-            self._jobs.put(("frames", frames.stamp_ns, frames.images), block=not self._drop_when_full)
-        except queue.Full:
+        while not self._drop_when_full and len(self._frames) >= self.config.queue_steps and self._thread.is_alive():
+            time.sleep(self.POLL_S)
+        if len(self._frames) >= self.config.queue_steps:
             self.dropped_images += 1
+            return
+        self._frames.append((frames.stamp_ns, frames.images))
 
     def send(self, command: ActuatorCommand) -> None:
-        self._scalars.put(("command", command.stamp_ns, command))
+        self._scalars.append(("command", command.stamp_ns, command))
 
     def write_outputs(self, stamp_ns: int, outputs: Mapping[str, Mapping[str, float | int | str]]) -> None:
-        self._scalars.put(("outputs", stamp_ns, {k: dict(v) for k, v in outputs.items()}))
+        self._scalars.append(("outputs", stamp_ns, {k: dict(v) for k, v in outputs.items()}))
 
     def write_can(self, stamp_ns: int, arbitration_id: int, data: bytes, direction: str = "tx") -> None:
-        self._scalars.put(("can", stamp_ns, (arbitration_id, bytes(data), direction)))
+        self._scalars.append(("can", stamp_ns, (arbitration_id, bytes(data), direction)))
 
     def write_groundtruth(self, trajectory: Trajectory) -> None:
         """The true trajectory, as one line (positions of the poses it holds)."""
-        self._scalars.put(("line", 0, ("world/truth", trajectory.poses[:, :3, 3], (0, 200, 0))))
+        self._scalars.append(("line", 0, ("world/truth", trajectory.poses[:, :3, 3], (0, 200, 0))))
 
     def write_reference(self, xy_m: np.ndarray) -> None:
         """The reference path on the ground, as one line."""
         points = np.column_stack([xy_m[:, 0], xy_m[:, 1], np.zeros(len(xy_m))])
-        self._scalars.put(("line", 0, ("world/reference", points, (80, 80, 255))))
+        self._scalars.append(("line", 0, ("world/reference", points, (80, 80, 255))))
 
     def close(self) -> None:
-        self._jobs.put(None)
+        self._closing = True
         self._thread.join()
         self.stream.flush()
         self.stream.disconnect()
@@ -147,18 +156,20 @@ class RerunView:
 
     def _drain(self) -> None:
         while True:
-            try:
-                job = self._jobs.get(timeout=0.05)
-            except queue.Empty:
-                job = ("idle", 0, None)
+            closing = self._closing  # read before the queues: whatever came before close is logged
+            if not self._frames and not self._scalars and not closing:
+                time.sleep(self.POLL_S)
+                continue
             start = time.perf_counter()
             try:
                 self._log_scalars()
-                if job is None:
-                    return
-                if job[0] == "frames":
-                    self._log_frames(job[1], job[2])
+                if self._frames:
+                    self._log_frames(*self._frames.popleft())
                     self.logged_steps += 1
+                elif closing:
+                    for entity in list(self._series):
+                        self._send_series(entity)
+                    return
             except Exception as exc:  # the view must never stop the drive: the error is raised on close
                 if self._error is None:
                     log.exception("the Rerun view failed")
@@ -180,14 +191,8 @@ class RerunView:
                 self.stream.log(f"cameras/{name}", rr.EncodedImage(contents=jpeg.tobytes(), media_type="image/jpeg"))
 
     def _log_scalars(self) -> None:
-        while True:
-            try:
-                job = self._scalars.get_nowait()
-            except queue.Empty:
-                return
-            if job is None:
-                continue
-            kind, stamp_ns, item = job
+        while self._scalars:
+            kind, stamp_ns, item = self._scalars.popleft()
             if kind == "line":
                 entity, points, colour = item
                 self.stream.log(entity, rr.LineStrips3D([points], colors=[colour]), static=True)
@@ -195,20 +200,34 @@ class RerunView:
             self._time(stamp_ns)
             if kind == "command":
                 for key in ("steer_rad", "throttle", "brake"):
-                    self.stream.log(f"commands/{key}", rr.Scalars(getattr(item, key)))
+                    self._scalar(f"commands/{key}", stamp_ns, getattr(item, key))
             elif kind == "outputs":
                 for topic, values in item.items():
-                    self._log_topic(topic, values)
+                    self._log_topic(stamp_ns, topic, values)
             elif kind == "can":
-                self._log_can(*item)
+                self._log_can(stamp_ns, *item)
 
-    def _log_topic(self, topic: str, values: Mapping[str, float | int | str]) -> None:
+    def _scalar(self, entity: str, stamp_ns: int, value: float) -> None:
+        """A number of a time series, sent with the others of its entity in one column every
+        ``SCALAR_BATCH`` values: one call to Rerun per value held the interpreter long enough to slow the loop."""
+        stamps, values = self._series.setdefault(entity, ([], []))
+        stamps.append(stamp_ns)
+        values.append(value)
+        if len(values) >= self.SCALAR_BATCH:
+            self._send_series(entity)
+
+    def _send_series(self, entity: str) -> None:
+        stamps, values = self._series.pop(entity)
+        self.stream.send_columns(entity, indexes=[rr.TimeColumn("stamp", timestamp=np.array(stamps, "datetime64[ns]"))],
+                                 columns=rr.Scalars.columns(scalars=np.asarray(values, float)))
+
+    def _log_topic(self, stamp_ns: int, topic: str, values: Mapping[str, float | int | str]) -> None:
         texts = []
         for key, value in values.items():
             if isinstance(value, str):
                 texts.append(f"{key}: {value}")
             elif math.isfinite(value):
-                self.stream.log(f"outputs/{topic}/{key}", rr.Scalars(float(value)))
+                self._scalar(f"outputs/{topic}/{key}", stamp_ns, float(value))
         text = ", ".join(texts)
         if texts and self._text.get(topic) != text:  # a state change, not a line per frame
             self._text[topic] = text
@@ -234,7 +253,7 @@ class RerunView:
             self.stream.log("cameras/center/lanes/meeting_point", rr.Points2D(
                 [[float(meet[0]) * scale, float(meet[1]) * scale]], colors=[(255, 0, 255)], radii=4.0))  # type: ignore[arg-type]
 
-    def _log_can(self, arbitration_id: int, data: bytes, direction: str) -> None:
+    def _log_can(self, stamp_ns: int, arbitration_id: int, data: bytes, direction: str) -> None:
         message = None
         if self.database is not None:
             try:
@@ -242,18 +261,18 @@ class RerunView:
             except KeyError:
                 message = None
         if message is None:
-            self.stream.log(f"can/raw/{arbitration_id:#x}", rr.Scalars(float(len(data))))
+            self._scalar(f"can/raw/{arbitration_id:#x}", stamp_ns, float(len(data)))
             return
         try:
             signals = message.decode(data, decode_choices=False)
         except Exception:  # a frame the DBC cannot decode is shown raw
             signals = None
         if not isinstance(signals, dict):
-            self.stream.log(f"can/raw/{arbitration_id:#x}", rr.Scalars(float(len(data))))
+            self._scalar(f"can/raw/{arbitration_id:#x}", stamp_ns, float(len(data)))
             return
         for signal, value in signals.items():
             if isinstance(value, (int, float)):
-                self.stream.log(f"can/{message.name}/{signal}", rr.Scalars(float(value)))
+                self._scalar(f"can/{message.name}/{signal}", stamp_ns, float(value))
 
 
 def view_recording(folder: str | Path, target: str | Path, config: ViewConfig = ViewConfig(),
