@@ -7,6 +7,7 @@ import json
 import logging
 import math
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import write_csv_atomic, write_text_atomic
 from kartpilot.core.geometry import mount_pose
 from kartpilot.core.trajectory import Trajectory, read_trajectory, write_trajectory
+from kartpilot.core.types import FrameSet
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.eval.disparity import bad_pixel_rate, disparity_search_range_px, load_middlebury_pair
 from kartpilot.eval.plots import plot_trajectories
@@ -32,7 +34,7 @@ from kartpilot.odometry.mono_vo import MonoVO
 from kartpilot.odometry.places import load_places
 from kartpilot.odometry.run import run_mono_localizer, run_vo
 from kartpilot.odometry.stereo_vo import StereoVO
-from kartpilot.odometry.vo import VisualOdometry
+from kartpilot.odometry.vo import VisualOdometry, VOStep
 from kartpilot.perception.lanes import LaneStages, detect_lanes, draw_lanes
 from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
 from kartpilot.perception.tape import detect_tape_track, draw_tape_track
@@ -124,9 +126,31 @@ def odometry(args: argparse.Namespace) -> int:
     else:
         vo = _vo_for(args, source)
         mode = "mono" if isinstance(vo, MonoVO) else "stereo"
+        view = SessionOutputs(view=args.view).open_view({})
+
+        def on_frame(step: VOStep) -> None:
+            bar.update(1)
+            if view is not None:
+                x, y, z = (float(v) for v in step.pose_world_cam[:3, 3])
+                view.write_outputs(step.stamp_ns, {"pose": {"x_m": x, "y_m": y, "z_m": z, "inliers": step.inliers,
+                                                            "status": step.status}})
+
+        def frames() -> Iterator[FrameSet | int]:
+            for item in source.frame_sets():
+                if view is not None and not isinstance(item, int):
+                    view.write_frames(item)
+                yield item
+
         with tqdm(total=len(source), desc=f"{mode} VO {source.name}", unit="frame",
                   disable=args.no_progress or None, leave=False) as bar:
-            run = run_vo(source.frame_sets(), vo, source.name, on_frame=lambda _: bar.update(1))
+            try:
+                run = run_vo(frames(), vo, source.name, on_frame=on_frame)
+            finally:
+                if view is not None:
+                    truth = source.ground_truth()
+                    if truth is not None:
+                        view.write_groundtruth(truth)
+                    view.close()
         print(run.summary())
         print("stage ms: " + ", ".join(f"{k} {v:.1f}" for k, v in run.timing_ms.items()))
         trajectory = run.trajectory
@@ -394,6 +418,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         sub_parser.add_argument("--format", choices=("kitti", "tum"), help="override the format guessed from --out")
         sub_parser.add_argument("--config", help="YAML file merged over the defaults")
         sub_parser.add_argument("--plot", type=output_file, help="write the top-view plot here (PNG)")
+        sub_parser.add_argument("--view", type=view_target, help=VIEW_HELP)
         sub_parser.add_argument("--json", type=output_file, help="write the summary and metrics here")
         sub_parser.add_argument("--no-progress", action="store_true")
         sub_parser.set_defaults(handler=odometry)

@@ -8,7 +8,8 @@ and counted (the scalars are kept). Entities (one timeline, ``stamp``: the sets'
 
 * ``cameras/<name>``: each camera's image (JPEG, scaled by ``image_scale``), and the camera's pinhole;
 * ``cameras/center/lanes``: the detected lane boundaries and their meeting point (the ``lanes`` output);
-* ``world/estimate``: the pipeline's pose (the ``pose`` output), ``world/truth`` and ``world/reference``: the
+* ``world/estimate``: the pipeline's position (the ``pose`` output's ``x_m``, ``y_m`` and ``z_m``; VO's camera
+  in its own world frame for ``kartpilot odometry``), ``world/truth`` and ``world/reference``: the
   ground truth and the reference path, as lines;
 * ``commands/<steer_rad|throttle|brake>``: the commands;
 * ``outputs/<topic>/<value>``: every number the pipeline recorded (confidence, cross-track error, speed, the
@@ -235,9 +236,9 @@ class RerunView:
         if topic == "lanes" and "left_x_bottom_px" in values:
             self._log_lanes(values)
         if topic == "pose" and "x_m" in values:
-            x, y = float(values["x_m"]), float(values["y_m"])
-            if math.isfinite(x) and math.isfinite(y):
-                self.stream.log("world/estimate", rr.Points3D([[x, y, 0.0]], colors=[(255, 120, 0)], radii=0.05))
+            point = [float(values.get(k, 0.0)) for k in ("x_m", "y_m", "z_m")]  # type: ignore[arg-type]
+            if all(math.isfinite(v) for v in point):
+                self.stream.log("world/estimate", rr.Points3D([point], colors=[(255, 120, 0)], radii=0.05))
 
     def _log_lanes(self, values: Mapping[str, float | int | str]) -> None:
         scale = self.config.image_scale
