@@ -307,6 +307,9 @@ def _import(reader: AnyReader, out: Path, config: BagImportConfig, vehicle: Vehi
         cameras.append(BagCamera(camera.name, camera.image, info))
     for topic, _, _, msg in _messages(reader, [c.info for c in cameras]):
         infos.setdefault(topic, msg)
+    silent = [c.info for c in cameras if c.info not in infos]
+    if silent:
+        raise DataError(f"camera info topic {silent[0]} holds no message")
     if not cameras:
         raise DataError("the bag has no image topic with a camera info: " +
                         ("; ".join(f"{t}: {r}" for t, r in unmapped.items()) or "no image topic at all"))
