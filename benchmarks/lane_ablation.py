@@ -6,7 +6,7 @@ missing side, the right-steer when both side cameras fire) and once with kartpil
 Prints the referee's verdict, the distance from the lane centre and how much the steer oscillates
 (RMS of the steer's change per second), and writes JSON.
 
-    python benchmarks/lane_ablation.py --seconds 60 --out benchmarks/results/lane_ablation.json
+    python benchmarks/lane_ablation.py --seconds 60 --out docs/results/lane_ablation.json
 """
 
 from __future__ import annotations
@@ -22,6 +22,9 @@ from kartpilot.runtime.lane_policy import LanePolicyConfig
 from kartpilot.sim.simulator import SimConfig
 from kartpilot.study.jobs import lane_drive
 
+RULES = {"thesis rules": "thesis (heading only, no smoothing, extreme column, right-steer wins, side camera "
+                         "overrides)",
+         "kartpilot": "kartpilot (offset term, smoothing, rate limit, lane width, nearer side, side camera blended)"}
 THESIS = LaneFollowConfig(heading_gain=1.0, offset_gain=0.0, smoothing=0.0, max_steer_rate_radps=100.0,
                           missing_side="extreme", both_sides="left_first", side_rule="override")
 
@@ -38,7 +41,7 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--rate", type=float, default=15.0)
     parser.add_argument("--mode", type=float, default=15.0, help="speed mode, km/h")
-    parser.add_argument("--out", default="benchmarks/results/lane_ablation.json")
+    parser.add_argument("--out", default="docs/results/lane_ablation.json")
     args = parser.parse_args()
     rows = {"thesis rules": drive(THESIS, args.seconds, args.rate, args.mode),
             "kartpilot": drive(LaneFollowConfig(), args.seconds, args.rate, args.mode)}
@@ -48,7 +51,8 @@ def main() -> int:
         verdict = f"DQ: {row['reason']}" if row["touched"] else str(row["reason"])
         print(f"{name:<14}{verdict:<44}{row['distance_m']:>8.1f}{row['mean_center_offset_m']:>10.2f}"
               f"{row['max_center_offset_m']:>9.2f}{row['steer_rate_rms_radps']:>16.3f}")
-    write_json(args.out, rows)
+    write_json(args.out, {"track": "sdc-assen", "vehicle": "sdc-kart", "mode_kmh": args.mode, "rate_hz": args.rate,
+                          "seconds": args.seconds, "labels": RULES, "rows": rows})
     return 0
 
 

@@ -1,7 +1,7 @@
 """Put the measured lane-following results into docs/lanes.md: race pace in the simulator, speed and latency,
 and taped tracks on real footage.
 
-    python benchmarks/lane_docs.py            # from docs/results/{lane_race,lanes,tape_tracks}.json
+    python benchmarks/lane_docs.py   # from docs/results/{lane_ablation,lane_race,lanes,tape_tracks}.json
 
 Each section replaces what lies between its ``<!-- name -->`` and ``<!-- /name -->`` markers, so the page's
 numbers are the measured ones (tests/test_docs_numbers.py checks).
@@ -88,7 +88,25 @@ def tape(results: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-SECTIONS = {"lane-race": ("lane_race", race), "lane-speed": ("lanes", speed), "tape-tracks": ("tape_tracks", tape)}
+def ablation(results: dict[str, Any]) -> str:
+    lines = [f"Closed loop on `{results['track']}` ({results['vehicle']}, {results['mode_kmh']:g} km/h mode, "
+             f"{results['rate_hz']:g} Hz, {results['seconds']:g} s, seed 1, `benchmarks/lane_ablation.py`), the "
+             "thesis's rules against kartpilot's:", "",
+             "| rules | referee | mean / max distance from the centre | steer rate RMS |", "|---|---|---|---|"]
+    for name, row in results["rows"].items():
+        verdict = f"DQ: {row['reason']}" if row["touched"] else "no DQ"
+        lines.append(f"| {results['labels'][name]} | {verdict}, {row['distance_m']:.0f} m | "
+                     f"{row['mean_center_offset_m']:.2f} / {row['max_center_offset_m']:.2f} m | "
+                     f"{row['steer_rate_rms_radps']:.2f} rad/s |")
+    thesis, ours = results["rows"]["thesis rules"], results["rows"]["kartpilot"]
+    lines += ["", f"kartpilot's steer rate is {thesis['steer_rate_rms_radps'] / ours['steer_rate_rms_radps']:.1f} "
+                  f"times lower (less oscillation) and its mean distance from the centre "
+                  f"{100 * (1 - ours['mean_center_offset_m'] / thesis['mean_center_offset_m']):.0f} % smaller."]
+    return "\n".join(lines) + "\n"
+
+
+SECTIONS = {"lane-ablation": ("lane_ablation", ablation), "lane-race": ("lane_race", race),
+            "lane-speed": ("lanes", speed), "tape-tracks": ("tape_tracks", tape)}
 
 
 def main() -> int:

@@ -10,11 +10,13 @@ core if there is one. All are per frame (medians of the passes), against the pip
 a view and against the 30 Hz period.
 
     python benchmarks/view_cost.py --out docs/results/view_cost.json
+    python benchmarks/view_cost.py --docs      # the table in docs/viewing.md, from that JSON
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import tempfile
 import time
@@ -32,6 +34,7 @@ from kartpilot.runtime.loop import Outputs, run_loop
 from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.simulator import SimConfig
+from vo_table import put_between_markers
 
 RATE_HZ = 30.0
 
@@ -91,12 +94,42 @@ def one_pass(recording: Path, view_path: Path | None) -> dict[str, float]:
     return row
 
 
+ROOT = Path(__file__).resolve().parents[1]
+PAGE = ROOT / "docs" / "viewing.md"
+MARKER = "view-cost"
+
+
+def render(results: dict[str, Any]) -> str:
+    """The docs' table of what a view costs, from the JSON :func:`main` writes."""
+    view = results["view"]
+    return "\n".join([
+        f"{results['what'].capitalize()} ({results['frames']} frames, the median of {results['repeats']} passes; "
+        f"images at scale {view['image_scale']:g}, JPEG quality {view['jpeg_quality']}; "
+        "`benchmarks/view_cost.py`):", "",
+        "| per frame | ms | share of the pipeline's time | share of the 30 Hz period |",
+        "|---|---:|---:|---:|",
+        f"| the pipeline, without a view | {results['pipeline_ms']:.2f} | 100 % | "
+        f"{100 * results['pipeline_ms'] * RATE_HZ / 1e3:.1f} % |",
+        f"| what the loop waits for with a view (its calls {results['calls_ms']:.3f} ms, the pipeline slowed "
+        f"beside the thread) | {results['loop_cost_ms']:.2f} | {results['loop_cost_percent_of_pipeline']:.1f} % | "
+        f"{results['loop_cost_percent_of_period']:.1f} % |",
+        f"| the logging thread (beside the loop) | {results['worker_ms']:.2f} | "
+        f"{100 * results['worker_ms'] / results['pipeline_ms']:.0f} % | {results['worker_percent_of_period']:.1f} % |",
+        "", f"Images dropped because the thread lagged: {results['dropped_images']:.0f}. The file grows by about "
+        f"{results['rrd_mb_per_minute']:.0f} MB a minute.", ""])
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--out", default="docs/results/view_cost.json")
+    parser.add_argument("--docs", action="store_true", help="only put the table from --out into docs/viewing.md")
     args = parser.parse_args()
+    if args.docs:
+        put_between_markers(PAGE, render(json.loads(Path(args.out).read_text(encoding="utf-8"))),
+                            f"<!-- {MARKER} -->", f"<!-- /{MARKER} -->")
+        return 0
     with tempfile.TemporaryDirectory() as tmp:
         recording = Path(tmp) / "drive"
         config = SimConfig(track="sdc-assen", vehicle="sdc-kart", camera_rate_hz=RATE_HZ, max_time_s=args.seconds,

@@ -113,7 +113,7 @@ def test_the_scaling_shown_is_the_measured_one(page: str) -> None:
     assert section.strip() == scaling.render(results).strip()
 
 
-@pytest.mark.parametrize("marker", ["lane-race", "lane-speed", "tape-tracks"])
+@pytest.mark.parametrize("marker", ["lane-ablation", "lane-race", "lane-speed", "tape-tracks"])
 def test_the_lane_results_shown_are_the_measured_ones(marker: str) -> None:
     lane_docs = _script("lane_docs")
     name, render = lane_docs.SECTIONS[marker]
@@ -123,3 +123,13 @@ def test_the_lane_results_shown_are_the_measured_ones(marker: str) -> None:
     section = text[text.index(start) + len(start):text.index(end)]
     assert section.strip() == render(results).strip(), (
         f"docs/lanes.md's {marker} section differs from docs/results/{name}.json: run benchmarks/lane_docs.py")
+
+
+def test_the_view_cost_shown_is_the_measured_one() -> None:
+    view_cost = _script("view_cost")
+    results = json.loads((ROOT / "docs" / "results" / "view_cost.json").read_text(encoding="utf-8"))
+    text = view_cost.PAGE.read_text(encoding="utf-8")
+    start, end = f"<!-- {view_cost.MARKER} -->", f"<!-- /{view_cost.MARKER} -->"
+    assert text[text.index(start) + len(start):text.index(end)].strip() == view_cost.render(results).strip(), (
+        "docs/viewing.md's view-cost table differs from docs/results/view_cost.json: run "
+        "benchmarks/view_cost.py --docs")

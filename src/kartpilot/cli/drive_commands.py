@@ -100,8 +100,8 @@ def with_default_speed_mode(config: SimConfig, pipeline: str) -> SimConfig:
     """The lanes pipeline on the sdc-kart, with no speed mode asked for: its default mode, said."""
     mode = lane_speed_mode_mps(pipeline, config.vehicle, config.speed_mode_mps)
     if mode != config.speed_mode_mps:
-        print(f"speed mode {mode * 3.6:g} km/h: the lane pipeline's default, not yet safe on every lap "
-              "(docs/lanes.md; --speed-mode to choose)")
+        print(f"speed mode {mode * 3.6:g} km/h: the lane pipeline's default, the fastest it finished simulated "
+              "laps at (docs/lanes.md; --speed-mode to choose)")
     return replace(config, speed_mode_mps=mode)
 
 

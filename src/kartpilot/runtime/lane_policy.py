@@ -47,9 +47,9 @@ _KART_LINES = LaneConfig(roi_top_width=1.0, min_abs_slope=0.1)
 
 KNOWN_GOOD_SPEED_MODE_KMH = 30.0
 """The speed mode a simulated drive of the lanes pipeline on the sdc-kart uses unless one is given: the
-fastest of the SDC kart's modes (5, 15, 30, 60 km/h) at which it was meant to drive whole laps of sdc-assen
-without a fault. The last measurement (``benchmarks/lane_race.py``, docs/lanes.md) does not support it yet:
-two of three seeds touch a line at 30 km/h; this stays open."""
+fastest of the SDC kart's modes (5, 15, 30, 60 km/h) at which it drives whole laps of sdc-assen without a fault
+with its defaults (``benchmarks/lane_race.py``, docs/lanes.md: seeds 1 to 5, three of them held out). One
+simulated track: it says nothing yet about a real one."""
 
 
 def lane_speed_mode_mps(pipeline: str, vehicle: str, requested_mps: float) -> float:
