@@ -68,10 +68,11 @@ def test_a_view_of_what_is_not_a_recording_leaves_no_file(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_odometry_with_view_shows_each_frame_its_estimate_and_the_truth(tmp_path):
+def test_odometry_with_view_shows_each_frame_its_estimate_inliers_points_and_the_truth(tmp_path):
     assert main(["odometry", "synthetic", "--frames", "12", "--out", str(tmp_path / "t.txt"), "--view",
                  str(tmp_path / "vo.rrd"), "--no-progress"]) == 0
     counts, static = rows(tmp_path / "vo.rrd")
     assert counts["/cameras/left"] == counts["/cameras/right"] == 12
-    assert counts["/world/estimate"] == counts["/outputs/pose/inliers"] == 12
+    assert counts["/world/estimate"] == counts["/outputs/pose/inliers"] == counts["/outputs/vo/epipolar_ok"] == 12
+    assert counts["/cameras/left/inliers"] == counts["/world/points"] == 11  # each step's, in the image before
     assert "/world/truth" in static

@@ -10,7 +10,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -45,6 +45,9 @@ from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
 from kartpilot.runtime.lane_policy import LANE_PRESETS
 from kartpilot.runtime.session import SessionOutputs
+
+if TYPE_CHECKING:
+    from kartpilot.record.rerun_view import RerunView
 from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.donkeycar import DonkeyTub
@@ -128,12 +131,13 @@ def odometry(args: argparse.Namespace) -> int:
         mode = "mono" if isinstance(vo, MonoVO) else "stereo"
         view = SessionOutputs(view=args.view).open_view({})
 
+        last: list[VOStep] = []
+
         def on_frame(step: VOStep) -> None:
             bar.update(1)
             if view is not None:
-                x, y, z = (float(v) for v in step.pose_world_cam[:3, 3])
-                view.write_outputs(step.stamp_ns, {"pose": {"x_m": x, "y_m": y, "z_m": z, "inliers": step.inliers,
-                                                            "status": step.status}})
+                _view_vo_step(view, step, last[0] if last else None, source)
+                last[:] = [step]
 
         def frames() -> Iterator[FrameSet | int]:
             for item in source.frame_sets():
@@ -171,6 +175,28 @@ def odometry(args: argparse.Namespace) -> int:
         _write_json(args.json, {"source": source.name, "frames": len(trajectory), **summary,
                                 "metrics": metrics.as_dict() if metrics else None})
     return 0
+
+
+def _view_vo_step(view: RerunView, step: VOStep, previous: VOStep | None, source: Any) -> None:
+    """One VO step in the view: the camera's position, the count each filter stage kept, and the inliers, in
+    the previous left image (where they were measured) and in the world."""
+    x, y, z = (float(v) for v in step.pose_world_cam[:3, 3])
+    view.write_outputs(step.stamp_ns, {"pose": {"x_m": x, "y_m": y, "z_m": z, "inliers": step.inliers,
+                                                "status": step.status}})
+    diagnostics = getattr(step, "diagnostics", None)
+    if diagnostics is None:
+        return
+    view.write_outputs(step.stamp_ns, {"vo": {name: getattr(diagnostics, name) for name in (
+        "left_features", "stereo_matches", "epipolar_ok", "depth_ok", "temporal_matches", "inliers")}})
+    rig = getattr(source, "rig", None)
+    if previous is None or rig is None or not len(diagnostics.inlier_pixels):
+        return
+    k = rig.camera.matrix
+    pixels, depth = diagnostics.inlier_pixels, diagnostics.inlier_depths_m
+    in_camera = np.column_stack([(pixels[:, 0] - k[0, 2]) / k[0, 0] * depth, (pixels[:, 1] - k[1, 2]) / k[1, 1] * depth,
+                                 depth])
+    pose = previous.pose_world_cam
+    view.write_points(previous.stamp_ns, "left", pixels, in_camera @ pose[:3, :3].T + pose[:3, 3])
 
 
 def evaluate(args: argparse.Namespace) -> int:

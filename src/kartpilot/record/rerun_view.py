@@ -8,6 +8,8 @@ and counted (the scalars are kept). Entities (one timeline, ``stamp``: the sets'
 
 * ``cameras/<name>``: each camera's image (JPEG, scaled by ``image_scale``), and the camera's pinhole;
 * ``cameras/center/lanes``: the detected lane boundaries and their meeting point (the ``lanes`` output);
+* ``cameras/left/inliers`` and ``world/points``: VO's inlier points in the image and in the world
+  (``kartpilot odometry``), with each filter stage's count as ``outputs/vo/<stage>``;
 * ``world/estimate``: the pipeline's position (the ``pose`` output's ``x_m``, ``y_m`` and ``z_m``; VO's camera
   in its own world frame for ``kartpilot odometry``), ``world/truth`` and ``world/reference``: the
   ground truth and the reference path, as lines;
@@ -136,6 +138,11 @@ class RerunView:
     def write_can(self, stamp_ns: int, arbitration_id: int, data: bytes, direction: str = "tx") -> None:
         self._scalars.append(("can", stamp_ns, (arbitration_id, bytes(data), direction)))
 
+    def write_points(self, stamp_ns: int, camera: str, pixels: np.ndarray, points_world_m: np.ndarray) -> None:
+        """A step's points: where they lie in ``camera``'s image at ``stamp_ns`` (``cameras/<camera>/inliers``)
+        and in the world (``world/points``)."""
+        self._scalars.append(("points", stamp_ns, (camera, np.asarray(pixels, float), np.asarray(points_world_m))))
+
     def write_groundtruth(self, trajectory: Trajectory) -> None:
         """The true trajectory, as one line (positions of the poses it holds)."""
         self._scalars.append(("line", 0, ("world/truth", trajectory.poses[:, :3, 3], (0, 200, 0))))
@@ -199,7 +206,12 @@ class RerunView:
                 self.stream.log(entity, rr.LineStrips3D([points], colors=[colour]), static=True)
                 continue
             self._time(stamp_ns)
-            if kind == "command":
+            if kind == "points":
+                camera, pixels, points = item
+                self.stream.log(f"cameras/{camera}/inliers", rr.Points2D(pixels * self.config.image_scale,
+                                                                          colors=[(255, 200, 0)], radii=2.0))
+                self.stream.log("world/points", rr.Points3D(points, colors=[(120, 180, 255)], radii=0.03))
+            elif kind == "command":
                 for key in ("steer_rad", "throttle", "brake"):
                     self._scalar(f"commands/{key}", stamp_ns, getattr(item, key))
             elif kind == "outputs":
@@ -236,7 +248,7 @@ class RerunView:
         if topic == "lanes" and "left_x_bottom_px" in values:
             self._log_lanes(values)
         if topic == "pose" and "x_m" in values:
-            point = [float(values.get(k, 0.0)) for k in ("x_m", "y_m", "z_m")]  # type: ignore[arg-type]
+            point = [float(values.get(k, 0.0)) for k in ("x_m", "y_m", "z_m")]
             if all(math.isfinite(v) for v in point):
                 self.stream.log("world/estimate", rr.Points3D([point], colors=[(255, 120, 0)], radii=0.05))
 
