@@ -74,7 +74,7 @@ def output_file(text: str) -> Path:
     return path
 
 
-VIEW_HELP = "a Rerun view of the run as it goes: a .rrd file, or 'live' for a viewer (docs/live-and-replay.md)"
+VIEW_HELP = "a Rerun view of the run as it goes: a .rrd file, or 'live' for a viewer (docs/viewing.md)"
 
 
 def view_target(text: str) -> str:

@@ -90,7 +90,8 @@ class RerunView:
         self._drop_when_full = drop_when_full
         self.cameras = dict(cameras)
         self.stream = rr.RecordingStream("kartpilot", recording_id=f"{name}-{time.time_ns()}")
-        if str(target) == LIVE:
+        self._path = None if str(target) == LIVE else Path(target)
+        if self._path is None:
             self.stream.spawn()
         else:
             Path(target).parent.mkdir(parents=True, exist_ok=True)
@@ -159,6 +160,11 @@ class RerunView:
         self.stream.disconnect()
         if self._error is not None:
             raise DataError(f"the Rerun view failed: {self._error}") from self._error
+
+    def remove(self) -> None:
+        """Delete the closed view's file (a run refused before it began leaves none)."""
+        if self._path is not None:
+            self._path.unlink(missing_ok=True)
 
     # --- the logging thread ------------------------------------------------------------------------------
 

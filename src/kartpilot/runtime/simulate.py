@@ -204,7 +204,6 @@ def _run(sim: Simulator, source: FrameSource, policy: Policy, sink: CommandSink,
     return stats, wall_s
 
 
-
 def sim_context(sim: Simulator, stack: StackConfig, route: Route) -> PipelineContext:
     """The simulator as a pipeline's backend: its rendered cameras, its rate, and the kart's stereo pair as
     ideal, already rectified cameras."""
@@ -488,7 +487,13 @@ def run_supervised_drive(config: SimConfig, pipeline: str, stack: StackConfig | 
         view = outputs.open_view(sim.cameras if config.render_images else {},
                                  protocol_database(stack.can, sim.vehicle) if bus == "virtual" else None)
         log_frame = fan_out_frames([s.write_can for s in (writer, view) if s is not None])
-        sink = _CanSink.open(sim, stack, at, log_frame) if bus == "virtual" else _DirectSink(sim)
+        try:
+            sink = _CanSink.open(sim, stack, at, log_frame) if bus == "virtual" else _DirectSink(sim)
+        except BaseException:
+            if view is not None:  # refused before the drive: no view file is left behind
+                view.close()
+                view.remove()
+            raise
         actuator = sink.actuator if isinstance(sink, _CanSink) else None
         supervisor = Supervisor(stack.supervisor)
         watchdogs = Watchdogs(list(sim.cameras) if config.render_images else [], sim.dt_s, stack.watchdogs, actuator)
