@@ -45,9 +45,6 @@ from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
 from kartpilot.runtime.lane_policy import LANE_PRESETS
 from kartpilot.runtime.session import SessionOutputs
-
-if TYPE_CHECKING:
-    from kartpilot.record.rerun_view import RerunView
 from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.donkeycar import DonkeyTub
@@ -56,6 +53,9 @@ from kartpilot.sensors.kitti import KittiOdometrySource
 from kartpilot.sim.referee import RunResult
 from kartpilot.sim.simulator import SimConfig
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
+
+if TYPE_CHECKING:
+    from kartpilot.record.rerun_view import RerunView
 
 __all__ = ["add_parsers", "demo", "disparity", "evaluate", "lanes", "odometry", "simulate"]
 

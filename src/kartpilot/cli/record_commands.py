@@ -142,12 +142,12 @@ def view(args: argparse.Namespace) -> int:
         database = protocol_database(stack.can, get_vehicle(name)) if name else None
     from kartpilot.record.rerun_view import view_recording  # rerun takes half a second to import
 
-    target = args.out or "live"
-    sets = view_recording(args.recording, target, database=database)
+    out = None if args.out in (None, "live") else args.out
+    sets = view_recording(args.recording, out or "live", database=database)
     if database is None and reader.can_frames():
         print("  the CAN frames are shown raw: the recording does not say which kart it was made on (--vehicle)")
-    print(f"{sets} sets of {args.recording} " + (f"written to {args.out} (open it with: rerun {args.out})"
-                                                 if args.out else "sent to the Rerun viewer"))
+    print(f"{sets} sets of {args.recording} " + (f"written to {out} (open it with: rerun {out})"
+                                                 if out else "sent to the Rerun viewer"))
     return 0
 
 
