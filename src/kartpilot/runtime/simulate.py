@@ -113,7 +113,7 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
                                         "groundtruth_camera": _gt_camera(sim)})
         source = _UntilStopped(sim, path_policy) if path_policy is not None else sim
         view = outputs.open_view(sim.cameras if config.render_images else {})
-        stats, wall_s = _run(sim, source, policy, sim, writer, outputs, path_policy, view=view)
+        stats, wall_s = _run(sim, source, policy, sim, _Recorders(writer, view), outputs, path_policy)
         result = sim.result(wall_s)
         pipeline_ms, summary = path_policy.summary(stats.steps) if path_policy is not None else ({}, {})
         ended = "the pipeline stopped the kart" if path_policy is not None and path_policy.stopped else \
@@ -157,9 +157,36 @@ def _writer(sim: Simulator, outputs: SessionOutputs, metadata: dict[str, object]
                            queue_frames=8, drop_when_full=False)
 
 
-def _run(sim: Simulator, source: FrameSource, policy: Policy, sink: CommandSink, writer: RecordingWriter | None,
+@dataclass
+class _Recorders:
+    """The run's recording and Rerun view (either may be absent)."""
+
+    writer: RecordingWriter | None = None
+    view: RerunView | None = None
+
+    @property
+    def sinks(self) -> list[Recorder]:
+        return [r for r in (self.writer, self.view) if r is not None]
+
+    def close(self, sim: Simulator, path_policy: PathFollowPolicy | None) -> None:
+        """Both closed, with the ground truth (and the view with the reference path)."""
+        if self.writer is not None:
+            if sim.stamps_ns:
+                self.writer.write_groundtruth(sim.ground_truth(_gt_camera(sim)))
+            self.writer.close()
+        if self.view is not None:
+            if sim.stamps_ns and sim.cameras:
+                truth = sim.ground_truth(_gt_camera(sim))  # the kart's own poses, through the camera's mount
+                self.view.write_groundtruth(Trajectory(truth.stamps_s, truth.poses @ invert_pose(
+                    sim.cameras[_gt_camera(sim)].pose_body_cam_array)))
+            if path_policy is not None:
+                self.view.write_reference(np.column_stack([path_policy.path.x_m, path_policy.path.y_m]))
+            self.view.close()
+
+
+def _run(sim: Simulator, source: FrameSource, policy: Policy, sink: CommandSink, recorders: _Recorders,
          outputs: SessionOutputs, path_policy: PathFollowPolicy | None,
-         before_close: Callable[[], None] | None = None, view: RerunView | None = None) -> tuple[LoopStats, float]:
+         before_close: Callable[[], None] | None = None) -> tuple[LoopStats, float]:
     """The loop over the simulator, with the video, the Rerun view and the progress bar; however it ends, the
     video, the pipeline, its drive log (which says why a failed run failed), the recording and the view (with
     the ground truth) are closed, ``before_close`` first. Returns the loop's statistics and the wall time."""
@@ -176,8 +203,7 @@ def _run(sim: Simulator, source: FrameSource, policy: Policy, sink: CommandSink,
 
     start = time.perf_counter()
     try:
-        recorders: list[Recorder] = [r for r in (writer, view) if r is not None]
-        stats = run_loop(source, policy, sink, recorders, on_step, period_s=sim.dt_s)
+        stats = run_loop(source, policy, sink, recorders.sinks, on_step, period_s=sim.dt_s)
     finally:
         bar.close()
         wall_s = time.perf_counter() - start
@@ -189,18 +215,7 @@ def _run(sim: Simulator, source: FrameSource, policy: Policy, sink: CommandSink,
                 write_drive_log(path_policy.samples, outputs.drive_log)
         if before_close is not None:
             before_close()
-        if writer is not None:
-            if sim.stamps_ns:
-                writer.write_groundtruth(sim.ground_truth(_gt_camera(sim)))
-            writer.close()
-        if view is not None:
-            if sim.stamps_ns and sim.cameras:
-                truth = sim.ground_truth(_gt_camera(sim))  # the kart's own poses, through the camera's mount
-                view.write_groundtruth(Trajectory(truth.stamps_s, truth.poses @ invert_pose(
-                    sim.cameras[_gt_camera(sim)].pose_body_cam_array)))
-            if path_policy is not None:
-                view.write_reference(np.column_stack([path_policy.path.x_m, path_policy.path.y_m]))
-            view.close()
+        recorders.close(sim, path_policy)
     return stats, wall_s
 
 
@@ -500,8 +515,8 @@ def run_supervised_drive(config: SimConfig, pipeline: str, stack: StackConfig | 
         drive = SupervisedDrive(policy, supervisor, watchdogs, ScriptedOperator(at.get("gamepad-unplug")), actuator)
         source = _UntilSettled(InjectedSource(sim, list(injections)), sim, drive, path_policy)
 
-        stats, wall_s = _run(sim, source, drive, sink, writer, outputs, path_policy,
-                             sink.close if isinstance(sink, _CanSink) else None, view)
+        stats, wall_s = _run(sim, source, drive, sink, _Recorders(writer, view), outputs, path_policy,
+                             sink.close if isinstance(sink, _CanSink) else None)
         result = sim.result(wall_s)
         pipeline_ms, summary = path_policy.summary(stats.steps) if path_policy is not None else ({}, {})
         details = {**result.to_json(), "track": sim.track.name, "seed": config.seed, "bus": bus,
