@@ -22,7 +22,7 @@ from kartpilot.core.vehicle import get_vehicle
 from kartpilot.odometry.run import run_vo
 from kartpilot.odometry.stereo_vo import StereoVO
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
-from kartpilot.record.rosbag import BagImportConfig, camera_name, decode_image, import_bag, info_topic
+from kartpilot.record.rosbag import BagImportConfig, camera_name, decode_image, import_bag, info_topic, match_sets
 from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
@@ -249,3 +249,11 @@ def test_a_compressed_image_message_of_any_bytes_decodes_or_is_refused_by_name(d
     except DataError:
         return
     assert image.dtype == np.uint8
+
+
+def test_frames_join_the_reference_cameras_nearest_set_within_the_tolerance_once():
+    stamps = {"left": [100, 200, 300], "right": [104, 196, 197, 260, 301]}
+    set_of, unsynchronised = match_sets(stamps, "left", tolerance_ns=5)
+    assert set_of == {("left", 100): 100, ("left", 200): 200, ("left", 300): 300, ("right", 104): 100,
+                      ("right", 196): 200, ("right", 301): 300}
+    assert unsynchronised == {"left": 0, "right": 2}  # 197: its set is taken; 260: nowhere near one

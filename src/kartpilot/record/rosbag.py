@@ -33,7 +33,7 @@ import os
 import re
 import shutil
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -56,7 +56,8 @@ from kartpilot.core.types import ActuatorCommand, Image
 from kartpilot.core.vehicle import VehicleParams
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 
-__all__ = ["BagCamera", "BagImport", "BagImportConfig", "export_ros2_bag", "import_bag"]
+__all__ = ["BagCamera", "BagImport", "BagImportConfig", "camera_name", "decode_image", "export_ros2_bag", "import_bag",
+           "info_topic", "match_sets"]
 
 IMAGE, COMPRESSED, INFO = "sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/CameraInfo"
 TWIST, TWIST_STAMPED = "geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped"
@@ -272,85 +273,12 @@ def import_bag(bag: str | Path, out: str | Path, config: BagImportConfig = BagIm
     return result
 
 
-def _import(reader: AnyReader, out: Path, config: BagImportConfig, vehicle: VehicleParams | None,
-            source: str) -> BagImport:
-    topics: dict[str, _Topic] = {}
-    for connection in reader.connections:
-        entry = topics.setdefault(connection.topic, _Topic(connection.topic, connection.msgtype, 0))
-        entry.count += connection.msgcount
-    unmapped: dict[str, str] = {}
-    wanted = list(config.cameras) or [BagCamera(camera_name(t.topic), t.topic, "") for t in topics.values()
-                                     if t.msgtype in (IMAGE, COMPRESSED)]
-    names = [c.name for c in wanted]
-    if len(set(names)) < len(names):
-        raise DataError(f"two image topics name the same camera ({', '.join(names)}): name them in a topic map")
-    # the first camera info, the image frames and the transforms
-    transforms: dict[str, tuple[str, Array]] = {}
-    tf_topics = [t.topic for t in topics.values() if t.msgtype == TF]
-    for _, _, _, msg in _messages(reader, tf_topics):
-        for transform in msg.transforms:
-            child = str(transform.child_frame_id).lstrip("/")
-            if child not in transforms:  # a mount does not move: the first one seen
-                transforms[child] = (str(transform.header.frame_id).lstrip("/"),
-                                     _pose(transform.transform.translation, transform.transform.rotation))
-    infos: dict[str, Any] = {}
-    cameras: list[BagCamera] = []
-    for camera in wanted:
-        if camera.image not in topics or topics[camera.image].msgtype not in (IMAGE, COMPRESSED):
-            raise DataError(f"camera {camera.name}: the bag has no image topic {camera.image!r}")
-        info = camera.info or info_topic(camera.image)
-        if info not in topics or topics[info].msgtype != INFO:
-            if config.cameras:
-                raise DataError(f"camera {camera.name}: the bag has no camera info {info!r}")
-            unmapped[camera.image] = f"no camera info (looked for {info})"
-            continue
-        cameras.append(BagCamera(camera.name, camera.image, info))
-    for topic, _, _, msg in _messages(reader, [c.info for c in cameras]):
-        infos.setdefault(topic, msg)
-    silent = [c.info for c in cameras if c.info not in infos]
-    if silent:
-        raise DataError(f"camera info topic {silent[0]} holds no message")
-    if not cameras:
-        raise DataError("the bag has no image topic with a camera info: " +
-                        ("; ".join(f"{t}: {r}" for t, r in unmapped.items()) or "no image topic at all"))
-    pair = config.stereo_pair or (("left", "right") if {"left", "right"} <= {c.name for c in cameras} else ())
-    if pair and not set(pair) <= {c.name for c in cameras}:
-        raise DataError(f"stereo pair {pair[0]}, {pair[1]}: the cameras are {', '.join(c.name for c in cameras)}")
-    reference = pair[0] if pair else cameras[0].name
-    cameras.sort(key=lambda c: c.name != reference)
-    by_topic = {c.image: c for c in cameras}
-    stamps: dict[str, list[int]] = {c.name: [] for c in cameras}
-    frame_ids: dict[str, str] = {}
-    for topic, _, log_ns, msg in _messages(reader, list(by_topic)):
-        name = by_topic[topic].name
-        stamps[name].append(_stamp_ns(msg.header) or log_ns)
-        frame_ids.setdefault(name, str(msg.header.frame_id).lstrip("/"))
-    notes: list[str] = []
-    mounts: dict[str, Array] = {}
-    base = config.base_frame.lstrip("/")
-    for camera in cameras:
-        frame = frame_ids.get(camera.name, "")
-        mount = _chain(transforms, base, frame) if frame else None
-        if mount is None:
-            notes.append(f"{camera.name}: no transform from {base} to {frame or 'its frame'}; mounted at the kart's "
-                         "origin, looking ahead")
-            mount = mount_pose()
-        mounts[camera.name] = mount
-    if pair and any(_chain(transforms, base, frame_ids.get(n, "")) is None for n in pair):
-        # no transforms: the right camera's projection matrix holds the baseline (P[0, 3] = -fx * baseline)
-        p = _matrix(infos[next(c.info for c in cameras if c.name == pair[1])], "p")
-        baseline_m = -float(p[3]) / float(p[0]) if p[0] else 0.0
-        if baseline_m <= 0:
-            raise CalibrationError(f"stereo pair {pair[0]}, {pair[1]}: neither transforms nor the right camera's "
-                                   "projection matrix give the baseline")
-        right_on_left = np.eye(4)
-        right_on_left[0, 3] = baseline_m
-        mounts[pair[1]] = mounts[pair[0]] @ right_on_left
-        notes.append(f"the stereo baseline, {baseline_m:.4f} m, is the right camera's projection matrix's")
-    rig = {c.name: camera_from_info(infos[c.info], mounts[c.name]) for c in cameras}
-    # sets: the reference camera's stamps; another camera's frame joins the nearest within the tolerance
+def match_sets(stamps: dict[str, list[int]], reference: str, tolerance_ns: int
+               ) -> tuple[dict[tuple[str, int], int], dict[str, int]]:
+    """Group cameras' frames into sets: each of the ``reference`` camera's stamps is a set, and another camera's
+    frame joins the set nearest its stamp within ``tolerance_ns`` (one frame per camera and set). Returns
+    (camera, stamp) -> the set's stamp, and how many frames of each camera joined none."""
     reference_ns = np.array(sorted(set(stamps[reference])), dtype=np.int64)
-    tolerance_ns = round(config.sync_tolerance_ms * 1e6)
     set_of: dict[tuple[str, int], int] = {}
     unsynchronised = dict.fromkeys(stamps, 0)
     for name, own in stamps.items():
@@ -364,66 +292,183 @@ def _import(reader: AnyReader, out: Path, config: BagImportConfig, vehicle: Vehi
                 continue
             taken.add(best)
             set_of[(name, stamp)] = int(reference_ns[best])
+    return set_of, unsynchronised
+
+
+def _import(reader: AnyReader, out: Path, config: BagImportConfig, vehicle: VehicleParams | None,
+            source: str) -> BagImport:
+    topics: dict[str, _Topic] = {}
+    for connection in reader.connections:
+        entry = topics.setdefault(connection.topic, _Topic(connection.topic, connection.msgtype, 0))
+        entry.count += connection.msgcount
+    tf_topics = [t.topic for t in topics.values() if t.msgtype == TF]
+    transforms = _transforms(reader, tf_topics)
+    cameras, unmapped = _camera_topics(config, topics)
+    infos: dict[str, Any] = {}
+    for topic, _, _, msg in _messages(reader, [c.info for c in cameras]):
+        infos.setdefault(topic, msg)
+    silent = [c.info for c in cameras if c.info not in infos]
+    if silent:
+        raise DataError(f"camera info topic {silent[0]} holds no message")
+    pair = config.stereo_pair or (("left", "right") if {"left", "right"} <= {c.name for c in cameras} else ())
+    if pair and not set(pair) <= {c.name for c in cameras}:
+        raise DataError(f"stereo pair {pair[0]}, {pair[1]}: the cameras are {', '.join(c.name for c in cameras)}")
+    reference = pair[0] if pair else cameras[0].name
+    by_topic = {c.image: c.name for c in sorted(cameras, key=lambda c: c.name != reference)}
+    stamps: dict[str, list[int]] = {name: [] for name in by_topic.values()}
+    frame_ids: dict[str, str] = {}
+    for topic, _, log_ns, msg in _messages(reader, list(by_topic)):
+        stamps[by_topic[topic]].append(_stamp_ns(msg.header) or log_ns)
+        frame_ids.setdefault(by_topic[topic], str(msg.header.frame_id).lstrip("/"))
+    base = config.base_frame.lstrip("/")
+    mounts, notes = _mounts(cameras, frame_ids, transforms, base, pair, infos)
+    rig = {c.name: camera_from_info(infos[c.info], mounts[c.name]) for c in cameras}
+    set_of, unsynchronised = match_sets(stamps, reference, round(config.sync_tolerance_ms * 1e6))
     command_topic = _pick("command", config.commands, topics, COMMAND_TYPES)
     truth_topic = _pick("ground-truth", config.groundtruth, topics, POSE_TYPES)
     metadata: dict[str, Any] = {"source": "ros bag", "imported_from": source, "groundtruth_camera": reference,
                                 "topics": {c.name: c.image for c in cameras}, "notes": notes}
-    commands = 0
-    truth_stamps: list[float] = []
-    truth_poses: list[Array] = []
-    written: Counter[str] = Counter()
     with RecordingWriter(out, rig, stereo_pair=(pair[0], pair[1]) if pair else None, metadata=metadata) as writer:
-        for topic, msgtype, log_ns, msg in _messages(reader, list(by_topic)):
-            name = by_topic[topic].name
-            stamp = _stamp_ns(msg.header) or log_ns
-            set_ns = set_of.pop((name, stamp), None)  # popped: a second frame with the same stamp joins nothing
-            if set_ns is None:
-                continue
-            try:
-                image = decode_image(msg, msgtype)
-            except DataError as exc:
-                raise DataError(f"{topic} at {stamp} ns: {exc}") from None
-            if image.shape[:2] != (rig[name].height_px, rig[name].width_px):
-                raise DataError(f"{topic} at {stamp} ns is {image.shape[1]}x{image.shape[0]}, its camera info "
-                                f"{rig[name].width_px}x{rig[name].height_px}")
-            writer.write_frame(name, set_ns, image, stamp)
-            written[name] += 1
-        if command_topic:
-            for _, msgtype, log_ns, msg in _messages(reader, [command_topic]):
-                stamp, values = _command(msgtype, msg, log_ns, vehicle)
-                speed = float(values["speed_mps"])
-                top = vehicle.top_speed_mps if vehicle else 1.0
-                writer.write_command(ActuatorCommand(stamp, float(values["steer_rad"]),
-                                                     float(np.clip(speed / top, 0.0, 1.0)),
-                                                     float(np.clip(-speed / top, 0.0, 1.0))))
-                writer.write_output("ros_command", stamp, values)
-                commands += 1
-        if truth_topic:
-            for _, msgtype, log_ns, msg in _messages(reader, [truth_topic]):
-                stamp, pose_world_frame, frame = _truth(msgtype, msg, log_ns)
-                body = pose_world_frame
-                if frame in frame_ids.values():  # a camera's own pose: back to the kart's through its mount
-                    owner = next(n for n, f in frame_ids.items() if f == frame)
-                    body = pose_world_frame @ invert_pose(mounts[owner])
-                elif frame not in ("", config.base_frame.lstrip("/")):
-                    mount = _chain(transforms, config.base_frame.lstrip("/"), frame)
-                    if mount is not None:
-                        body = pose_world_frame @ invert_pose(mount)
-                truth_stamps.append(stamp * 1e-9)
-                truth_poses.append(body @ mounts[reference])
-            if truth_poses:
-                writer.write_groundtruth(Trajectory(np.array(truth_stamps), np.array(truth_poses)))
+        written = _write_frames(reader, writer, by_topic, set_of)
+        commands = _write_commands(reader, writer, command_topic, vehicle)
+        # the truth as the reference camera's poses: a camera's own pose goes back to the kart's through its mount
+        frame_mounts = {frame_ids[n]: mounts[n] for n in frame_ids}
+
+        def mount_of(frame: str) -> Array | None:
+            if frame in frame_mounts:
+                return frame_mounts[frame]
+            return _chain(transforms, base, frame) if frame not in ("", base) else None
+
+        poses = _write_truth(reader, writer, truth_topic, mount_of, mounts[reference])
     mapped = {*(c.image for c in cameras), *(c.info for c in cameras), *tf_topics, command_topic, truth_topic}
     for entry in topics.values():
-        if entry.topic in mapped or entry.topic in unmapped:
-            continue
-        if entry.msgtype in COMMAND_TYPES or entry.msgtype in POSE_TYPES:
-            unmapped[entry.topic] = "one of several; name it in a topic map"
-        else:
-            unmapped[entry.topic] = "no mapping for this type"
-    return BagImport({c.name: written[c.name] for c in cameras},
-                     commands, len(truth_poses), {n: c for n, c in unsynchronised.items() if c},
+        if entry.topic not in mapped and entry.topic not in unmapped:
+            several = entry.msgtype in COMMAND_TYPES or entry.msgtype in POSE_TYPES
+            unmapped[entry.topic] = "one of several; name it in a topic map" if several else "no mapping for this type"
+    return BagImport({c.name: written[c.name] for c in cameras}, commands, poses,
+                     {n: c for n, c in unsynchronised.items() if c},
                      tuple((t, topics[t].msgtype, r) for t, r in sorted(unmapped.items())), tuple(notes))
+
+
+def _transforms(reader: AnyReader, tf_topics: list[str]) -> dict[str, tuple[str, Array]]:
+    """Child frame -> (parent frame, the child's pose in it), the first of each: a mount does not move."""
+    transforms: dict[str, tuple[str, Array]] = {}
+    for _, _, _, msg in _messages(reader, tf_topics):
+        for transform in msg.transforms:
+            child = str(transform.child_frame_id).lstrip("/")
+            if child not in transforms:
+                transforms[child] = (str(transform.header.frame_id).lstrip("/"),
+                                     _pose(transform.transform.translation, transform.transform.rotation))
+    return transforms
+
+
+def _camera_topics(config: BagImportConfig, topics: dict[str, _Topic]) -> tuple[list[BagCamera], dict[str, str]]:
+    """The cameras to import (named in the map, or every image topic with a camera info), and the image topics
+    left out with the reason."""
+    wanted = list(config.cameras) or [BagCamera(camera_name(t.topic), t.topic, "") for t in topics.values()
+                                     if t.msgtype in (IMAGE, COMPRESSED)]
+    names = [c.name for c in wanted]
+    if len(set(names)) < len(names):
+        raise DataError(f"two image topics name the same camera ({', '.join(names)}): name them in a topic map")
+    cameras: list[BagCamera] = []
+    unmapped: dict[str, str] = {}
+    for camera in wanted:
+        if camera.image not in topics or topics[camera.image].msgtype not in (IMAGE, COMPRESSED):
+            raise DataError(f"camera {camera.name}: the bag has no image topic {camera.image!r}")
+        info = camera.info or info_topic(camera.image)
+        if info not in topics or topics[info].msgtype != INFO:
+            if config.cameras:
+                raise DataError(f"camera {camera.name}: the bag has no camera info {info!r}")
+            unmapped[camera.image] = f"no camera info (looked for {info})"
+            continue
+        cameras.append(BagCamera(camera.name, camera.image, info))
+    if not cameras:
+        raise DataError("the bag has no image topic with a camera info: " +
+                        ("; ".join(f"{t}: {r}" for t, r in unmapped.items()) or "no image topic at all"))
+    return cameras, unmapped
+
+
+def _mounts(cameras: list[BagCamera], frame_ids: dict[str, str], transforms: dict[str, tuple[str, Array]],
+            base: str, pair: tuple[str, ...], infos: dict[str, Any]) -> tuple[dict[str, Array], list[str]]:
+    """Each camera's pose on the kart through the transforms from ``base``; without them, at the kart's origin,
+    and a stereo pair's right camera at the baseline its projection matrix gives. Returns the mounts and notes."""
+    notes: list[str] = []
+    mounts: dict[str, Array] = {}
+    for camera in cameras:
+        frame = frame_ids.get(camera.name, "")
+        mount = _chain(transforms, base, frame) if frame else None
+        if mount is None:
+            notes.append(f"{camera.name}: no transform from {base} to {frame or 'its frame'}; mounted at the kart's "
+                         "origin, looking ahead")
+            mount = mount_pose()
+        mounts[camera.name] = mount
+    if pair and any(_chain(transforms, base, frame_ids.get(n, "")) is None for n in pair):
+        # ROS's stereo convention: the right camera's P[0, 3] = -fx * baseline
+        p = _matrix(infos[next(c.info for c in cameras if c.name == pair[1])], "p")
+        baseline_m = -float(p[3]) / float(p[0]) if p[0] else 0.0
+        if baseline_m <= 0:
+            raise CalibrationError(f"stereo pair {pair[0]}, {pair[1]}: neither transforms nor the right camera's "
+                                   "projection matrix give the baseline")
+        right_on_left = np.eye(4)
+        right_on_left[0, 3] = baseline_m
+        mounts[pair[1]] = mounts[pair[0]] @ right_on_left
+        notes.append(f"the stereo baseline, {baseline_m:.4f} m, is the right camera's projection matrix's")
+    return mounts, notes
+
+
+def _write_frames(reader: AnyReader, writer: RecordingWriter, by_topic: dict[str, str],
+                  set_of: dict[tuple[str, int], int]) -> Counter[str]:
+    """Each image that joined a set, decoded and checked against its camera; returns the count per camera."""
+    written: Counter[str] = Counter()
+    for topic, msgtype, log_ns, msg in _messages(reader, list(by_topic)):
+        name = by_topic[topic]
+        stamp = _stamp_ns(msg.header) or log_ns
+        set_ns = set_of.pop((name, stamp), None)  # popped: a second frame with the same stamp joins nothing
+        if set_ns is None:
+            continue
+        try:
+            image = decode_image(msg, msgtype)
+        except DataError as exc:
+            raise DataError(f"{topic} at {stamp} ns: {exc}") from None
+        camera = writer.cameras[name]
+        if image.shape[:2] != (camera.height_px, camera.width_px):
+            raise DataError(f"{topic} at {stamp} ns is {image.shape[1]}x{image.shape[0]}, its camera info "
+                            f"{camera.width_px}x{camera.height_px}")
+        writer.write_frame(name, set_ns, image, stamp)
+        written[name] += 1
+    return written
+
+
+def _write_commands(reader: AnyReader, writer: RecordingWriter, topic: str, vehicle: VehicleParams | None) -> int:
+    """The command topic's messages as commands (the speed over the top speed: the throttle; a negative speed:
+    the brake), with their raw values as the ``ros_command`` output; returns how many."""
+    count = 0
+    top = vehicle.top_speed_mps if vehicle else 1.0
+    for _, msgtype, log_ns, msg in _messages(reader, [topic] if topic else []):
+        stamp, values = _command(msgtype, msg, log_ns, vehicle)
+        speed = float(values["speed_mps"])
+        writer.write_command(ActuatorCommand(stamp, float(values["steer_rad"]), float(np.clip(speed / top, 0.0, 1.0)),
+                                             float(np.clip(-speed / top, 0.0, 1.0))))
+        writer.write_output("ros_command", stamp, values)
+        count += 1
+    return count
+
+
+def _write_truth(reader: AnyReader, writer: RecordingWriter, topic: str, mount_of: Callable[[str], Array | None],
+                 reference_mount: Array) -> int:
+    """The pose topic as the reference camera's ground truth; ``mount_of`` gives the mount of a frame a pose is
+    of (None: the kart's own). Returns how many poses."""
+    stamps: list[float] = []
+    poses: list[Array] = []
+    for _, msgtype, log_ns, msg in _messages(reader, [topic] if topic else []):
+        stamp, pose_world_frame, frame = _truth(msgtype, msg, log_ns)
+        mount = mount_of(frame)
+        body = pose_world_frame if mount is None else pose_world_frame @ invert_pose(mount)
+        stamps.append(stamp * 1e-9)
+        poses.append(body @ reference_mount)
+    if poses:
+        writer.write_groundtruth(Trajectory(np.array(stamps), np.array(poses)))
+    return len(poses)
 
 
 def _command(msgtype: str, msg: Any, log_ns: int, vehicle: VehicleParams | None) -> tuple[int, dict[str, float]]:
