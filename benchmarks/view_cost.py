@@ -103,7 +103,7 @@ def render(results: dict[str, Any]) -> str:
     """The docs' table of what a view costs, from the JSON :func:`main` writes."""
     view = results["view"]
     return "\n".join([
-        f"{results['what'].capitalize()} ({results['frames']} frames, the median of {results['repeats']} passes; "
+        f"{results['what'][:1].upper()}{results['what'][1:]} ({results['frames']} frames, the median of {results['repeats']} passes; "
         f"images at scale {view['image_scale']:g}, JPEG quality {view['jpeg_quality']}; "
         "`benchmarks/view_cost.py`):", "",
         "| per frame | ms | share of the pipeline's time | share of the 30 Hz period |",
