@@ -101,9 +101,9 @@ MARKER = "view-cost"
 
 def render(results: dict[str, Any]) -> str:
     """The docs' table of what a view costs, from the JSON :func:`main` writes."""
-    view = results["view"]
+    view, what = results["view"], results["what"]
     return "\n".join([
-        f"{results['what'][:1].upper()}{results['what'][1:]} ({results['frames']} frames, the median of {results['repeats']} passes; "
+        f"{what[:1].upper()}{what[1:]} ({results['frames']} frames, the median of {results['repeats']} passes; "
         f"images at scale {view['image_scale']:g}, JPEG quality {view['jpeg_quality']}; "
         "`benchmarks/view_cost.py`):", "",
         "| per frame | ms | share of the pipeline's time | share of the 30 Hz period |",
