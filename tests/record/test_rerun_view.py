@@ -78,8 +78,9 @@ def test_odometry_with_view_shows_each_frame_its_estimate_inliers_points_and_the
     assert "/world/truth" in static
 
 
-def test_a_drive_refused_before_it_starts_leaves_no_view_file(tmp_path, capsys):
+def test_a_drive_refused_before_it_starts_leaves_no_view_file_and_no_recording(tmp_path, capsys):
     assert main(["drive", "--sim", "straight20", "--vehicle", "rc-kart", "--pipeline", "lanes", "--duration", "3",
-                 "--inject", "steering-sensor-loss@1", "--view", str(tmp_path / "x.rrd"), "--no-progress"]) == 1
+                 "--inject", "steering-sensor-loss@1", "--view", str(tmp_path / "x.rrd"), "--record",
+                 str(tmp_path / "rec"), "--no-progress"]) == 1
     assert "cannot show it" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []

@@ -4,7 +4,8 @@
 loop feeds a drive, a simulated run or a replay to it as it goes, and :func:`view_recording` feeds it a
 recording afterwards: the same view either way. The loop only queues what a step produced; one background
 thread encodes and logs it, so the loop keeps its rate. When the queue is full the step's images are dropped
-and counted (the scalars are kept). Entities (one timeline, ``stamp``: the sets' time stamps, nanoseconds):
+and counted (the numbers are kept, up to ``SCALAR_QUEUE`` waiting). Entities (one timeline, ``stamp``: the
+sets' time stamps, nanoseconds):
 
 * ``cameras/<name>``: each camera's image (JPEG, scaled by ``image_scale``), and the camera's pinhole;
 * ``cameras/center/lanes``: the detected lane boundaries and their meeting point (the ``lanes`` output);
@@ -80,6 +81,7 @@ class RerunView:
 
     SCALAR_BATCH = 30  # values of a time series sent at once: a second of a 30 Hz drive
     POLL_S = 0.002  # how often the thread looks for work when it has none
+    SCALAR_QUEUE = 100_000  # numbers waiting for the thread: minutes of a drive's outputs and CAN traffic
 
     def __init__(self, target: str | Path, cameras: Mapping[str, PinholeCamera], config: ViewConfig = ViewConfig(),
                  database: cantools.database.can.Database | None = None, name: str = "kartpilot",
@@ -90,14 +92,14 @@ class RerunView:
         self._drop_when_full = drop_when_full
         self.cameras = dict(cameras)
         self.stream = rr.RecordingStream("kartpilot", recording_id=f"{name}-{time.time_ns()}")
-        self._path = None if str(target) == LIVE else Path(target)
-        if self._path is None:
+        if str(target) == LIVE:
             self.stream.spawn()
         else:
             Path(target).parent.mkdir(parents=True, exist_ok=True)
             self.stream.save(str(target))
         self.database = database
         self.dropped_images = 0
+        self.dropped_values = 0
         self.logged_steps = 0
         self.worker_s = 0.0  # the logging thread's time, for the cost per frame
         self._sets = 0
@@ -131,18 +133,26 @@ class RerunView:
         self._frames.append((frames.stamp_ns, frames.images))
 
     def send(self, command: ActuatorCommand) -> None:
-        self._scalars.append(("command", command.stamp_ns, command))
+        self._queue(("command", command.stamp_ns, command))
 
     def write_outputs(self, stamp_ns: int, outputs: Mapping[str, Mapping[str, float | int | str]]) -> None:
-        self._scalars.append(("outputs", stamp_ns, {k: dict(v) for k, v in outputs.items()}))
+        self._queue(("outputs", stamp_ns, {k: dict(v) for k, v in outputs.items()}))
 
     def write_can(self, stamp_ns: int, arbitration_id: int, data: bytes, direction: str = "tx") -> None:
-        self._scalars.append(("can", stamp_ns, (arbitration_id, bytes(data), direction)))
+        self._queue(("can", stamp_ns, (arbitration_id, bytes(data), direction)))
 
     def write_points(self, stamp_ns: int, camera: str, pixels: np.ndarray, points_world_m: np.ndarray) -> None:
         """A step's points: where they lie in ``camera``'s image at ``stamp_ns`` (``cameras/<camera>/inliers``)
         and in the world (``world/points``)."""
-        self._scalars.append(("points", stamp_ns, (camera, np.asarray(pixels, float), np.asarray(points_world_m))))
+        self._queue(("points", stamp_ns, (camera, np.asarray(pixels, float), np.asarray(points_world_m))))
+
+    def _queue(self, item: tuple[str, int, Any]) -> None:
+        """A step's numbers for the thread; beyond ``SCALAR_QUEUE`` waiting (a thread that cannot keep up with
+        the CAN traffic) they are dropped and counted rather than let memory grow."""
+        if len(self._scalars) >= self.SCALAR_QUEUE:
+            self.dropped_values += 1
+            return
+        self._scalars.append(item)
 
     def write_groundtruth(self, trajectory: Trajectory) -> None:
         """The true trajectory, as one line (positions of the poses it holds)."""
@@ -160,11 +170,6 @@ class RerunView:
         self.stream.disconnect()
         if self._error is not None:
             raise DataError(f"the Rerun view failed: {self._error}") from self._error
-
-    def remove(self) -> None:
-        """Delete the closed view's file (a run refused before it began leaves none)."""
-        if self._path is not None:
-            self._path.unlink(missing_ok=True)
 
     # --- the logging thread ------------------------------------------------------------------------------
 

@@ -28,6 +28,7 @@ from kartpilot.core.errors import ConfigError, RecordingError
 from kartpilot.core.geometry import invert_pose
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, CommandSink, FrameSet, FrameSource, Image
+from kartpilot.core.vehicle import VehicleParams
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 from kartpilot.record.video import VideoFile
 from kartpilot.runtime.config import StackConfig
@@ -387,12 +388,8 @@ class _CanSink:
         can_config = replace(stack.can, interface="virtual", channel=f"kartpilot-sim-{id(sim)}")
         clock = _BusClock()
         protocol = make_protocol(can_config, sim.vehicle)
+        _check_ecu_faults(stack.can, sim.vehicle, at)
         ecus = _simulated_ecus(sim, protocol.name, can_config, clock)
-        unsupported = sorted(set(at) & set(ECU_FAULTS) - ecus.FAULTS)
-        if unsupported:
-            ecus.bus.shutdown()
-            raise ConfigError(f"{', '.join(unsupported)}: the {protocol.name} protocol's simulated ECUs cannot "
-                              f"show it ({sim.vehicle.name}; the rdw protocol's can)")
         actuator = CanActuator(FaultyBus(open_bus(can_config), clock, at.get("can-bus-off")), protocol, can_config,
                                stack.limits.for_vehicle(sim.vehicle), clock, log_frame)
         return cls(sim, actuator, ecus, clock, at)
@@ -433,6 +430,15 @@ class _CanSink:
             executed += (done.steer_rad, done.throttle, done.brake)
         steer, throttle, brake = executed / steps
         self.sim.send(ActuatorCommand(start_ns, float(steer), float(throttle), float(brake)))
+
+
+def _check_ecu_faults(config: CanConfig, vehicle: VehicleParams, at: dict[str, float]) -> None:
+    """Refuse an ECU fault the simulated ECUs of the kart's protocol cannot show (before anything is written)."""
+    name = vehicle.protocol if config.protocol == "vehicle" else config.protocol
+    unsupported = sorted(set(at) & set(ECU_FAULTS) - (RdwEcus if name == "rdw" else KartpilotEcus).FAULTS)
+    if unsupported:
+        raise ConfigError(f"{', '.join(unsupported)}: the {name} protocol's simulated ECUs cannot show it "
+                          f"({vehicle.name}; the rdw protocol's can)")
 
 
 def _simulated_ecus(sim: Simulator, protocol: str, config: CanConfig, clock: _BusClock) -> SimulatedEcus:
@@ -496,19 +502,15 @@ def run_supervised_drive(config: SimConfig, pipeline: str, stack: StackConfig | 
         path_policy = path_policy_of(policy)
         if "stage-exception" in at:
             policy = RaisingPipeline(policy, at["stage-exception"])
+        if bus == "virtual":
+            _check_ecu_faults(stack.can, sim.vehicle, at)  # before the recording and the view are begun
         writer = _writer(sim, outputs, {"source": "kartpilot drive --sim", "pipeline": pipeline, "bus": bus,
                                         "vehicle": sim.vehicle.name, "sim": config_to_dict(config),
                                         "injections": [f"{i.kind}@{i.at_s:g}" for i in injections]})
         view = outputs.open_view(sim.cameras if config.render_images else {},
                                  protocol_database(stack.can, sim.vehicle) if bus == "virtual" else None)
         log_frame = fan_out_frames([s.write_can for s in (writer, view) if s is not None])
-        try:
-            sink = _CanSink.open(sim, stack, at, log_frame) if bus == "virtual" else _DirectSink(sim)
-        except BaseException:
-            if view is not None:  # refused before the drive: no view file is left behind
-                view.close()
-                view.remove()
-            raise
+        sink = _CanSink.open(sim, stack, at, log_frame) if bus == "virtual" else _DirectSink(sim)
         actuator = sink.actuator if isinstance(sink, _CanSink) else None
         supervisor = Supervisor(stack.supervisor)
         watchdogs = Watchdogs(list(sim.cameras) if config.render_images else [], sim.dt_s, stack.watchdogs, actuator)
