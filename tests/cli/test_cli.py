@@ -4,6 +4,7 @@ import pytest
 
 from kartpilot.cli.main import main
 from kartpilot.core.trajectory import read_kitti_poses
+from kartpilot.record.recording import RecordingReader
 from kartpilot.runtime.session import SessionResult
 
 
@@ -125,6 +126,10 @@ def test_teach_reference_and_drive_it_in_the_simulator_and_on_the_replay(tmp_pat
     for part in ("commands.csv", "outputs/pose.csv", "outputs/follow.csv"):
         assert (tmp_path / "r1" / part).read_bytes() == (tmp_path / "r2" / part).read_bytes(), part
     assert len((tmp_path / "r1" / "outputs" / "pose.csv").read_text().splitlines()) == 41
+    stages = RecordingReader(tmp_path / "r1").outputs("vo")  # what each of VO's filter stages kept, per frame
+    assert len(stages) == 40 and all(r["left_features"] >= r["stereo_matches"] >= r["epipolar_ok"] >= r["depth_ok"]
+                                     for r in stages)
+    assert sum(r["inliers"] > 0 for r in stages) >= 35
     assert main(["replay", str(record), "--pipeline", "stereo-vo"]) == 1
     assert "give --reference" in capsys.readouterr().err
     result = tmp_path / "drive.json"

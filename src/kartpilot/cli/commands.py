@@ -33,7 +33,7 @@ from kartpilot.odometry.mono_localizer import MonoLocalizer
 from kartpilot.odometry.mono_vo import MonoVO
 from kartpilot.odometry.places import load_places
 from kartpilot.odometry.run import run_mono_localizer, run_vo
-from kartpilot.odometry.stereo_vo import StereoVO
+from kartpilot.odometry.stereo_vo import VO_STAGES, StereoVO
 from kartpilot.odometry.vo import VisualOdometry, VOStep
 from kartpilot.perception.lanes import LaneStages, detect_lanes, draw_lanes
 from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
@@ -186,8 +186,7 @@ def _view_vo_step(view: RerunView, step: VOStep, previous: VOStep | None, source
     diagnostics = getattr(step, "diagnostics", None)
     if diagnostics is None:
         return
-    view.write_outputs(step.stamp_ns, {"vo": {name: getattr(diagnostics, name) for name in (
-        "left_features", "stereo_matches", "epipolar_ok", "depth_ok", "temporal_matches", "inliers")}})
+    view.write_outputs(step.stamp_ns, {"vo": {name: getattr(diagnostics, name) for name in VO_STAGES}})
     rig = getattr(source, "rig", None)
     if previous is None or rig is None or not len(diagnostics.inlier_pixels):
         return

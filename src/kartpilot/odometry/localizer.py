@@ -26,7 +26,7 @@ from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.errors import ConfigError, OdometryError, PerceptionError
 from kartpilot.core.geometry import Array, Pose2D, between_2d, compose_2d, vo_ground_pose
 from kartpilot.core.types import FrameSet, Image, VehiclePose
-from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
+from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig, VODiagnostics
 from kartpilot.odometry.visual_map import RelocConfig, VisualMap, relocalize
 from kartpilot.sensors.health import HealthConfig, frame_problem
 
@@ -148,6 +148,7 @@ class StereoVOLocalizer(PoseTracker):
         self._previous_images: dict[str, Image] = {}
         self.relocalisations = 0
         self._reloc_ms: float | None = None  # summed once the map has been tried
+        self.last_diagnostics: VODiagnostics | None = None  # what VO's stages kept in the last frame (None: no VO)
 
     def close(self) -> None:
         self.vo.close()
@@ -160,6 +161,7 @@ class StereoVOLocalizer(PoseTracker):
     def update(self, frames: FrameSet) -> VehiclePose:
         """The pose at ``frames.stamp_ns``."""
         cfg = self.config
+        self.last_diagnostics = None
         left, right = frames.images.get(cfg.left_camera), frames.images.get(cfg.right_camera)
         if left is None or right is None:
             missing = cfg.left_camera if left is None else cfg.right_camera
@@ -174,6 +176,7 @@ class StereoVOLocalizer(PoseTracker):
             estimate = self.vo.process(frames)
         except (PerceptionError, OdometryError) as exc:
             return self._bridge(frames.stamp_ns, str(exc))
+        self.last_diagnostics = estimate.diagnostics
         raw = vo_ground_pose(estimate.pose_world_cam, self.body_cam)
         step = (0.0, 0.0, 0.0) if self._raw is None else between_2d(self._raw, raw)
         pose = compose_2d(self._pose_at_raw, step) if self._raw is not None else raw

@@ -52,7 +52,7 @@ from kartpilot.perception.stereo import (
 )
 from kartpilot.perception.tracking import KltConfig, track_klt
 
-__all__ = ["StereoVO", "StereoVOConfig", "VOEstimate", "VOStatus"]
+__all__ = ["VO_STAGES", "StereoVO", "StereoVOConfig", "VODiagnostics", "VOEstimate", "VOStatus"]
 
 logger = logging.getLogger(__name__)
 
@@ -99,6 +99,10 @@ class StereoVOConfig:
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_stereo_margin < 2.0:
             raise ConfigError(f"stereo_vo.min_stereo_margin must be in [0, 2), got {self.min_stereo_margin}")
+
+
+VO_STAGES = ("left_features", "stereo_matches", "epipolar_ok", "depth_ok", "temporal_matches", "inliers")
+"""The counts of :class:`VODiagnostics`, filter stage by filter stage, in the order the points go through."""
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from kartpilot.core.types import ActuatorCommand, FrameSet, Image, VehicleFeedba
 from kartpilot.odometry.localizer import LocalizerConfig
 from kartpilot.odometry.mono_localizer import MonoLocalizerConfig, place_ground_poses
 from kartpilot.odometry.places import PlaceDatabase
+from kartpilot.odometry.stereo_vo import VO_STAGES
 from kartpilot.odometry.visual_map import MapConfig
 from kartpilot.planning.reference_path import PathConfig, ReferencePath, build_reference_path
 
@@ -189,7 +190,15 @@ class PathFollowPolicy:
             "follow": {"path_index": last.path_index, "cross_track_m": last.cross_track_m,
                        "heading_error_rad": last.heading_error_rad, "target_speed_mps": last.target_speed_mps,
                        "stopped": int(self.stopped)},
+            **self._vo_outputs(),
         }
+
+    def _vo_outputs(self) -> dict[str, dict[str, float | int | str]]:
+        """Stereo VO's ``vo`` topic: what each filter stage kept in the last frame (0 where VO did not run)."""
+        if not hasattr(self.localizer, "last_diagnostics"):
+            return {}
+        diagnostics = self.localizer.last_diagnostics
+        return {"vo": {name: int(getattr(diagnostics, name)) if diagnostics is not None else 0 for name in VO_STAGES}}
 
     def overlay(self, frames: FrameSet) -> Image | None:
         """The pipeline's view: the left image with the reference path ahead drawn where the pipeline
