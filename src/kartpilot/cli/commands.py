@@ -21,7 +21,7 @@ from kartpilot.cli.values import VIEW_HELP, file_or_new_folder, new_folder, numb
 from kartpilot.control.lane_follow import LaneFollowState, heading_follow_step, lane_follow_step
 from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import write_csv_atomic, write_text_atomic
-from kartpilot.core.geometry import mount_pose
+from kartpilot.core.geometry import mount_pose, transform_points
 from kartpilot.core.trajectory import Trajectory, read_trajectory, write_trajectory
 from kartpilot.core.types import FrameSet
 from kartpilot.core.vehicle import get_vehicle
@@ -190,12 +190,9 @@ def _view_vo_step(view: RerunView, step: VOStep, previous: VOStep | None, source
     rig = getattr(source, "rig", None)
     if previous is None or rig is None or not len(diagnostics.inlier_pixels):
         return
-    k = rig.camera.matrix
     pixels, depth = diagnostics.inlier_pixels, diagnostics.inlier_depths_m
-    in_camera = np.column_stack([(pixels[:, 0] - k[0, 2]) / k[0, 0] * depth, (pixels[:, 1] - k[1, 2]) / k[1, 1] * depth,
-                                 depth])
-    pose = previous.pose_world_cam
-    view.write_points(previous.stamp_ns, "left", pixels, in_camera @ pose[:3, :3].T + pose[:3, 3])
+    in_camera = rig.camera.rays(pixels) * depth[:, None]
+    view.write_points(previous.stamp_ns, "left", pixels, transform_points(previous.pose_world_cam, in_camera))
 
 
 def evaluate(args: argparse.Namespace) -> int:

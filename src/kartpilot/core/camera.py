@@ -119,6 +119,24 @@ class PinholeCamera:
         """The same camera mounted at ``pose_body_cam`` (4x4) on the kart."""
         return replace(self, pose_body_cam=tuple(tuple(float(v) for v in row) for row in np.asarray(pose_body_cam)))
 
+    def rays(self, pixels: Array) -> Array:
+        """The (..., 3) directions with z = 1 in the camera frame of (..., 2) pixels (no distortion): what
+        :meth:`project` maps back to each pixel."""
+        pixels = np.asarray(pixels, dtype=np.float64)
+        return np.stack([(pixels[..., 0] - self.cx_px) / self.fx_px, (pixels[..., 1] - self.cy_px) / self.fy_px,
+                         np.ones(pixels.shape[:-1])], axis=-1)
+
+    def ros_calibration(self, baseline_m: float = 0.0) -> dict[str, Any]:
+        """The camera in ROS's CameraInfo terms, which Foxglove's CameraCalibration shares: the distortion model,
+        D (at least five values), K, R (identity: the images are as recorded) and P, whose ``P[0, 3]`` is
+        ``-fx * baseline_m`` for a stereo pair's right camera. Matrices as row-major lists."""
+        distortion = [float(v) for v in self.distortion_array]
+        distortion += [0.0] * (5 - len(distortion))
+        k = self.matrix
+        p = np.hstack([k, np.array([[-k[0, 0] * baseline_m], [0.0], [0.0]])])
+        return {"distortion_model": "rational_polynomial" if len(distortion) > 5 else "plumb_bob",
+                "D": distortion, "K": k.ravel().tolist(), "R": np.eye(3).ravel().tolist(), "P": p.ravel().tolist()}
+
     def project(self, points_cam: Array) -> Array:
         """Project (N, 3) points in the camera frame to (N, 2) pixels (no distortion)."""
         points = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)

@@ -369,8 +369,7 @@ def beyond_ground_mask(camera: PinholeCamera, ignore_ground_heights: float) -> N
     mask = np.full((camera.height_px, camera.width_px), 255, np.uint8)
     if ignore_ground_heights <= 0:
         return mask
-    u, v = np.meshgrid(np.arange(camera.width_px), np.arange(camera.height_px))
-    rays = np.stack([(u - camera.cx_px) / camera.fx_px, (v - camera.cy_px) / camera.fy_px, np.ones(u.shape)], -1)
+    rays = camera.rays(np.stack(np.meshgrid(np.arange(camera.width_px), np.arange(camera.height_px)), axis=-1))
     down = rays @ ground_normal_prior(camera)
     with np.errstate(divide="ignore"):
         distance_in_heights = np.where(down > 0, np.linalg.norm(rays, axis=-1) / down, np.inf)

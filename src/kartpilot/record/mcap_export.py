@@ -76,13 +76,8 @@ def _transform(stamp_ns: int, parent: str, child: str, pose: np.ndarray) -> dict
 
 
 def _calibration(stamp_ns: int, name: str, camera: PinholeCamera) -> dict[str, Any]:
-    k = camera.matrix
-    distortion = [float(v) for v in camera.distortion_array]
     return {"timestamp": _time(stamp_ns), "frame_id": name, "width": camera.width_px, "height": camera.height_px,
-            "distortion_model": "plumb_bob", "D": (distortion + [0.0] * 5)[:max(5, len(distortion))],
-            "K": [float(v) for v in k.ravel()], "R": [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0],
-            "P": [float(k[0, 0]), 0.0, float(k[0, 2]), 0.0, 0.0, float(k[1, 1]), float(k[1, 2]), 0.0,
-                  0.0, 0.0, 1.0, 0.0]}
+            **camera.ros_calibration()}
 
 
 def _clean(value: Any) -> Any:

@@ -540,12 +540,11 @@ def _export(reader: RecordingReader, out: Path, vehicle: VehicleParams | None) -
     messages.append((first_ns, "/tf_static", TF, t[TF](transforms=[
         transform(first_ns, "base_link", name, cam.pose_body_cam_array) for name, cam in reader.cameras.items()])))
     for name, camera in reader.cameras.items():
-        k = camera.matrix
-        distortion = [float(v) for v in camera.distortion_array]
         baseline = 0.0
         if reader.stereo_pair and name == reader.stereo_pair[1]:
             left = reader.cameras[reader.stereo_pair[0]].pose_body_cam_array
             baseline = float((invert_pose(left) @ camera.pose_body_cam_array)[0, 3])
+        calibration = camera.ros_calibration(baseline)
         for (stamp, path), capture in zip(reader.frames(name), reader.capture_stamps(name), strict=True):
             data = np.frombuffer(path.read_bytes(), dtype=np.uint8)
             image_format = "jpeg" if path.suffix.lower() in (".jpg", ".jpeg") else "png"
@@ -553,10 +552,8 @@ def _export(reader: RecordingReader, out: Path, vehicle: VehicleParams | None) -
                              t[COMPRESSED](header=stamped(stamp, name), format=image_format, data=data)))
             messages.append((capture, f"/{name}/camera_info", INFO, t[INFO](
                 header=stamped(stamp, name), height=camera.height_px, width=camera.width_px,
-                distortion_model="rational_polynomial" if len(distortion) > 5 else "plumb_bob",
-                d=np.array(distortion or [0.0] * 5), k=k.ravel().astype(np.float64),
-                r=np.eye(3).ravel(), p=np.array([k[0, 0], 0.0, k[0, 2], -k[0, 0] * baseline, 0.0, k[1, 1], k[1, 2],
-                                                 0.0, 0.0, 0.0, 1.0, 0.0]),
+                distortion_model=calibration["distortion_model"],
+                **{key.lower(): np.array(calibration[key]) for key in ("D", "K", "R", "P")},
                 binning_x=0, binning_y=0, roi=t["sensor_msgs/msg/RegionOfInterest"](0, 0, 0, 0, False))))
     bodies = reader.body_poses()
     if bodies is not None:
