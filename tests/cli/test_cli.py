@@ -2,6 +2,7 @@ import json
 
 import pytest
 
+from kartpilot.cli.commands import LANE_COLUMNS
 from kartpilot.cli.main import main
 from kartpilot.core.trajectory import read_kitti_poses
 from kartpilot.record.recording import RecordingReader
@@ -89,16 +90,17 @@ def test_lanes_writes_one_row_per_frame_with_the_documented_columns(tmp_path, ca
     folder.mkdir()
     for k in range(3):
         image = np.full((540, 960, 3), 80, np.uint8)
-        cv2.line(image, (100, 539), (480, 300), (235, 235, 235), 8)
-        cv2.line(image, (860, 539), (480, 300), (235, 235, 235), 8)
+        cv2.line(image, (100, 539), (400, 260), (235, 235, 235), 8)  # toward a vanishing point near the
+        cv2.line(image, (860, 539), (560, 260), (235, 235, 235), 8)  # kart preset's horizon (0.34 of the height)
         cv2.imwrite(str(folder / f"{k}.png"), image)
     out = tmp_path / "lanes.csv"
     assert main(["lanes", str(folder), "--out", str(out), "--overlay", str(tmp_path / "overlay")]) == 0
     rows = list(csv.DictReader(out.open()))
-    assert len(rows) == 3 and list(rows[0]) == ["frame", "left_x1", "left_y1", "left_x2", "left_y2", "right_x1",
-                                                "right_y1", "right_x2", "right_y2", "left_source", "right_source",
-                                                "steer", "confidence"]
+    assert len(rows) == 3 and tuple(rows[0]) == LANE_COLUMNS
+    assert [r["file"] for r in rows] == ["0.png", "1.png", "2.png"]
+    assert [r["new_scene"] for r in rows] == ["1", "0", "0"]  # one scene: the follower's state carries
     assert rows[0]["left_source"] == "detected" and abs(float(rows[0]["left_x1"]) - 100) < 15
+    assert abs(float(rows[0]["left_x_at_100pct"]) - 100) < 15  # the curve, read at the last row
     assert len(list((tmp_path / "overlay").glob("*.png"))) == 3
 
 

@@ -14,6 +14,7 @@ takes its cameras from here. Example::
         distortion: [-0.1, 0.02, 0.0, 0.0, 0.0]
         mount: {x_m: 0.40, y_m: 0.07, z_m: 0.19, yaw_deg: 0.0, pitch_down_deg: 0.0}
         capture: {device: /dev/video0, fps: 30, exposure: 150, fourcc: MJPG}
+        body_mask: [[[0.0, 0.8], [1.0, 0.8], [1.0, 1.0], [0.0, 1.0]]]
       right: {...}
     stereo_pair: [left, right]
     steering: {value_sign: -1, rad_per_value: 0.31, counts_per_value: -598.2, count_offset: 3.5}
@@ -25,6 +26,9 @@ A camera's pose on the body (x forward, y left, z up, at the rear axle) is eithe
 so that the measured relative pose is kept exactly. ``capture`` (optional) says how
 to open the live camera (:class:`~kartpilot.core.camera.CaptureSettings`); its
 resolution is the calibration's.
+
+``body_mask`` (optional) lists polygons of the kart's own body in a camera's view, corners as fractions of the
+width and height (``kartpilot calibrate ground`` finds them; they may be drawn by hand): detectors leave them out.
 
 ``steering`` (optional) is the kart's steering calibration as ``kartpilot calibrate steering`` wrote
 it (:class:`~kartpilot.core.vehicle.SteeringCalibration`); it overrides the vehicle's default.
@@ -46,7 +50,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from kartpilot.core.camera import CaptureSettings, PinholeCamera
+from kartpilot.core.camera import CaptureSettings, PinholeCamera, body_mask_from_data
 from kartpilot.core.config import config_to_dict, merge_config
 from kartpilot.core.errors import CalibrationError, ConfigError
 from kartpilot.core.files import read_text_file, write_text_atomic
@@ -58,7 +62,7 @@ __all__ = ["ORGANISER_CAMERA_NAMES", "Rig", "apply_camera_maps", "load_rig", "sa
 ORGANISER_CAMERA_NAMES = {"front": "center", "left": "left", "right": "right"}
 
 CAMERA_KEYS = {"width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px", "distortion", "mount", "pose_body_cam",
-               "capture"}
+               "capture", "body_mask"}
 CAPTURE_KEYS = {"device", "fps", "exposure", "fourcc"}
 MOUNT_KEYS = {"x_m", "y_m", "z_m", "yaw_deg", "pitch_down_deg", "roll_deg"}
 
@@ -112,9 +116,19 @@ def _camera_from_yaml(name: str, data: Any, source: Path) -> PinholeCamera:
         return PinholeCamera(float(data["fx_px"]), float(data["fy_px"]), float(data["cx_px"]), float(data["cy_px"]),
                              int(data["width_px"]), int(data["height_px"]),
                              tuple(float(d) for d in data.get("distortion") or ()),
-                             tuple(tuple(float(v) for v in row) for row in pose))
+                             tuple(tuple(float(v) for v in row) for row in pose),
+                             _body_mask(data, where))
     except (TypeError, ValueError) as exc:
         raise CalibrationError(f"{where}: {exc}") from exc
+
+
+def _body_mask(data: dict[str, Any], where: str) -> tuple[tuple[tuple[float, float], ...], ...]:
+    try:
+        mask = body_mask_from_data(data.get("body_mask") or ())
+        PinholeCamera(1.0, 1.0, 0.0, 0.0, 1, 1, body_mask=mask)  # the camera's own check of the polygons
+    except CalibrationError as exc:
+        raise CalibrationError(f"{where}.body_mask: {exc}") from exc
+    return mask
 
 
 def _capture_from_yaml(name: str, data: Any, source: Path) -> CaptureSettings:
@@ -221,6 +235,8 @@ def save_rig(rig: Rig, path: str | Path) -> Path:
             "distortion": [round(float(d), 8) for d in cam.distortion],  # plain floats, also from NumPy
             "pose_body_cam": [[round(float(v), 8) for v in row] for row in cam.pose_body_cam],
         }
+        if cam.body_mask:
+            cameras[name]["body_mask"] = [[[round(x, 5), round(y, 5)] for x, y in polygon] for polygon in cam.body_mask]
         if name in rig.capture:
             cameras[name]["capture"] = asdict(rig.capture[name])
     data: dict[str, Any] = {"cameras": cameras}

@@ -7,7 +7,7 @@ import json
 import logging
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -17,6 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from kartpilot.cli.drive_commands import with_default_speed_mode
+from kartpilot.calibration.rig import load_rig
 from kartpilot.cli.values import VIEW_HELP, file_or_new_folder, new_folder, number, output_file, view_target
 from kartpilot.control.lane_follow import LaneFollowState, heading_follow_step, lane_follow_step
 from kartpilot.core.errors import ConfigError, DataError
@@ -35,7 +36,8 @@ from kartpilot.odometry.places import load_places
 from kartpilot.odometry.run import run_mono_localizer, run_vo
 from kartpilot.odometry.stereo_vo import VO_STAGES, StereoVO
 from kartpilot.odometry.vo import VisualOdometry, VOStep
-from kartpilot.perception.lanes import LaneStages, detect_lanes, draw_lanes
+from kartpilot.perception.continuity import is_cut, thumbnail
+from kartpilot.perception.lanes import LaneObservation, LaneStages, detect_lanes, draw_lanes
 from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
 from kartpilot.perception.tape import detect_tape_track, draw_tape_track
 from kartpilot.record.recording import RecordingStereoSource
@@ -266,17 +268,51 @@ def simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-LANE_COLUMNS = ("frame", "left_x1", "left_y1", "left_x2", "left_y2", "right_x1", "right_y1", "right_x2", "right_y2",
-                "left_source", "right_source", "steer", "confidence")
-TAPE_COLUMNS = ("frame", "target_bearing_rad", "target_x_m", "target_z_m", "steer", "confidence")
+CURVE_ROWS = (0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
+"""Rows (fractions of the height; 1.0 is the last row) at which the CSV gives each curved boundary's column."""
+LANE_COLUMNS = ("frame", "file", "left_x1", "left_y1", "left_x2", "left_y2", "right_x1", "right_y1", "right_x2",
+                "right_y2", "left_source", "right_source", "steer", "confidence", "horizon_y",
+                "left_a", "left_b", "left_c", "right_a", "right_b", "right_c",
+                *(f"{side}_x_at_{round(100 * r)}pct" for side in ("left", "right") for r in CURVE_ROWS), "new_scene")
+TAPE_COLUMNS = ("frame", "file", "target_bearing_rad", "target_x_m", "target_z_m", "steer", "confidence",
+                "new_scene")
+
+
+def _curve_cells(observation: LaneObservation) -> list[object]:
+    """The horizon row, each side's curve coefficients and its columns at ``CURVE_ROWS`` (empty where none)."""
+    curves = (observation.left_curve, observation.right_curve)
+    horizon = next((c.horizon_y for c in curves if c is not None), None)
+    cells: list[object] = ["" if horizon is None else f"{horizon:.2f}"]
+    for curve in curves:
+        cells += ["", "", ""] if curve is None else [f"{curve.a:.6g}", f"{curve.b:.6g}", f"{curve.c:.6g}"]
+    rows = [r * (observation.height_px - 1) for r in CURVE_ROWS]
+    for curve in curves:
+        cells += [""] * len(rows) if curve is None else [f"{float(curve.x_at(y)):.1f}" for y in rows]
+    return cells
+
+
+def _centre_body_mask(rig_path: str) -> Callable[[np.ndarray], np.ndarray | None]:
+    """For each image, the rig's centre camera's body mask at that image's size."""
+    camera = load_rig(rig_path).camera("center")
+    masks: dict[tuple[int, int], np.ndarray | None] = {}
+
+    def mask(image: np.ndarray) -> np.ndarray | None:
+        h, w = image.shape[:2]
+        if (w, h) not in masks:
+            masks[(w, h)] = camera.body_mask_image(w, h)
+        return masks[(w, h)]
+
+    return mask
 
 
 def lanes(args: argparse.Namespace) -> int:
     """Lane boundaries (or, on a taped track, the target on the track) per frame to CSV (steer in radians,
     positive left), with optional overlays; on a Donkey Car tub, the agreement of the steer with the human
-    driver's, at the tub's own rate."""
+    driver's, at the tub's own rate. Frames that do not follow from the one before (a folder of photos of
+    different places; ``--independent``: every frame) start afresh: the follower's state is not carried."""
     stack = load_stack_config(args.config, args.preset)
     policy = stack.lane_policy
+    body_mask = _centre_body_mask(args.rig) if args.rig else None
     kind, frames = open_frames(args.input)
     tub = DonkeyTub(args.input) if kind == "donkeycar-tub" else None
     rate_hz = tub.rate_hz if tub is not None else 30.0
@@ -284,26 +320,35 @@ def lanes(args: argparse.Namespace) -> int:
     overlay = _Overlay(args.overlay) if args.overlay else None
     steers: list[float] = []
     rows: list[list[object]] = []
+    previous = None
+    cuts = 0
     try:
         for frame_set in frames:
             image = frame_set.images["center"]
-            row: list[object] = [frame_set.index]
+            current = thumbnail(image)
+            new_scene = args.independent or is_cut(previous, current)
+            previous = current
+            if new_scene:
+                state = LaneFollowState()
+                cuts += 1
+            row: list[object] = [frame_set.index, frame_set.name]
             if policy.boundaries == "tape":
                 tape = detect_tape_track(image, policy.tape)
                 decision, state = heading_follow_step(policy.follow, state, tape.seen_bearing_rad, 1 / rate_hz)
                 row += [f"{tape.bearing_rad:.5f}", f"{tape.target_m[0]:.4f}", f"{tape.target_m[1]:.4f}"
                         ] if tape.any_detected else ["", "", ""]
-                row += [f"{decision.steer_rad:.5f}", f"{tape.confidence:.3f}"]
+                row += [f"{decision.steer_rad:.5f}", f"{tape.confidence:.3f}", int(new_scene)]
                 drawn = draw_tape_track(image, tape, decision.steer_rad) if overlay is not None else None
             else:
                 stages = LaneStages() if args.stages else None
-                observation = detect_lanes(image, policy.lanes, stages)
+                mask = body_mask(image) if body_mask is not None else None
+                observation = detect_lanes(image, policy.lanes, stages, mask)
                 decision, state = lane_follow_step(policy.follow, state, observation, dt_s=1 / rate_hz)
                 for line, source in ((observation.left, observation.left_source),
                                      (observation.right, observation.right_source)):
                     row += [f"{v:.1f}" for v in line.as_tuple()] if source == "detected" else ["", "", "", ""]
                 row += [observation.left_source, observation.right_source, f"{decision.steer_rad:.5f}",
-                        f"{observation.confidence:.3f}"]
+                        f"{observation.confidence:.3f}", *_curve_cells(observation), int(new_scene)]
                 drawn = draw_lanes(image, observation, decision.steer_rad, stages) if overlay is not None else None
             steers.append(decision.steer_rad)
             rows.append(row)
@@ -313,7 +358,8 @@ def lanes(args: argparse.Namespace) -> int:
         if overlay is not None:
             overlay.close()
     write_csv_atomic(args.out, TAPE_COLUMNS if policy.boundaries == "tape" else LANE_COLUMNS, rows)
-    print(f"{len(steers)} frames ({kind}) -> {args.out}")
+    scenes = f", {cuts} scenes" if cuts > 1 else ""
+    print(f"{len(steers)} frames ({kind}{scenes}) -> {args.out}")
     if tub is not None:
         angles = np.array([r.angle for r in tub.records])
         # Donkey Car's angle is positive to the right, kartpilot's steer to the left
@@ -500,6 +546,11 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                                    "car's wide-angle camera on a taped track)")
     lanes_parser.add_argument("--config", help="YAML file merged over the preset (section lane_policy: lanes, "
                                                "follow)")
+    lanes_parser.add_argument("--independent", action="store_true",
+                              help="every image on its own (unrelated photos): nothing carries from one to the next; "
+                                   "without it a frame that does not follow from the one before starts afresh")
+    lanes_parser.add_argument("--rig", help="rig file whose centre camera's body mask (the kart's own body in view) "
+                                            "is left out of the search")
     lanes_parser.set_defaults(handler=lanes)
 
     demo_parser = sub.add_parser("demo", help="the main job on an embedded default (see README)")

@@ -13,8 +13,8 @@ import numpy as np
 from kartpilot.core.errors import CalibrationError
 from kartpilot.core.geometry import Array
 
-__all__ = ["DISTORTION_COUNTS", "CaptureSettings", "PinholeCamera", "StereoRig", "camera_from_dict",
-           "camera_to_dict"]
+__all__ = ["DISTORTION_COUNTS", "CaptureSettings", "PinholeCamera", "StereoRig", "body_mask_from_data",
+           "camera_from_dict", "camera_to_dict"]
 
 DISTORTION_COUNTS = (0, 4, 5, 8, 12, 14)  # how many coefficients OpenCV's lens models take (0: none)
 
@@ -56,6 +56,9 @@ class PinholeCamera:
         width_px, height_px: image size.
         distortion: OpenCV coefficients (k1, k2, p1, p2[, k3...]); empty for none.
         pose_body_cam: 4x4 camera-to-body transform (the camera's pose on the kart).
+        body_mask: polygons of what belongs to the kart itself in this camera's view (its frame, bumper, nose),
+            each a tuple of (x, y) corners as fractions of the width and height, so one mask serves every
+            resolution of the camera. Nothing in them is the world: detectors leave them out.
     """
 
     fx_px: float
@@ -68,6 +71,7 @@ class PinholeCamera:
     pose_body_cam: tuple[tuple[float, ...], ...] = field(
         default=((1.0, 0, 0, 0), (0, 1.0, 0, 0), (0, 0, 1.0, 0), (0, 0, 0, 1.0))
     )
+    body_mask: tuple[tuple[tuple[float, float], ...], ...] = ()
 
     def __post_init__(self) -> None:
         if not (self.fx_px > 0 and self.fy_px > 0):
@@ -81,6 +85,25 @@ class PinholeCamera:
             )
         if len(self.distortion) not in DISTORTION_COUNTS:
             raise CalibrationError(f"distortion needs 4, 5, 8, 12 or 14 values, got {len(self.distortion)}")
+        for polygon in self.body_mask:
+            corners = np.asarray(polygon, dtype=np.float64)
+            if corners.ndim != 2 or corners.shape[1] != 2 or len(corners) < 3:
+                raise CalibrationError("a body mask polygon needs at least three (x, y) corners")
+            if not (np.all(np.isfinite(corners)) and corners.min() >= 0.0 and corners.max() <= 1.0):
+                raise CalibrationError("a body mask's corners are fractions of the image, from 0 to 1")
+
+    def body_mask_image(self, width_px: int | None = None, height_px: int | None = None) -> Array | None:
+        """The body mask as a uint8 image (255 on the kart's body) of the given size (the calibration's by
+        default); None when the camera has none."""
+        if not self.body_mask:
+            return None
+        w, h = width_px or self.width_px, height_px or self.height_px
+        mask = np.zeros((h, w), np.uint8)
+        import cv2  # the camera model itself needs no OpenCV; only drawing the mask does
+
+        polygons = [np.round(np.asarray(p) * [w - 1, h - 1]).astype(np.int32) for p in self.body_mask]
+        cv2.fillPoly(mask, polygons, 255)
+        return mask
 
     @classmethod
     def from_matrix(
@@ -198,11 +221,22 @@ class StereoRig:
             return np.where(disparity > 0, self.camera.fx_px * self.baseline_m / disparity, np.inf)
 
 
+def body_mask_from_data(data: Any) -> tuple[tuple[tuple[float, float], ...], ...]:
+    """A body mask from its YAML or JSON form (a list of polygons, each a list of [x, y]); the camera checks it."""
+    if not isinstance(data, (list, tuple)) or not all(isinstance(p, (list, tuple)) for p in data):
+        raise CalibrationError("body_mask must be a list of polygons, each a list of [x, y] fractions")
+    try:
+        return tuple(tuple((float(x), float(y)) for x, y in polygon) for polygon in data)
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"body_mask: each corner is [x, y] ({exc})") from exc
+
+
 def camera_to_dict(camera: PinholeCamera) -> dict[str, Any]:
     """A plain, JSON-serialisable dict of a camera (recording manifests, place databases)."""
     data = asdict(camera)
     data["distortion"] = list(camera.distortion)
     data["pose_body_cam"] = [list(row) for row in camera.pose_body_cam]
+    data["body_mask"] = [[list(corner) for corner in polygon] for polygon in camera.body_mask]
     return data
 
 
@@ -213,6 +247,7 @@ def camera_from_dict(name: str, data: dict[str, Any], where: str = "") -> Pinhol
             float(data["fx_px"]), float(data["fy_px"]), float(data["cx_px"]), float(data["cy_px"]),
             int(data["width_px"]), int(data["height_px"]), tuple(float(d) for d in data.get("distortion", ())),
             tuple(tuple(float(v) for v in row) for row in data.get("pose_body_cam", np.eye(4).tolist())),
+            body_mask_from_data(data.get("body_mask") or ()),
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise CalibrationError(" ".join(filter(None, (f"camera {name!r}", where, f"is malformed ({exc})")))) from exc

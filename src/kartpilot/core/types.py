@@ -59,12 +59,15 @@ class FrameSet:
         images: camera name -> image. A camera missing from the mapping delivered nothing.
         capture_ns: camera name -> when that camera's image was captured, where it differs from
             ``stamp_ns`` (live cameras are grouped by time; their own stamps show the skew).
+        name: where the set came from when it is one file (an image's file name), so a result can be matched
+            to it; empty otherwise.
     """
 
     index: int
     stamp_ns: int
     images: Mapping[str, Image]
     capture_ns: Mapping[str, int] = field(default_factory=dict)
+    name: str = ""
 
 
 @dataclass(frozen=True)

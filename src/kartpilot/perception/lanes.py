@@ -12,6 +12,11 @@ A side with no line is replaced by the image's extreme column on that side (the 
 wide turns) and flagged as such. Processing runs on the region of interest only, optionally
 downscaled; the lines are returned in pixels of the input image.
 
+``method: paint`` replaces the edge-and-Hough stages with :mod:`kartpilot.perception.paint`: white paint found
+as ridges and fitted as curves on the ground, for real painted lines seen from a low kart camera (the real SDC
+kart's cameras at the venue, where the Hough stages find no boundary). Both report the same observation; the
+paint method also reports each boundary as a curve that can be read at any row.
+
 Image coordinates: x right, y down, origin at the top-left pixel centre.
 """
 
@@ -27,9 +32,11 @@ from numpy.typing import NDArray
 
 from kartpilot.core.errors import PerceptionError
 from kartpilot.core.types import Image
+from kartpilot.perception.paint import LaneCurve, PaintConfig, PaintStrokes, find_paint_curves
 
 __all__ = [
     "LaneConfig",
+    "LaneCurve",
     "LaneLine",
     "LaneObservation",
     "LaneStages",
@@ -70,6 +77,9 @@ class LaneConfig:
         paint: ``dark`` for dark tape on a light floor (the check then wants darker lines).
         yellow_boost: add this times max(0, min(R, G) - B) to the grey level, so yellow paint stands out on
             light concrete where plain grey has no contrast (0: plain grayscale, as in the thesis).
+        method: ``hough`` (the thesis's edges and straight lines; the settings above) or ``paint`` (white paint
+            as curves, :mod:`kartpilot.perception.paint`; ``paint`` holds its settings, and ``process_scale``
+            applies to both).
     """
 
     roi_top: float = 0.58
@@ -92,6 +102,8 @@ class LaneConfig:
     yellow_boost: float = 1.0
     min_brightness_contrast: float = 30.0
     paint: Literal["bright", "dark"] = "bright"
+    method: Literal["hough", "paint"] = "hough"
+    curves: PaintConfig = field(default_factory=PaintConfig)
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.roi_top < 1.0:
@@ -126,7 +138,9 @@ class LaneObservation:
     Attributes:
         left, right: the boundaries (the image's extreme column when ``*_source`` is ``extreme``).
         intersection_px: where the two boundaries meet (the desired heading), or None if parallel.
-        confidence: 0 to 1, from how much line length supports each detected side.
+        confidence: 0 to 1, from how much line length supports each detected side (``paint``: the share of
+            the rows where each boundary lies in the image that paint supports).
+        left_curve, right_curve: the boundaries as curves (``method: paint``; None otherwise or where not found).
     """
 
     width_px: int
@@ -137,6 +151,8 @@ class LaneObservation:
     right_source: Source
     intersection_px: tuple[float, float] | None
     confidence: float
+    left_curve: LaneCurve | None = None
+    right_curve: LaneCurve | None = None
 
     @property
     def any_detected(self) -> bool:
@@ -157,13 +173,19 @@ class LaneStages:
     after_slope: Segments = field(default_factory=lambda: np.zeros((0, 4)))
     left_cluster: Segments = field(default_factory=lambda: np.zeros((0, 4)))
     right_cluster: Segments = field(default_factory=lambda: np.zeros((0, 4)))
+    paint: PaintStrokes | None = None
 
 
-def detect_lanes(image: Image, config: LaneConfig = LaneConfig(), stages: LaneStages | None = None
-                 ) -> LaneObservation:
-    """Find the ego lane's left and right boundaries in a centre-camera image (BGR or gray)."""
+def detect_lanes(image: Image, config: LaneConfig = LaneConfig(), stages: LaneStages | None = None,
+                 body_mask: Image | None = None) -> LaneObservation:
+    """Find the ego lane's left and right boundaries in a centre-camera image (BGR or gray).
+
+    ``body_mask`` (the image's size, non-zero on the kart's own body) is left out of the search (paint method).
+    """
     if image is None or image.size == 0:
         raise PerceptionError("empty image")
+    if config.method == "paint":
+        return _detect_paint(image, config, stages, body_mask)
     h, w = image.shape[:2]
     top = round(config.roi_top * h)
     region = _lane_gray(image[top:], config.yellow_boost)  # only the region of interest is converted
@@ -198,6 +220,29 @@ def detect_lanes(image: Image, config: LaneConfig = LaneConfig(), stages: LaneSt
     support = sum(min(1.0, _length(s).sum() / (0.6 * (h - top))) for s in (left, right)) / 2
     return LaneObservation(w, h, left_line, right_line, left_source, right_source,
                            intersection(left_line, right_line), float(support))
+
+
+def _detect_paint(image: Image, config: LaneConfig, stages: LaneStages | None, body_mask: Image | None
+                  ) -> LaneObservation:
+    h, w = image.shape[:2]
+    if body_mask is not None and body_mask.shape[:2] != (h, w):
+        raise PerceptionError(f"the body mask is {body_mask.shape[1]}x{body_mask.shape[0]}, the image {w}x{h}")
+    paint_stages = PaintStrokes() if stages is not None else None
+    left, right, top = find_paint_curves(image, config.curves, config.process_scale, body_mask, paint_stages)
+    if stages is not None:
+        stages.paint = paint_stages
+    y_top, y_bottom = float(top), float(h - 1)
+
+    def chord(curve: LaneCurve | None, extreme: float) -> LaneLine:
+        if curve is None:
+            return LaneLine(extreme, y_bottom, extreme, y_top)
+        return LaneLine(float(curve.x_at(y_bottom)), y_bottom, float(curve.x_at(y_top)), y_top)
+
+    left_line, right_line = chord(left, 0.0), chord(right, w - 1.0)
+    support = sum(c.support for c in (left, right) if c is not None) / 2
+    return LaneObservation(w, h, left_line, right_line, "detected" if left else "extreme",
+                           "detected" if right else "extreme", intersection(left_line, right_line), float(support),
+                           left, right)
 
 
 def heading_deviation_rad(observation: LaneObservation, point: tuple[float, float] | None = None) -> float:
@@ -299,11 +344,21 @@ def draw_lanes(image: Image, observation: LaneObservation, steer_rad: float | No
             cv2.line(canvas, (int(x1), int(y1)), (int(x2), int(y2)), (90, 90, 255), 1, cv2.LINE_AA)
         for x1, y1, x2, y2 in np.vstack([stages.left_cluster, stages.right_cluster]):
             cv2.line(canvas, (int(x1), int(y1)), (int(x2), int(y2)), (255, 200, 0), 2, cv2.LINE_AA)
-    for line, source in ((observation.left, observation.left_source), (observation.right, observation.right_source)):
+    h, w = canvas.shape[:2]
+    if stages is not None and stages.paint is not None and stages.paint.mask is not None:
+        paint = stages.paint
+        mask = cv2.resize(paint.mask, (w, h - paint.top_px), interpolation=cv2.INTER_NEAREST)
+        canvas[paint.top_px:][mask > 0] = (255, 0, 255)
+    for line, source, curve in ((observation.left, observation.left_source, observation.left_curve),
+                                (observation.right, observation.right_source, observation.right_curve)):
         colour = (0, 220, 0) if source == "detected" else (0, 140, 255)
+        if curve is not None:
+            rows = np.arange(line.y_top, h, 2.0)
+            points = np.column_stack([np.clip(curve.x_at(rows), -4 * w, 5 * w), rows])
+            cv2.polylines(canvas, [np.round(points).astype(np.int32)], False, colour, 3, cv2.LINE_AA)
+            continue
         cv2.line(canvas, (round(line.x_bottom), round(line.y_bottom)),
                  (round(line.x_top), round(line.y_top)), colour, 3, cv2.LINE_AA)
-    h, w = canvas.shape[:2]
     base = (w // 2, h - 1)
     if observation.intersection_px is not None:
         x, y = observation.intersection_px

@@ -53,7 +53,7 @@ def _images(paths: list[Path]) -> Iterator[FrameSet]:
         image = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if image is None:
             raise DataError(f"cannot read the image {path}")
-        yield FrameSet(k, k, {"center": image})
+        yield FrameSet(k, k, {"center": image}, name=path.name)
 
 
 def _video(path: Path) -> Iterator[FrameSet]:
@@ -80,7 +80,7 @@ def _recording(reader: RecordingReader, camera: str) -> Iterator[FrameSet]:
         image = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if image is None:
             raise DataError(f"cannot read the recording's frame {path}")
-        yield FrameSet(k, stamp, {"center": image})
+        yield FrameSet(k, stamp, {"center": image}, name=path.name)
 
 
 class RecordingFrameSource:

@@ -41,9 +41,11 @@ from kartpilot.perception.lanes import (
 from kartpilot.perception.tape import TapeConfig, TapeObservation, detect_tape_track, draw_tape_track
 
 __all__ = ["KNOWN_GOOD_SPEED_MODE_KMH", "LANE_PRESETS", "LanePolicy", "LanePolicyConfig", "lane_speed_mode_mps",
-           "side_search_band"]
+           "horizon_fraction", "side_search_band"]
 
-_KART_LINES = LaneConfig(roi_top_width=1.0, min_abs_slope=0.1)
+# the real SDC kart's centre camera at the venue (docs/real-kart.md): painted lines seen from 0.56 m, found as
+# paint and fitted as curves; the horizon at 0.34 of the height is the ground calibration's (6.8 degrees down)
+_KART_LINES = LaneConfig(method="paint", roi_top_width=1.0, min_abs_slope=0.1)
 
 KNOWN_GOOD_SPEED_MODE_KMH = 30.0
 """The speed mode a simulated drive of the lanes pipeline on the sdc-kart uses unless one is given: the
@@ -99,6 +101,8 @@ LANE_PRESETS: dict[str, LanePolicyConfig] = {
     "kart": LanePolicyConfig(),
     # a car's dash camera, higher up and looking further: a trapezoid narrowing to the vanishing point
     "dashcam": LanePolicyConfig(lanes=LaneConfig()),
+    # the thesis's edges and straight lines on a kart's camera (the simulator's kart before the real one was seen)
+    "kart-hough": LanePolicyConfig(lanes=LaneConfig(roi_top_width=1.0, min_abs_slope=0.1)),
     # a small car on a taped indoor track, through a wide-angle lens (a Donkey Car or a PiRacer)
     "tape": LanePolicyConfig(boundaries="tape"),
 }
@@ -129,6 +133,12 @@ def _ground_row(camera: PinholeCamera, ahead_m: float) -> float:
     return float(camera.project(point)[0, 1])
 
 
+def horizon_fraction(camera: PinholeCamera) -> float:
+    """The horizon's row over the image's height for a camera on the kart (the ground 10 km ahead), clipped to
+    the image."""
+    return min(max(_ground_row(camera, 1.0e4) / camera.height_px, 0.0), 0.9)
+
+
 class LanePolicy:
     """Holds the follower's state from frame to frame; everything else is pure functions."""
 
@@ -142,7 +152,8 @@ class LanePolicy:
             raise CalibrationError("lane following needs a camera named 'center'")
         centre = cameras["center"]
         top_row = _ground_row(centre, self.config.roi_far_m)
-        lanes = replace(self.config.lanes, roi_top=min(max(top_row / centre.height_px, 0.0), 0.9))
+        lanes = replace(self.config.lanes, roi_top=min(max(top_row / centre.height_px, 0.0), 0.9),
+                        curves=replace(self.config.lanes.curves, horizon=horizon_fraction(centre)))
         self.config = replace(self.config, lanes=lanes)
         # side cameras look out to the side; a forward-looking "left"/"right" (the rc-kart's stereo pair) is not one
         self.bands = {side: side_search_band(cameras[side], side, self.config.near_m, self.config.far_m,
