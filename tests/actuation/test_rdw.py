@@ -57,8 +57,21 @@ def test_the_kart_s_frames_decode_as_documented():
     assert name == "BrakeFeedback"
     assert brake == {"BrakePosition": 500, "BrakeTarget": 800, "BrakeDirection": 1, "BrakeSpeed": 50, "BrakeError": 1}
     assert decode_rdw(DB, _frame(0x123, "00")) is None
-    with pytest.raises(ActuationError, match=r"Speed \(0x440\): 1 bytes"):
+    with pytest.raises(ActuationError, match=r"Speed \(0x440\): 1 bytes hold none"):
         decode_rdw(DB, _frame(0x440, "01"))
+
+
+def test_a_short_feedback_frame_gives_the_signals_whose_bytes_it_holds():
+    """The teams' decoders read 0x440's speed from its first two bytes whatever its length; a team's kart
+    simulator sends 2-byte frames. Such a frame is the speed; a frame too short for any signal is an error."""
+    assert decode_rdw(DB, _frame(0x440, "014a")) == ("Speed", {"Speed": pytest.approx(33.0)})
+    name, brake = decode_rdw(DB, _frame(0x710, "01f40320"))  # position and target, not the rest
+    assert brake == {"BrakePosition": 500, "BrakeTarget": 800}
+    protocol = RdwProtocol(SteeringCalibration())
+    protocol.receive(1, _frame(0x440, "014a"))
+    assert protocol.feedback(2).speed_mps == pytest.approx(33.0 / 3.6)
+    with pytest.raises(ActuationError):  # holds no whole signal: the bus counts it as a receive error
+        protocol.receive(3, _frame(0x710, "01"))
 
 
 def test_steer_rad_positive_left_becomes_the_ecu_s_value_positive_right_through_the_calibration():

@@ -132,8 +132,10 @@ def rdw_command_frames(db: cantools.database.can.Database, steer_value: float, t
 def decode_rdw(db: cantools.database.can.Database, frame: can.Message) -> tuple[str, dict[str, Any]] | None:
     """(message name, values) of one of the kart's frames; None for an id the protocol does not define.
 
-    A steering command of 4 bytes (the ECU's default speed) decodes with ``SteeringSpeed`` 0; any other
-    frame shorter than its message raises ActuationError.
+    A steering command of 4 bytes (the ECU's default speed) decodes with ``SteeringSpeed`` 0. A shorter frame
+    gives the signals whose bytes it holds (the teams' decoders read the speed from the first two bytes of 0x440
+    whatever its length, and a team's kart simulator sends 2-byte speed frames); one that holds no signal's
+    bytes raises ActuationError, which the bus counts as a receive error.
     """
     try:
         message = db.get_message_by_frame_id(frame.arbitration_id)
@@ -142,12 +144,23 @@ def decode_rdw(db: cantools.database.can.Database, frame: can.Message) -> tuple[
     data = bytes(frame.data)
     if message.name == "SteeringCommand" and len(data) == 4:
         data += bytes(4)
-    if len(data) < message.length:
-        raise ActuationError(f"{message.name} ({frame.arbitration_id:#x}): {len(data)} bytes, expected "
-                             f"{message.length}")
-    values = message.decode(data[:message.length], decode_choices=False, scaling=True)
+    held = [signal.name for signal in message.signals if _last_byte(signal) < len(data)]
+    if not held:
+        raise ActuationError(f"{message.name} ({frame.arbitration_id:#x}): {len(data)} bytes hold none of its "
+                             f"signals ({message.length} expected)")
+    values = message.decode(data[:message.length].ljust(message.length, b"\0"), decode_choices=False, scaling=True)
     assert isinstance(values, dict)
-    return message.name, dict(values)
+    return message.name, {name: values[name] for name in held}
+
+
+def _last_byte(signal: cantools.database.can.Signal) -> int:
+    """The last byte a signal's bits reach (Intel: counting up from its start bit; Motorola: its start bit is
+    the most significant, and the bits run down the byte and on into the next ones)."""
+    if signal.byte_order == "little_endian":
+        return (signal.start + signal.length - 1) // 8
+    first_bits = signal.start % 8 + 1
+    rest = max(signal.length - first_bits, 0)
+    return signal.start // 8 + -(-rest // 8)
 
 
 class RdwProtocol:
@@ -206,7 +219,8 @@ class RdwProtocol:
             return None
         if now_ns is not None and (now_ns - seen[0]) * 1e-9 > self._timeout_s[key]:
             return None
-        return float(seen[1][signal])
+        value = seen[1].get(signal)  # a short frame may not hold it
+        return None if value is None else float(value)
 
     def faults(self, now_ns: int, state: str) -> list[str]:
         found = []
