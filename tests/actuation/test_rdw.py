@@ -65,7 +65,7 @@ def test_a_short_feedback_frame_gives_the_signals_whose_bytes_it_holds():
     """The teams' decoders read 0x440's speed from its first two bytes whatever its length; a team's kart
     simulator sends 2-byte frames. Such a frame is the speed; a frame too short for any signal is an error."""
     assert decode_rdw(DB, _frame(0x440, "014a")) == ("Speed", {"Speed": pytest.approx(33.0)})
-    name, brake = decode_rdw(DB, _frame(0x710, "01f40320"))  # position and target, not the rest
+    _, brake = decode_rdw(DB, _frame(0x710, "01f40320"))  # position and target, not the rest
     assert brake == {"BrakePosition": 500, "BrakeTarget": 800}
     protocol = RdwProtocol(SteeringCalibration())
     protocol.receive(1, _frame(0x440, "014a"))

@@ -1,5 +1,6 @@
-"""``kartpilot calibrate mono|stereo``: a rig file from images of a calibration board; ``calibrate steering``:
-the kart's steering calibration into its rig file."""
+"""``kartpilot calibrate mono|stereo``: a rig file from images of a calibration board; ``calibrate ground``: each
+camera's pose over the ground from one board lying on the floor; ``calibrate steering``: the kart's steering
+calibration into its rig file."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from kartpilot.actuation.can_bus import open_bus
@@ -19,17 +21,20 @@ from kartpilot.calibration.board import (
     MonoCalibration,
     calibrate_mono,
     calibrate_stereo,
+    find_board,
     pair_names,
     read_views,
 )
+from kartpilot.calibration.ground import BirdseyeView, calibrate_ground, stitch_birdseye
 from kartpilot.calibration.rig import Rig, load_rig, save_rig
 from kartpilot.cli.values import number, output_file
-from kartpilot.core.errors import ConfigError
+from kartpilot.core.errors import CalibrationError, ConfigError, DataError
+from kartpilot.core.files import write_bytes_atomic
 from kartpilot.core.geometry import invert_pose, mount_pose
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.runtime.config import load_stack_config
 
-__all__ = ["add_parsers", "calibrate", "calibrate_steering_command"]
+__all__ = ["add_parsers", "calibrate", "calibrate_ground_command", "calibrate_steering_command"]
 
 
 def _board(args: argparse.Namespace) -> BoardConfig:
@@ -109,6 +114,75 @@ def calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _read_image(path: Path) -> np.ndarray:
+    if not path.is_file():
+        raise DataError(f"image not found: {path}")
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None or image.size == 0:
+        raise DataError(f"cannot read the image {path}")
+    return image
+
+
+def _write_image(path: str, image: np.ndarray) -> None:
+    ok, data = cv2.imencode(Path(path).suffix.lower() or ".png", image)
+    if not ok:
+        raise ConfigError(f"{path}: cannot write an image of that kind (use .png or .jpg)")
+    write_bytes_atomic(path, data.tobytes())
+
+
+def _named_images(items: list[str]) -> dict[str, Path]:
+    named = {}
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            raise ConfigError(f"--image {item!r}: expected NAME=FILE, such as center=center.jpg")
+        if name in named:
+            raise ConfigError(f"--image: camera {name!r} given twice")
+        named[name] = Path(path)
+    return named
+
+
+def calibrate_ground_command(args: argparse.Namespace) -> int:
+    """Each camera's pose over the ground from one image per camera of one board lying on the floor; the rig
+    file with those poses, and the bird's-eye view of all the cameras stitched."""
+    board = _board(args)
+    images = {name: _read_image(path) for name, path in _named_images(args.image).items()}
+    views, sizes = {}, {}
+    for name, image in images.items():
+        view = find_board(image, board, name)
+        if view is None:
+            raise CalibrationError(f"camera {name!r}: fewer than {board.min_charuco_corners} of the board's corners "
+                                   "found in its image (is it the board given by --board, --square, --dictionary?)")
+        views[name], sizes[name] = view, (image.shape[1], image.shape[0])
+    base = load_rig(args.rig) if args.rig else None
+    known = {n: c for n, c in base.cameras.items() if n in views} if base is not None else {}
+    mounts = calibrate_ground(views, sizes, known, args.reference, args.reference_x)
+    cameras = dict(base.cameras) if base is not None else {}
+    for name, mount in mounts.items():
+        kept = cameras.get(name)
+        cameras[name] = replace(mount.camera, body_mask=kept.body_mask) if kept is not None else mount.camera
+    rig = replace(base, cameras=cameras) if base is not None else Rig(cameras)
+    summary = {name: {"height_m": m.height_m, "pitch_down_deg": m.pitch_down_deg, "roll_deg": m.roll_deg,
+                      "yaw_deg": m.yaw_deg, "reprojection_px": m.reprojection_px, "corners": m.corners,
+                      "fx_px": m.camera.fx_px, "intrinsics_estimated": m.intrinsics_estimated}
+               for name, m in mounts.items()}
+    birdseye = BirdseyeView((0.0, args.ahead), (-args.side, args.side), args.pixels_per_m)
+    stitched = stitch_birdseye(images, {n: m.camera for n, m in mounts.items()}, birdseye)
+    save_rig(rig, args.out)
+    if args.birdseye:
+        _write_image(args.birdseye, stitched)
+    if args.json:
+        print(json.dumps(summary, indent=1))
+    else:
+        for name, m in mounts.items():
+            source = "estimated from this view" if m.intrinsics_estimated else "the rig's"
+            print(f"{name}: height {m.height_m:.3f} m, pitch down {m.pitch_down_deg:.2f} deg, roll "
+                  f"{m.roll_deg:.2f} deg, yaw {m.yaw_deg:+.2f} deg; {m.corners} corners, reprojection "
+                  f"{m.reprojection_px:.2f} px; fx {m.camera.fx_px:.1f} px ({source})")
+    print(f"rig written to {args.out}" + (f", bird's-eye view to {args.birdseye}" if args.birdseye else ""))
+    return 0
+
+
 def calibrate_steering_command(args: argparse.Namespace) -> int:
     """Sweep the RDW kart's steering, fit the calibration, write it into the rig file."""
     stack = load_stack_config(args.config)
@@ -166,6 +240,27 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         cal.add_argument("--out", required=True, type=output_file, help="the rig file to write (YAML)")
         cal.add_argument("--json", action="store_true", help="print a machine-readable summary")
         cal.set_defaults(handler=calibrate)
+
+    ground = cal_sub.add_parser("ground", help="each camera's pose over the ground (height, pitch, roll, yaw) from "
+                                               "one image per camera of one ChArUco board lying on the floor")
+    ground.add_argument("--image", action="append", required=True, metavar="NAME=FILE",
+                        help="a camera's image of the board (repeat: --image center=c.jpg --image left=l.jpg ...)")
+    ground.add_argument("--board", default="10x8", help="the board's squares COLUMNSxROWS")
+    ground.add_argument("--square", type=number(above=0), default=0.115, help="square side, m")
+    ground.add_argument("--marker", type=number(above=0), default=0.086, help="marker side, m")
+    ground.add_argument("--dictionary", default="DICT_4X4_100", help="ArUco dictionary")
+    ground.add_argument("--rig", help="a rig file with the cameras' intrinsics (else each focal length is estimated "
+                                      "from its one view); its other contents are kept")
+    ground.add_argument("--reference", default="center", help="the camera that sets the kart's forward direction")
+    ground.add_argument("--reference-x", type=number(), default=0.0,
+                        help="how far ahead of the body's origin (the rear axle) the reference camera stands, m")
+    ground.add_argument("--out", required=True, type=output_file, help="the rig file to write (YAML)")
+    ground.add_argument("--birdseye", type=output_file, help="write the stitched bird's-eye view here (PNG or JPEG)")
+    ground.add_argument("--ahead", type=number(above=0), default=8.0, help="the bird's-eye view's reach ahead, m")
+    ground.add_argument("--side", type=number(above=0), default=5.0, help="its reach to each side, m")
+    ground.add_argument("--pixels-per-m", type=number(above=1, maximum=1000), default=100.0)
+    ground.add_argument("--json", action="store_true", help="print a machine-readable summary")
+    ground.set_defaults(handler=calibrate_ground_command, charuco=True)
 
     steering = cal_sub.add_parser("steering", help="the RDW kart's steering: sweep it, fit value to sensor to "
                                                    "road-wheel angle, write it into the rig file")

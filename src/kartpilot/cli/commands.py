@@ -16,8 +16,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from kartpilot.cli.drive_commands import with_default_speed_mode
 from kartpilot.calibration.rig import load_rig
+from kartpilot.cli.drive_commands import with_default_speed_mode
 from kartpilot.cli.values import VIEW_HELP, file_or_new_folder, new_folder, number, output_file, view_target
 from kartpilot.control.lane_follow import LaneFollowState, heading_follow_step, lane_follow_step
 from kartpilot.core.errors import ConfigError, DataError

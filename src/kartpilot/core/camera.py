@@ -92,7 +92,8 @@ class PinholeCamera:
             if not (np.all(np.isfinite(corners)) and corners.min() >= 0.0 and corners.max() <= 1.0):
                 raise CalibrationError("a body mask's corners are fractions of the image, from 0 to 1")
 
-    def body_mask_image(self, width_px: int | None = None, height_px: int | None = None) -> Array | None:
+    def body_mask_image(self, width_px: int | None = None, height_px: int | None = None
+                        ) -> np.ndarray[Any, np.dtype[np.uint8]] | None:
         """The body mask as a uint8 image (255 on the kart's body) of the given size (the calibration's by
         default); None when the camera has none."""
         if not self.body_mask:

@@ -33,6 +33,7 @@ The curves are reported in input pixels so a boundary can be checked at any row 
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import cv2
@@ -102,13 +103,14 @@ class PaintStrokes:
     scale: float = 1.0
 
 
-def _kernel_widths(rows: int, top: int, horizon: float, scale: float, config: PaintConfig) -> list[tuple[int, int, int]]:
+def _kernel_widths(rows: int, top: int, horizon: float, scale: float, config: PaintConfig
+                   ) -> list[tuple[int, int, int]]:
     """(first row, last row, kernel) of each band, in processing pixels."""
     edges = np.linspace(0, rows, config.bands + 1).astype(int)
     out = []
-    for r0, r1 in zip(edges[:-1], edges[1:], strict=True):
+    for r0, r1 in itertools.pairwise(edges):
         below = (top + r1) / scale - horizon  # the band's nearest row, in input pixels below the horizon
-        k = int(round(config.kernel_factor * config.paint_width_ratio * below * scale)) | 1
+        k = round(config.kernel_factor * config.paint_width_ratio * below * scale) | 1
         out.append((int(r0), int(r1), max(k, 3)))
     return out
 
@@ -152,7 +154,7 @@ def fit_curve(xs: NDArray[np.float64], ys: NDArray[np.float64], horizon_y: float
     curved = len(np.unique(np.round(ys))) >= 8 and float(np.ptp(dy)) > _CURVE_SPAN * float(dy.max())
     columns = [np.ones_like(dy), dy] + ([1.0 / dy] if curved else [])
     design = np.column_stack(columns)
-    coef, *_ = np.linalg.lstsq(design, xs, rcond=None)
+    coef = np.linalg.lstsq(design, xs, rcond=None)[0].astype(np.float64)
     return np.r_[coef, 0.0] if not curved else coef
 
 
@@ -193,8 +195,8 @@ def _strokes(mask: Image, top: int, scale: float, horizon_y: float, config: Pain
         r, c = rows[s:e], cols[s:e].astype(np.float64)
         uniq, inverse = np.unique(r, return_inverse=True)
         mid = np.bincount(inverse, weights=c) / np.bincount(inverse)
-        ys = (uniq + 0.5) / scale - 0.5 + top
-        xs = (mid + 0.5) / scale - 0.5
+        ys = ((uniq + 0.5) / scale - 0.5 + top).astype(np.float64)
+        xs = ((mid + 0.5) / scale - 0.5).astype(np.float64)
         coef = fit_curve(xs, ys, horizon_y)
         if coef is not None:
             out.append(_Stroke(xs, ys, coef))
@@ -269,7 +271,7 @@ def find_paint_curves(image: Image, config: PaintConfig, scale: float, mask: Ima
         candidates = [s for s in strokes if sign * (_eval(s.coef, np.array([bottom]), horizon_y)[0] - cx) > 0]
         candidates.sort(key=lambda s: (sign * (_eval(s.coef, np.array([bottom]), horizon_y)[0] - cx)))
         for seed in candidates:
-            xs, ys, coef = _grow(seed, candidates, horizon_y, tolerance)
+            _, ys, coef = _grow(seed, candidates, horizon_y, tolerance)
             if np.ptp(ys) < min_span or sign * (_eval(coef, np.array([bottom]), horizon_y)[0] - cx) <= 0:
                 continue
             share, near, far = _support(coef, ys, w, h, top, horizon_y, row_step)

@@ -40,8 +40,15 @@ from kartpilot.perception.lanes import (
 )
 from kartpilot.perception.tape import TapeConfig, TapeObservation, detect_tape_track, draw_tape_track
 
-__all__ = ["KNOWN_GOOD_SPEED_MODE_KMH", "LANE_PRESETS", "LanePolicy", "LanePolicyConfig", "lane_speed_mode_mps",
-           "horizon_fraction", "side_search_band"]
+__all__ = [
+    "KNOWN_GOOD_SPEED_MODE_KMH",
+    "LANE_PRESETS",
+    "LanePolicy",
+    "LanePolicyConfig",
+    "horizon_fraction",
+    "lane_speed_mode_mps",
+    "side_search_band",
+]
 
 # the real SDC kart's centre camera at the venue (docs/real-kart.md): painted lines seen from 0.56 m, found as
 # paint and fitted as curves; the horizon at 0.34 of the height is the ground calibration's (6.8 degrees down)

@@ -1,0 +1,117 @@
+"""Ground calibration: a known mount recovered from a rendered board, and the real SDC kart's cameras."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from kartpilot.calibration.board import BoardConfig, find_board
+from kartpilot.calibration.ground import (
+    BirdseyeView,
+    calibrate_ground,
+    ground_points,
+    mount_angles,
+    stitch_birdseye,
+)
+from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.errors import CalibrationError
+from kartpilot.core.geometry import invert_pose, mount_pose
+
+BOARD = BoardConfig(kind="charuco", columns=10, rows=8, square_m=0.115, marker_m=0.086, dictionary="DICT_4X4_100")
+HANZE = Path(__file__).resolve().parents[3] / "shared" / "data" / "rdw-kart" / "hanze-calibration"
+
+
+def _render(camera: PinholeCamera, board_on_body: np.ndarray) -> np.ndarray:
+    """The board lying on the ground (its 4x4 pose on the body) as ``camera`` sees it, on grey asphalt."""
+    px_per_square = 80
+    art = BOARD.charuco_board().generateImage((BOARD.columns * px_per_square, BOARD.rows * px_per_square))
+    metres_from_art = np.diag([BOARD.square_m / px_per_square, BOARD.square_m / px_per_square, 1.0])
+    cam_board = invert_pose(camera.pose_body_cam_array) @ board_on_body
+    to_image = camera.matrix @ np.column_stack([cam_board[:3, 0], cam_board[:3, 1], cam_board[:3, 3]])
+    image = cv2.warpPerspective(art, to_image @ metres_from_art, camera.size_wh, borderValue=90)
+    mask = cv2.warpPerspective(np.full_like(art, 255), to_image @ metres_from_art, camera.size_wh)
+    ground = np.full_like(image, 90)
+    out = np.where(mask > 0, image, ground)
+    return cv2.cvtColor(out, cv2.COLOR_GRAY2BGR)
+
+
+def _board_on_ground(x_m: float, y_m: float, yaw_deg: float) -> np.ndarray:
+    """A board lying face up: OpenCV's board frame has z into the board, so down."""
+    yaw = np.radians(yaw_deg)
+    pose = np.eye(4)
+    pose[:3, :3] = np.array([[np.cos(yaw), np.sin(yaw), 0], [np.sin(yaw), -np.cos(yaw), 0], [0, 0, -1.0]])
+    pose[:3, 3] = (x_m, y_m, 0.0)
+    return pose
+
+
+@pytest.mark.parametrize("estimate_focal", [False, True])
+def test_a_known_mount_is_recovered_from_a_rendered_board(estimate_focal: bool) -> None:
+    truth = {"center": mount_pose(0.0, 0.0, 0.56, 0.0, 6.8, 0.0),
+             "left": mount_pose(0.02, 0.09, 0.52, 27.0, 24.0, -3.0)}
+    cameras = {name: PinholeCamera(1000.0, 1000.0, 959.5, 539.5, 1920, 1080).on_body(pose)
+               for name, pose in truth.items()}
+    board = _board_on_ground(1.0, 0.1, 35.0)
+    views = {name: find_board(_render(camera, board), BOARD, name) for name, camera in cameras.items()}
+    assert all(v is not None and len(v.ids) >= 20 for v in views.values())
+    known = None if estimate_focal else {n: PinholeCamera(1000.0, 1000.0, 959.5, 539.5, 1920, 1080) for n in truth}
+    mounts = calibrate_ground(views, {n: (1920, 1080) for n in truth}, known)  # type: ignore[arg-type]
+    for name, pose in truth.items():
+        got = mounts[name]
+        height, pitch, roll, yaw = mount_angles(pose)
+        print(f"{name}: height {got.height_m:.4f} m (truth {height}), pitch {got.pitch_down_deg:.3f} ({pitch:.1f}), "
+              f"roll {got.roll_deg:.3f} ({roll:.1f}), yaw {got.yaw_deg:.3f} ({yaw:.1f}), fx {got.camera.fx_px:.1f}")
+        assert got.height_m == pytest.approx(height, abs=0.01)
+        assert got.pitch_down_deg == pytest.approx(pitch, abs=0.2)
+        assert got.roll_deg == pytest.approx(roll, abs=0.2)
+        assert got.yaw_deg == pytest.approx(yaw, abs=0.2)
+        assert np.allclose(got.camera.pose_body_cam_array[:3, 3], pose[:3, 3], atol=0.01)
+
+
+def test_a_camera_that_does_not_see_the_reference_s_board_is_refused() -> None:
+    camera = PinholeCamera(1000.0, 1000.0, 959.5, 539.5, 1920, 1080).on_body(mount_pose(0, 0, 0.56, 0, 6.8))
+    view = find_board(_render(camera, _board_on_ground(1.0, 0.0, 0.0)), BOARD, "left")
+    assert view is not None
+    with pytest.raises(CalibrationError, match="reference camera 'center' has no view"):
+        calibrate_ground({"left": view}, {"left": (1920, 1080)})
+
+
+def test_mount_angles_inverts_mount_pose() -> None:
+    pose = mount_pose(0.3, -0.2, 0.6, -25.0, 22.0, 7.0)
+    assert np.allclose(mount_angles(pose), (0.6, 22.0, 7.0, -25.0))
+
+
+@pytest.mark.skipif(not HANZE.is_dir(), reason="the Hanze kart's calibration images are not in ../shared/data")
+def test_the_real_kart_s_three_cameras_measure_the_board_s_squares_in_the_birdseye_view() -> None:
+    """The 2024 kart's three 1920x1080 cameras, one board on the ground: each camera's bird's-eye view, made
+    through its recovered pose, shows squares of 0.115 m (the board found again in the warped view)."""
+    images = {n: cv2.imread(str(HANZE / f"{n}.jpg")) for n in ("left", "center", "right")}
+    views = {n: find_board(im, BOARD, n) for n, im in images.items()}
+    mounts = calibrate_ground(views, {n: (1920, 1080) for n in images})  # type: ignore[arg-type]
+    view = BirdseyeView((0.0, 2.0), (-1.2, 1.2), 400.0)
+    for name, mount in mounts.items():
+        assert 0.4 < mount.height_m < 0.7 and mount.reprojection_px < 2.0
+        warped = stitch_birdseye({name: images[name]}, {name: mount.camera}, view)
+        found = find_board(warped, BOARD, name)
+        assert found is not None
+        ground = (np.column_stack([found.pixels, np.ones(len(found.pixels))]) @ view.ground_from_pixels().T)[:, :2]
+        at = {int(i): p for i, p in zip(found.ids, ground, strict=True)}
+        inner = BOARD.columns - 1
+        sides = [np.linalg.norm(at[i] - at[j]) for i in at for j in (i + 1, i + inner)
+                 if j in at and (j != i + 1 or (i + 1) % inner)]
+        square = float(np.mean(sides))
+        print(f"{name}: squares {square * 1000:.1f} mm in the bird's-eye view ({len(found.ids)} corners)")
+        assert square == pytest.approx(0.115, rel=0.02)
+    # the side cameras' ground agrees with the centre camera's where both see the board
+    centre = views["center"]
+    for name in ("left", "right"):
+        side = views[name]
+        shared = np.intersect1d(side.ids, centre.ids)
+        assert len(shared) >= 4
+        a = ground_points(mounts[name].camera, side.pixels[np.isin(side.ids, shared)])
+        b = ground_points(mounts["center"].camera, centre.pixels[np.isin(centre.ids, shared)])
+        gap = np.linalg.norm(a - b, axis=1)
+        print(f"{name} and center: the same corners {np.median(gap) * 100:.1f} cm apart on the ground (median)")
+        assert np.median(gap) < 0.03
