@@ -73,7 +73,8 @@ def test_one_lane_config_with_named_presets(tmp_path) -> None:
     from kartpilot.perception.lanes import LaneConfig
     from kartpilot.runtime.lane_policy import LANE_PRESETS
 
-    assert load_stack_config(None).lane_policy.lanes == LANE_PRESETS["kart"].lanes != LaneConfig()
+    assert load_stack_config(None).lane_policy.lanes == LANE_PRESETS["kart-sim"].lanes != LaneConfig()
+    assert load_stack_config(None, "kart").lane_policy.lanes.method == "paint"
     assert load_stack_config(None, "dashcam").lane_policy.lanes == LaneConfig()
     path = tmp_path / "lanes.yaml"
     path.write_text("lane_policy:\n  lanes: {paint: dark}\n")

@@ -114,7 +114,8 @@ def _drive_vehicle(args: argparse.Namespace) -> VehicleParams:
 def drive(args: argparse.Namespace) -> int:
     """A supervised drive of any pipeline: in the simulator (through the CAN layer), on a replayed recording
     (open loop, told what the kart measured), or on the real kart."""
-    stack = load_stack_config(args.config)
+    # the real kart's cameras on a real drive or its recording; the simulator's kart camera in the simulator
+    stack = load_stack_config(args.config, None if args.sim else "kart")
     vehicle = _drive_vehicle(args)
     path: ReferencePath | None = None
     visual_map = None

@@ -50,9 +50,12 @@ __all__ = [
     "side_search_band",
 ]
 
+# the simulator's kart camera (0.60 m, 12 degrees down, sdc-assen's wide track): the thesis's edges and straight
+# lines, which the simulator's laps were measured with (docs/lanes.md)
+_SIM_KART_LINES = LaneConfig(roi_top_width=1.0, min_abs_slope=0.1)
 # the real SDC kart's centre camera at the venue (docs/real-kart.md): painted lines seen from 0.56 m, found as
 # paint and fitted as curves; the horizon at 0.34 of the height is the ground calibration's (6.8 degrees down)
-_KART_LINES = LaneConfig(method="paint", roi_top_width=1.0, min_abs_slope=0.1)
+_REAL_KART_LINES = LaneConfig(method="paint", roi_top_width=1.0, min_abs_slope=0.1)
 
 KNOWN_GOOD_SPEED_MODE_KMH = 30.0
 """The speed mode a simulated drive of the lanes pipeline on the sdc-kart uses unless one is given: the
@@ -86,7 +89,7 @@ class LanePolicyConfig:
     """
 
     boundaries: Literal["lines", "tape"] = "lines"
-    lanes: LaneConfig = field(default_factory=lambda: _KART_LINES)
+    lanes: LaneConfig = field(default_factory=lambda: _SIM_KART_LINES)
     tape: TapeConfig = field(default_factory=TapeConfig)
     side: SideSearchConfig = field(default_factory=SideSearchConfig)
     follow: LaneFollowConfig = field(default_factory=LaneFollowConfig)
@@ -105,11 +108,12 @@ class LanePolicyConfig:
 LANE_PRESETS: dict[str, LanePolicyConfig] = {
     # a kart's camera sees a wide road from close to the ground: the boundaries run out to the image's
     # sides at shallow slopes, so the region is a full-width band and shallow lines are kept
-    "kart": LanePolicyConfig(),
+    "kart": LanePolicyConfig(lanes=_REAL_KART_LINES),
     # a car's dash camera, higher up and looking further: a trapezoid narrowing to the vanishing point
     "dashcam": LanePolicyConfig(lanes=LaneConfig()),
-    # the thesis's edges and straight lines on a kart's camera (the simulator's kart before the real one was seen)
-    "kart-hough": LanePolicyConfig(lanes=LaneConfig(roi_top_width=1.0, min_abs_slope=0.1)),
+    # the simulator's kart: the thesis's edges and straight lines (the defaults of a simulated drive); the paint
+    # finder does not yet hold the simulator's far, thin lines of sdc-assen (docs/real-kart.md)
+    "kart-sim": LanePolicyConfig(),
     # a small car on a taped indoor track, through a wide-angle lens (a Donkey Car or a PiRacer)
     "tape": LanePolicyConfig(boundaries="tape"),
 }
