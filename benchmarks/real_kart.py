@@ -22,7 +22,7 @@ import numpy as np
 
 from common import write_json
 from kartpilot.calibration.board import BoardConfig, find_board
-from kartpilot.calibration.ground import BirdseyeView, calibrate_ground, stitch_birdseye
+from kartpilot.calibration.ground import BirdseyeView, calibrate_ground, ground_points, stitch_birdseye
 from kartpilot.perception.lanes import LaneConfig, detect_lanes
 from kartpilot.runtime.lane_policy import LANE_PRESETS
 from vo_table import put_between_markers
@@ -122,7 +122,6 @@ def _against_hanze(npz: Path, views: dict, mounts: dict) -> dict[str, float]:
         truth = centre.pixels[np.isin(centre.ids, shared)] * scale
         theirs = cv2.perspectiveTransform(side_px.reshape(-1, 1, 2), team["matrices"][k]).reshape(-1, 2)
         theirs = theirs + offsets[k] - offsets[ref]
-        from kartpilot.calibration.ground import ground_points
         g = ground_points(mounts[name].camera, side_px / scale)
         cam = mounts["center"].camera
         inv = np.linalg.inv(cam.pose_body_cam_array)

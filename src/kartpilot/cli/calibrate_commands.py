@@ -28,11 +28,12 @@ from kartpilot.calibration.board import (
 from kartpilot.calibration.ground import BirdseyeView, calibrate_ground, stitch_birdseye
 from kartpilot.calibration.rig import Rig, load_rig, save_rig
 from kartpilot.cli.values import number, output_file
-from kartpilot.core.errors import CalibrationError, ConfigError, DataError
+from kartpilot.core.errors import CalibrationError, ConfigError
 from kartpilot.core.files import write_bytes_atomic
 from kartpilot.core.geometry import invert_pose, mount_pose
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.runtime.config import load_stack_config
+from kartpilot.sensors.base import read_image
 
 __all__ = ["add_parsers", "calibrate", "calibrate_ground_command", "calibrate_steering_command"]
 
@@ -114,15 +115,6 @@ def calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _read_image(path: Path) -> np.ndarray:
-    if not path.is_file():
-        raise DataError(f"image not found: {path}")
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None or image.size == 0:
-        raise DataError(f"cannot read the image {path}")
-    return image
-
-
 def _write_image(path: str, image: np.ndarray) -> None:
     ok, data = cv2.imencode(Path(path).suffix.lower() or ".png", image)
     if not ok:
@@ -146,7 +138,7 @@ def calibrate_ground_command(args: argparse.Namespace) -> int:
     """Each camera's pose over the ground from one image per camera of one board lying on the floor; the rig
     file with those poses, and the bird's-eye view of all the cameras stitched."""
     board = _board(args)
-    images = {name: _read_image(path) for name, path in _named_images(args.image).items()}
+    images = {name: read_image(path) for name, path in _named_images(args.image).items()}
     views, sizes = {}, {}
     for name, image in images.items():
         view = find_board(image, board, name)

@@ -267,9 +267,10 @@ def find_paint_curves(image: Image, config: PaintConfig, scale: float, mask: Ima
     row_step = max(1.0 / scale, 1.0)
     found: dict[str, LaneCurve] = {}
     for side, sign in (("left", -1.0), ("right", 1.0)):
-        # the stroke nearest the kart on this side at the bottom row; the longer one first among near ties
-        candidates = [s for s in strokes if sign * (_eval(s.coef, np.array([bottom]), horizon_y)[0] - cx) > 0]
-        candidates.sort(key=lambda s: (sign * (_eval(s.coef, np.array([bottom]), horizon_y)[0] - cx)))
+        # the strokes on this side, nearest the kart at the bottom row first
+        offsets = [sign * (float(_eval(s.coef, np.array([bottom]), horizon_y)[0]) - cx) for s in strokes]
+        candidates = [s for _, s in sorted(((o, s) for o, s in zip(offsets, strokes, strict=True) if o > 0),
+                                           key=lambda pair: pair[0])]
         for seed in candidates:
             _, ys, coef = _grow(seed, candidates, horizon_y, tolerance)
             if np.ptp(ys) < min_span or sign * (_eval(coef, np.array([bottom]), horizon_y)[0] - cx) <= 0:

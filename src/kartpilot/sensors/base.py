@@ -18,7 +18,7 @@ from kartpilot.core.errors import DataError, KartpilotError
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import FrameSet, Image, StereoFrame
 
-__all__ = ["StereoSource", "read_gray"]
+__all__ = ["StereoSource", "read_gray", "read_image"]
 
 
 class StereoSource(abc.ABC):
@@ -60,10 +60,15 @@ class StereoSource(abc.ABC):
 
 def read_gray(path: str | Path) -> Image:
     """Read an image as 8-bit grayscale; a missing, corrupt or empty file raises DataError."""
+    return read_image(path, cv2.IMREAD_GRAYSCALE)
+
+
+def read_image(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> Image:
+    """Read an image (BGR by default; OpenCV's ``flags``); a missing, corrupt or empty file raises DataError."""
     path = Path(path)
     if not path.is_file():
         raise DataError(f"image not found: {path}")
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    image = cv2.imread(str(path), flags)
     if image is None or image.size == 0:
         raise DataError(f"cannot read image (corrupt or not an image): {path}")
     return image
