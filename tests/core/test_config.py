@@ -81,7 +81,7 @@ def test_one_lane_config_with_named_presets(tmp_path) -> None:
     dark = load_stack_config(path, "dashcam").lane_policy.lanes
     assert dark.paint == "dark" and dark.roi_top_width == LaneConfig().roi_top_width
     tape = load_stack_config(None, "tape").lane_policy
-    assert tape.boundaries == "tape" and tape.follow == LANE_PRESETS["kart"].follow
+    assert tape.boundaries == "tape" and tape.follow == LANE_PRESETS["kart-sim"].follow
     with pytest.raises(ConfigError, match="unknown lane preset 'paint'"):
         load_stack_config(None, "paint")
     path.write_text("lane_detection: {paint: dark}\n")  # the old second section is gone: a clear error

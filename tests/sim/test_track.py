@@ -103,3 +103,37 @@ def test_scenery_stands_beside_the_road_never_on_it():
         centre_line_gap = np.min(np.linalg.norm(track.route.xy_m[None] - corners[:, None], axis=2))
         gaps.append(centre_line_gap - track.route.half_width_m.max())
     assert min(gaps) > track.spec.barrier_offset_m  # behind the tyre wall
+
+
+def test_lelystad_is_the_venue_lane_with_an_s_bend_road_marks_dashes_and_barriers():
+    track = load_track("lelystad")
+    assert track.closed and track.spec.sky == "overcast"
+    widths = 2 * track.route.half_width_m
+    assert np.allclose(widths, 3.0)
+    # an S-bend of 10 m radius each way
+    curvature = track.route.curvature_1pm
+    assert curvature.min() == pytest.approx(-0.1, abs=0.01) and curvature.max() >= 0.099
+    # a stop line (one bar across the lane) and a zebra (stripes), all on the road
+    assert len(track.road_marks) == 1 + 3
+    for polygon in track.road_marks:
+        centre = polygon.mean(axis=0)
+        assert abs(project_onto(track.route, centre).offset_m) < 1.5
+    # the barriers stand beside the lane, outside its lines
+    for footprint in track.barrier_blocks:
+        p = project_onto(track.route, footprint.mean(axis=0))
+        assert abs(p.offset_m) > 1.5 + 0.5
+    # the dashed stretch leaves gaps in the left line only; the boundary still counts there
+    i = track.route.index_at(176.0 + 4.5)  # in the first gap
+    left_points = np.vstack([line for line in track.lines])
+    gap_point = track.route.boundary("left")[i]
+    assert np.min(np.hypot(*(left_points - gap_point).T)) > 0.5
+    assert track.marked("left", i)
+
+
+def test_dashes_road_marks_and_barriers_are_checked():
+    with pytest.raises(ConfigError, match="dash_m"):
+        merge_config(TrackSpec(), {"dashed": [{"side": "left", "from_s_m": 0, "to_s_m": 10, "gap_m": 0}]}, "track")
+    with pytest.raises(ConfigError, match="stripe_m"):
+        merge_config(TrackSpec(), {"road_marks": [{"kind": "zebra", "stripe_m": -1}]}, "track")
+    with pytest.raises(ConfigError, match="height_m"):
+        merge_config(TrackSpec(), {"barrier_blocks": [{"height_m": 0}]}, "track")

@@ -43,7 +43,7 @@ from kartpilot.perception.tape import detect_tape_track, draw_tape_track
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
 from kartpilot.record.video import VideoFile
-from kartpilot.runtime.config import load_stack_config
+from kartpilot.runtime.config import load_stack_config, sim_lane_preset
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
 from kartpilot.runtime.lane_policy import LANE_PRESETS
 from kartpilot.runtime.session import SessionOutputs
@@ -240,6 +240,8 @@ def simulate(args: argparse.Namespace) -> int:
     config, driver = stack.sim, stack.centerline_driver
     overrides = {"track": args.track, "vehicle": args.vehicle, "seed": args.seed, "camera_rate_hz": args.rate}
     config = replace(config, **{k: v for k, v in overrides.items() if v is not None})
+    if args.driver == "lanes":  # the track's lane preset unless one is asked for; the config file over it
+        stack = load_stack_config(args.config, sim_lane_preset(args.preset, config.track))
     if args.cameras:
         config = replace(config, cameras=tuple(c.strip() for c in args.cameras.split(",") if c.strip()))
     if args.laps is not None:
@@ -508,10 +510,13 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     disparity_parser.set_defaults(handler=disparity)
 
     sim = sub.add_parser("sim", help="drive a simulated kart on a track, judged by the referee")
-    sim.add_argument("--track", help="bundled track name (utrack, sdc-assen, straight20) or a track YAML file")
+    sim.add_argument("--track", help="bundled track name (utrack, sdc-assen, lelystad, straight20) or a track YAML "
+                                     "file")
     sim.add_argument("--vehicle", choices=("rc-kart", "sdc-kart"))
     sim.add_argument("--driver", choices=("centerline", "commands", "lanes"), default="centerline",
                      help="lanes: the lane-following pipeline on the rendered cameras (sdc-kart)")
+    sim.add_argument("--preset", choices=tuple(LANE_PRESETS),
+                     help="lanes: the lane pipeline's preset (default: the track's, lane_preset in its file)")
     sim.add_argument("--speed-mode", type=number(above=0),  # lanes on the sdc-kart: a known-good mode by default
                      help="cap the top speed, km/h (the SDC kart's 5/15/30/60 modes)")
     sim.add_argument("--commands", help="recording (or its commands.csv) whose commands the commands driver replays")

@@ -25,8 +25,8 @@ from kartpilot.planning.reference_path import (
     load_reference_path,
     save_reference_path,
 )
-from kartpilot.record.recording import RecordingStereoSource
-from kartpilot.runtime.config import load_stack_config
+from kartpilot.record.recording import RecordingReader, RecordingStereoSource
+from kartpilot.runtime.config import load_stack_config, sim_lane_preset
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
 from kartpilot.runtime.faults import parse_injection
 from kartpilot.runtime.lane_policy import LANE_PRESETS, lane_speed_mode_mps
@@ -114,8 +114,9 @@ def _drive_vehicle(args: argparse.Namespace) -> VehicleParams:
 def drive(args: argparse.Namespace) -> int:
     """A supervised drive of any pipeline: in the simulator (through the CAN layer), on a replayed recording
     (open loop, told what the kart measured), or on the real kart."""
-    # the real kart's cameras on a real drive or its recording; the simulator's kart camera in the simulator
-    stack = load_stack_config(args.config, None if args.sim else "kart")
+    # the real kart's preset on a real drive or its recording; in the simulator, the track's own
+    preset = sim_lane_preset(args.preset, args.sim) if args.sim else args.preset or "kart"
+    stack = load_stack_config(args.config, preset)
     vehicle = _drive_vehicle(args)
     path: ReferencePath | None = None
     visual_map = None
@@ -213,9 +214,24 @@ def stage_lines(session: SessionResult) -> str:
     return line
 
 
+def _recorded_preset(folder: str) -> str:
+    """The lane preset a recording is replayed with by default: a simulated run's track's own, else the real
+    kart's (``kart``)."""
+    try:
+        track = RecordingReader(folder).sim_track
+    except KartpilotError:
+        return "kart"  # the replay itself says what is wrong with the recording
+    if track is None:
+        return "kart"
+    try:
+        return sim_lane_preset(None, track)
+    except ConfigError:
+        return "kart"  # a track file no longer where it was
+
+
 def replay(args: argparse.Namespace) -> int:
     """A recording through a pipeline; its commands and outputs written as a new recording."""
-    stack = load_stack_config(args.config, args.preset)
+    stack = load_stack_config(args.config, args.preset or _recorded_preset(args.recording))
     path = load_reference_path(args.reference) if args.reference else None
     visual_map = _visual_map(args) if path is not None and args.pipeline == "stereo-vo" else None
     places = load_places(args.places) if args.places and args.pipeline == "mono-vo" else None
@@ -280,6 +296,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     where.add_argument("--replay", metavar="RECORDING", help="run the pipeline on a recording (open loop)")
     where.add_argument("--live", metavar="RIG", help="drive the real kart: the rig file's cameras, the CAN bus of "
                                                      "the config's can section (or --bus, --channel)")
+    drive_parser.add_argument("--preset", choices=tuple(LANE_PRESETS),
+                              help="lanes: the lane pipeline's preset (default: kart; --sim: the track's own)")
     drive_parser.add_argument("--bus", choices=("virtual", "socketcan", "none"),
                               help="--sim: virtual (default: the simulated ECUs behind python-can's virtual bus) or "
                                    "none; --live: socketcan or virtual (default: the config's can.interface)")
@@ -334,9 +352,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     rep.add_argument("--no-map", action="store_true", help="stereo-vo: localise with VO alone")
     rep.add_argument("--vehicle", help="the kart (wheelbase, steering range; default: the one the recording was made "
                                        "on)")
-    rep.add_argument("--preset", choices=tuple(LANE_PRESETS), default="kart",
-                     help="lanes: the kind of track and camera (kart: road lines, a camera close to the ground; "
-                          "dashcam: a car's; tape: a small car's wide-angle camera on a taped track)")
+    rep.add_argument("--preset", choices=tuple(LANE_PRESETS),
+                     help="lanes: the kind of track and camera (kart: the real kart's road lines, the default; "
+                          "a simulated run's default is its track's; dashcam: a car's; tape: a small car's "
+                          "wide-angle camera on a taped track)")
     rep.add_argument("--config", help="YAML file merged over the defaults")
     rep.set_defaults(handler=replay)
 

@@ -188,11 +188,11 @@ def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: L
         if kept is not None and kept_age <= config.hold_frames:
             left, right = _keep_one_side(preferred, kept if preferred == "left" else left,
                                          kept if preferred == "right" else right, width_b, width_t)
-            target, virtual = intersection(left, right), True
+            target, virtual = _aim(centre, left, right), True
     elif not centre.both_detected and config.missing_side == "lane_width" and width_b > 0:
         seen = "right" if centre.right_source == "detected" else "left"
         left, right = _keep_one_side(seen, left, right, width_b, width_t)
-        target, virtual = intersection(left, right), True
+        target, virtual = _aim(centre, left, right), True
     if split_left_s <= 0:
         kept, kept_age = None, 0
     deviation = heading_deviation_rad(centre, target)  # positive: the lane goes right
@@ -201,12 +201,13 @@ def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: L
         lane_centre = (left.x_bottom + right.x_bottom) / 2
         lane_width = max(right.x_bottom - left.x_bottom, 1.0)
         steer_right += config.offset_gain * (lane_centre - (centre.width_px - 1) / 2) / lane_width
+    ahead = _bend_ahead(centre, deviation)
     if side is None:
         steer = _smoothed(config, state, -steer_right, dt_s)
-        throttle = _throttle(config, steer, deviation, centre.confidence, reason == "split")
+        throttle = _throttle(config, steer, ahead, centre.confidence, reason == "split")
     else:  # the side camera's steer away eases the centre's, and the kart slows as in a turn
         steer = _smoothed(config, state, side_steer - steer_right, dt_s)
-        throttle = min(config.throttle_turn, _throttle(config, steer, deviation, centre.confidence, reason == "split"))
+        throttle = min(config.throttle_turn, _throttle(config, steer, ahead, centre.confidence, reason == "split"))
     return LaneDecision(steer, throttle, 0.0, side or reason), LaneFollowState(
         steer, 0, width_b, width_t, width_f, max(0.0, split_left_s - dt_s), kept, kept_age, votes)
 
@@ -267,6 +268,26 @@ def _nothing_seen(config: LaneFollowConfig, state: LaneFollowState) -> tuple[Lan
         return LaneDecision(state.steer_rad, config.throttle_turn, 0.0, "hold"), replace(
             state, frames_without_lane=missing)
     return LaneDecision(state.steer_rad, 0.0, 1.0, "halt"), replace(state, frames_without_lane=missing)
+
+
+def _bend_ahead(centre: LaneObservation, deviation_rad: float) -> float:
+    """The bend the speed plan slows for: where both boundaries were found as curves, the bearing of the lane's
+    centre at the farthest row both are seen (the aim lies nearer, about 6 m ahead: too late to slow for a
+    tight bend at speed); else the deviation the steer follows (the thesis's far meeting point)."""
+    left, right = centre.left_curve, centre.right_curve
+    if left is None or right is None:
+        return deviation_rad
+    far = max(left.y_far, right.y_far)
+    return heading_deviation_rad(centre, ((float(left.x_at(far)) + float(right.x_at(far))) / 2, far))
+
+
+def _aim(centre: LaneObservation, left: LaneLine, right: LaneLine) -> tuple[float, float] | None:
+    """The point to aim at between two boundaries (one of them put a lane width from the other): the lane's
+    centre at the chords' top where the boundaries were found as curves (they end at the aim row), else the
+    thesis's meeting point of the two lines."""
+    if centre.left_curve is not None or centre.right_curve is not None:
+        return (left.x_top + right.x_top) / 2, left.y_top
+    return intersection(left, right)
 
 
 def _keep_one_side(side: str, left: LaneLine, right: LaneLine, width_b: float, width_t: float

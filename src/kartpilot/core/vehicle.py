@@ -217,7 +217,10 @@ SDC_KART = VehicleParams(
     battery_sag=0.10, battery_endurance_s=2400.0, min_speed_mps=1.0,
     kinematic_below_mps=2.0, dynamic_above_mps=4.0, speed_modes_mps=(5 / 3.6, 15 / 3.6, 30 / 3.6, 60 / 3.6),
     cameras=(
-        ("center", _camera(480.0, 640, 480, camera_pose_on_body(1.20, 0.0, 0.60, pitch_down_deg=12.0))),
+        # the real kart's centre camera: 848x480 MJPG, 67 degrees across (the Hanze kart's 1920x1080 cameras'
+        # fx of 1447 px scaled to 848 px), 0.56 m up and pitched 6.8 degrees down (its ground calibration,
+        # docs/real-kart.md)
+        ("center", _camera(640.0, 848, 480, camera_pose_on_body(1.20, 0.0, 0.56, pitch_down_deg=6.8))),
         ("left", _camera(400.0, 640, 480, camera_pose_on_body(0.90, 0.55, 0.60, yaw_deg=70.0, pitch_down_deg=40.0))),
         ("right", _camera(400.0, 640, 480,
                           camera_pose_on_body(0.90, -0.55, 0.60, yaw_deg=-70.0, pitch_down_deg=40.0))),

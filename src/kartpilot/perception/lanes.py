@@ -80,6 +80,12 @@ class LaneConfig:
         method: ``hough`` (the thesis's edges and straight lines; the settings above) or ``paint`` (white paint
             as curves, :mod:`kartpilot.perception.paint`; ``paint`` holds its settings, and ``process_scale``
             applies to both).
+        aim_below_horizon: ``paint``: the row the follower aims at, as a fraction of the way from the horizon
+            down to the bottom row (0.2 on the real kart's camera: about 6 m ahead). Each boundary is reported
+            as its chord from the bottom row to this row, and the aim is the lane's centre there; the thesis's
+            aim, the meeting point of the two lines, lies at the horizon, where a curve's bend is exaggerated
+            and the kart cuts into the bend before it starts (the venue's 10 m S-bend in the simulator).
+            0: the region's top and the chords' meeting point.
     """
 
     roi_top: float = 0.58
@@ -104,10 +110,13 @@ class LaneConfig:
     paint: Literal["bright", "dark"] = "bright"
     method: Literal["hough", "paint"] = "hough"
     curves: PaintConfig = field(default_factory=PaintConfig)
+    aim_below_horizon: float = 0.35
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.roi_top < 1.0:
             raise ValueError("roi_top must be in [0, 1)")
+        if not 0.0 <= self.aim_below_horizon < 1.0:
+            raise ValueError("aim_below_horizon must be in [0, 1)")
         if not 0.05 <= self.process_scale <= 1.0:
             raise ValueError("process_scale must be in [0.05, 1]")
 
@@ -137,7 +146,8 @@ class LaneObservation:
 
     Attributes:
         left, right: the boundaries (the image's extreme column when ``*_source`` is ``extreme``).
-        intersection_px: where the two boundaries meet (the desired heading), or None if parallel.
+        intersection_px: the point the follower aims at: where the two boundaries meet, or None if parallel;
+            for curves (``paint``) with both boundaries found, the lane's centre at the aim row.
         confidence: 0 to 1, from how much line length supports each detected side (``paint``: the share of
             the rows where each boundary lies in the image that paint supports).
         left_curve, right_curve: the boundaries as curves (``method: paint``; None otherwise or where not found).
@@ -180,16 +190,19 @@ def detect_lanes(image: Image, config: LaneConfig = LaneConfig(), stages: LaneSt
                  body_mask: Image | None = None) -> LaneObservation:
     """Find the ego lane's left and right boundaries in a centre-camera image (BGR or gray).
 
-    ``body_mask`` (the image's size, non-zero on the kart's own body) is left out of the search (paint method).
+    ``body_mask`` (the image's size, non-zero on the kart's own body) is left out of the search.
     """
     if image is None or image.size == 0:
         raise PerceptionError("empty image")
+    if body_mask is not None and body_mask.shape[:2] != image.shape[:2]:
+        raise PerceptionError(f"the body mask is {body_mask.shape[1]}x{body_mask.shape[0]}, the image "
+                              f"{image.shape[1]}x{image.shape[0]}")
     if config.method == "paint":
         return _detect_paint(image, config, stages, body_mask)
     h, w = image.shape[:2]
     top = round(config.roi_top * h)
     region = _lane_gray(image[top:], config.yellow_boost)  # only the region of interest is converted
-    segments, edges, median = _hough_segments(region, config, w, top)
+    segments, edges, median = _hough_segments(region, config, w, top, None if body_mask is None else body_mask[top:])
     if stages is not None:
         stages.edges = edges
         stages.raw = segments
@@ -231,7 +244,9 @@ def _detect_paint(image: Image, config: LaneConfig, stages: LaneStages | None, b
     left, right, top = find_paint_curves(image, config.curves, config.process_scale, body_mask, paint_stages)
     if stages is not None:
         stages.paint = paint_stages
-    y_top, y_bottom = float(top), float(h - 1)
+    horizon_y = config.curves.horizon * h
+    y_aim = horizon_y + config.aim_below_horizon * (h - 1 - horizon_y)
+    y_top, y_bottom = (max(float(top), y_aim) if config.aim_below_horizon > 0 else float(top)), float(h - 1)
 
     def chord(curve: LaneCurve | None, extreme: float) -> LaneLine:
         if curve is None:
@@ -240,9 +255,11 @@ def _detect_paint(image: Image, config: LaneConfig, stages: LaneStages | None, b
 
     left_line, right_line = chord(left, 0.0), chord(right, w - 1.0)
     support = sum(c.support for c in (left, right) if c is not None) / 2
+    aim = intersection(left_line, right_line)
+    if left is not None and right is not None and config.aim_below_horizon > 0:
+        aim = ((left_line.x_top + right_line.x_top) / 2, y_top)
     return LaneObservation(w, h, left_line, right_line, "detected" if left else "extreme",
-                           "detected" if right else "extreme", intersection(left_line, right_line), float(support),
-                           left, right)
+                           "detected" if right else "extreme", aim, float(support), left, right)
 
 
 def heading_deviation_rad(observation: LaneObservation, point: tuple[float, float] | None = None) -> float:
@@ -289,12 +306,15 @@ class SideObservation:
 
 
 def detect_side_boundary(image: Image, band_rows: tuple[int, int], inner_column: int,
-                         config: SideSearchConfig = SideSearchConfig()) -> SideObservation:
+                         config: SideSearchConfig = SideSearchConfig(), body_mask: Image | None = None
+                         ) -> SideObservation:
     """The proportional steer away from a boundary seen by a side camera (0 when none is in the band).
 
     Args:
         band_rows: (far_row, near_row) of the region of search; the near row is closer to the kart.
         inner_column: the column of the band's inner edge (the one toward the kart's front).
+        body_mask: non-zero where the image shows the kart itself (the camera's ``body_mask``): its edges,
+            and the outline where the body meets the ground, are not a boundary.
     """
     gray = _gray(image)
     h, w = gray.shape
@@ -302,11 +322,18 @@ def detect_side_boundary(image: Image, band_rows: tuple[int, int], inner_column:
     far, near = max(0, far), min(h, near)
     if near - far < 4:
         raise PerceptionError(f"the side region of search {band_rows} is empty in a {w}x{h} image")
+    if body_mask is not None and body_mask.shape[:2] != (h, w):
+        raise PerceptionError(f"the body mask is {body_mask.shape[1]}x{body_mask.shape[0]}, the image {w}x{h}")
     scale = config.process_scale
     band = gray[far:near]
     small = band if scale == 1.0 else cv2.resize(band, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
     edges = cv2.Canny(cv2.GaussianBlur(small, (config.blur_px, config.blur_px), 0), config.canny_low,
                       config.canny_high)
+    if body_mask is not None:
+        body = body_mask[far:near]
+        if scale != 1.0:
+            body = cv2.resize(body, (edges.shape[1], edges.shape[0]), interpolation=cv2.INTER_NEAREST)
+        edges[cv2.dilate(body, np.ones((5, 5), np.uint8)) > 0] = 0
     found = cv2.HoughLinesP(edges, 1, np.pi / 180, config.hough_threshold,
                             minLineLength=config.min_line_length * w * scale,
                             maxLineGap=config.max_line_gap * w * scale)
@@ -390,8 +417,10 @@ def _lane_gray(image: Image, yellow_boost: float) -> Image:
     return cv2.addWeighted(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), 1.0, yellow, yellow_boost, 0.0)
 
 
-def _hough_segments(region: Image, config: LaneConfig, width: int, top: int) -> tuple[Segments, Image, float]:
-    """Segments in input pixels, the edge image, and the region's median grey level."""
+def _hough_segments(region: Image, config: LaneConfig, width: int, top: int, body: Image | None = None
+                    ) -> tuple[Segments, Image, float]:
+    """Segments in input pixels, the edge image, and the region's median grey level; no edges on ``body``
+    (the region's part of the body mask)."""
     scale = config.process_scale
     small = region if scale == 1.0 else cv2.resize(region, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
     k = config.blur_px | 1
@@ -402,6 +431,10 @@ def _hough_segments(region: Image, config: LaneConfig, width: int, top: int) -> 
         gain = max(median, 16.0) / 128.0
         low, high = low * gain, high * gain
     edges = cv2.Canny(blurred, low, high)
+    if body is not None:
+        if scale != 1.0:
+            body = cv2.resize(body, (edges.shape[1], edges.shape[0]), interpolation=cv2.INTER_NEAREST)
+        edges[cv2.dilate(body, np.ones((5, 5), np.uint8)) > 0] = 0
     w_small = small.shape[1]
     if config.hough == "probabilistic":
         found = cv2.HoughLinesP(edges, 1, np.pi / 180, config.hough_threshold,

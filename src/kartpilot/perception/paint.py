@@ -20,8 +20,10 @@ finder looks for *paint*, not edges, and fits *curves*, not lines:
 5. **Curves on the ground.** A boundary on a flat ground, ``lateral = k0 + k1 d + k2 d^2`` at distance ``d``
    ahead, appears in the image of a level camera as ``x(y) = a + b (y - y_h) + c / (y - y_h)`` with ``y_h`` the
    horizon's row: three coefficients, linear in the pixels, exact for a parabola on the ground (Kluge's model).
-   Each side's boundary is the stroke nearest the kart on that side at the image's bottom row (where ``x - cx``
-   over ``y - y_h`` is the lateral offset over the camera's height); strokes that lie on its curve join it (the
+   Each side's boundary is the stroke nearest the kart on that side, where the stroke comes nearest (``x - cx``
+   over ``y - y_h`` is the lateral offset over the camera's height), and passing beside the camera, not under it
+   (``min_lateral_ratio``: upright things such as a barrier's stripes are vertical in the image, which as a
+   ground line would run beneath the camera); strokes that lie on its curve join it (the
    dashes of a centre line, a line broken by wear); the curve is fitted to all of them by least squares with
    outliers dropped.
 6. **Confidence** is the share of the rows, between the nearest and the farthest row where the curve lies inside
@@ -60,6 +62,10 @@ class PaintConfig:
         min_elongation: a stroke's bounding box's longer side squared over its area (1 for a square).
         join_px: a stroke joins a side's curve when its points lie within this fraction of the width of it.
         min_rows: the fewest rows (fraction of the region's height) a side's curve must span.
+        min_lateral_ratio: a boundary passes beside the camera, not under it: where the curve passes the
+            camera, its lateral offset over the camera's height (``-b`` on the left, ``b`` on the right, for a level
+            camera) is at least this. Upright things standing on the ground (a barrier's white stripes, a post)
+            are vertical in the image, which as ground lines would run under the camera (``b`` near 0).
     """
 
     horizon: float = 0.34
@@ -73,6 +79,7 @@ class PaintConfig:
     min_elongation: float = 3.0
     join_px: float = 0.025
     min_rows: float = 0.06
+    min_lateral_ratio: float = 0.25
 
 
 @dataclass(frozen=True)
@@ -267,13 +274,18 @@ def find_paint_curves(image: Image, config: PaintConfig, scale: float, mask: Ima
     row_step = max(1.0 / scale, 1.0)
     found: dict[str, LaneCurve] = {}
     for side, sign in (("left", -1.0), ("right", 1.0)):
-        # the strokes on this side, nearest the kart at the bottom row first
-        offsets = [sign * (float(_eval(s.coef, np.array([bottom]), horizon_y)[0]) - cx) for s in strokes]
-        candidates = [s for _, s in sorted(((o, s) for o, s in zip(offsets, strokes, strict=True) if o > 0),
+        # the strokes on this side, nearest the kart first: the lateral offset (over the camera's height) where
+        # each stroke comes nearest, from its own pixels there; a far stroke's curve extrapolated to the bottom
+        # row can land anywhere (the far end of the right line, cut off by a barrier, looked nearest on the left)
+        offsets = [sign * (float(s.xs[np.argmax(s.ys)]) - cx) / max(float(s.ys.max()) - horizon_y, 1.0)
+                   for s in strokes]
+        candidates = [s for _, s in sorted(((o, s) for o, s in zip(offsets, strokes, strict=True)
+                                            if o > 0 and sign * s.coef[1] >= config.min_lateral_ratio),
                                            key=lambda pair: pair[0])]
         for seed in candidates:
             _, ys, coef = _grow(seed, candidates, horizon_y, tolerance)
-            if np.ptp(ys) < min_span or sign * (_eval(coef, np.array([bottom]), horizon_y)[0] - cx) <= 0:
+            if (np.ptp(ys) < min_span or sign * (_eval(coef, np.array([bottom]), horizon_y)[0] - cx) <= 0
+                    or sign * coef[1] < config.min_lateral_ratio):
                 continue
             share, near, far = _support(coef, ys, w, h, top, horizon_y, row_step)
             found[side] = LaneCurve(float(coef[0]), float(coef[1]), float(coef[2]), horizon_y, far, near, share)

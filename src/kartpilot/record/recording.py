@@ -351,6 +351,13 @@ class RecordingReader:
         name = metadata.get("vehicle") or (metadata.get("sim") or {}).get("vehicle")
         return str(name) if name else None
 
+    @property
+    def sim_track(self) -> str | None:
+        """The simulated track a simulated run was made on (None for a real drive)."""
+        metadata = self.manifest.get("metadata") or {}
+        track = (metadata.get("sim") or {}).get("track")
+        return str(track) if track else None
+
     def _frame_rows(self, camera: str) -> list[tuple[int, Path, int]]:
         if camera not in self.cameras:
             raise RecordingError(f"recording has no camera {camera!r} (has {', '.join(self.cameras)})")

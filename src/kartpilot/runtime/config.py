@@ -40,8 +40,9 @@ from kartpilot.sensors.capture import LiveConfig
 from kartpilot.sensors.gamepad import GamepadMapping
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import SimConfig
+from kartpilot.sim.track import load_track_spec
 
-__all__ = ["StackConfig", "load_stack_config"]
+__all__ = ["StackConfig", "load_stack_config", "sim_lane_preset"]
 
 
 @dataclass(frozen=True)
@@ -59,6 +60,12 @@ class StackConfig:
     watchdogs: WatchdogConfig = field(default_factory=WatchdogConfig)
     supervisor: SupervisorConfig = field(default_factory=SupervisorConfig)
     gamepad: GamepadMapping = field(default_factory=GamepadMapping)
+
+
+def sim_lane_preset(requested: str | None, track: str) -> str:
+    """The lane preset of a simulated drive: the one asked for, else the track's own (``lane_preset`` in its
+    file: the real kart's ``kart`` where the track is drawn as the venue looks)."""
+    return requested or load_track_spec(track).lane_preset
 
 
 def load_stack_config(path: str | Path | None, lane_preset: str | None = None) -> StackConfig:

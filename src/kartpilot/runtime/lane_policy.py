@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
+import cv2
 import numpy as np
 
 from kartpilot.control.lane_follow import (
@@ -108,7 +109,11 @@ class LanePolicyConfig:
 LANE_PRESETS: dict[str, LanePolicyConfig] = {
     # a kart's camera sees a wide road from close to the ground: the boundaries run out to the image's
     # sides at shallow slopes, so the region is a full-width band and shallow lines are kept
-    "kart": LanePolicyConfig(lanes=_REAL_KART_LINES),
+    # the side cameras' search ends 0.5 m out: the venue's lane is 3.0 m, so a centred 1.2 m kart has its
+    # boundaries 0.9 m from its sides (sdc-assen's 4 to 6 m track: the default, 0.9 m)
+    # the aim is the lane's centre about 4 m ahead (the paint finder's aim row), not the far meeting point: seen
+    # from the bottom centre, the same steer is 2.5 to 4 times the angle in pixels, hence the lower gain
+    "kart": LanePolicyConfig(lanes=_REAL_KART_LINES, far_m=0.5, follow=LaneFollowConfig(heading_gain=0.25)),
     # a car's dash camera, higher up and looking further: a trapezoid narrowing to the vanishing point
     "dashcam": LanePolicyConfig(lanes=LaneConfig()),
     # the simulator's kart: the thesis's edges and straight lines (the defaults of a simulated drive); the paint
@@ -121,14 +126,24 @@ LANE_PRESETS: dict[str, LanePolicyConfig] = {
 
 def side_search_band(camera: PinholeCamera, side: str, near_m: float, far_m: float, half_width_m: float
                      ) -> tuple[tuple[int, int], int]:
-    """((far_row, near_row), inner_column) of the ground beside the kart as this camera sees it."""
+    """((far_row, near_row), inner_column) of the ground beside the kart as this camera sees it: abreast of
+    the camera where it looks straight down at the side (the thesis's side cameras), else the nearest place
+    ahead, up to 4 m, where it sees the whole band (a side camera turned forward, as the Hanze kart's are:
+    abreast of it lies outside the image)."""
     sign = 1.0 if side == "left" else -1.0
-    x = float(camera.pose_body_cam_array[0, 3])
-    body = np.array([[x, sign * (half_width_m + far_m), 0.0], [x, sign * (half_width_m + near_m), 0.0]])
-    points = transform_points(invert_pose(camera.pose_body_cam_array), body)
-    if np.any(points[:, 2] <= 0):
+    x0 = float(camera.pose_body_cam_array[0, 3])
+    to_camera = invert_pose(camera.pose_body_cam_array)
+    points = pixels = None
+    for x in x0 + np.arange(0.0, 4.0, 0.1):
+        body = np.array([[x, sign * (half_width_m + far_m), 0.0], [x, sign * (half_width_m + near_m), 0.0]])
+        points = transform_points(to_camera, body)
+        if np.any(points[:, 2] <= 0):
+            continue
+        pixels = camera.project(points)
+        if np.all((pixels[:, 0] >= 0) & (pixels[:, 0] <= camera.width_px - 1)):
+            break
+    if points is None or pixels is None or np.any(points[:, 2] <= 0):
         raise CalibrationError(f"the {side} camera does not see the ground beside the kart")
-    pixels = camera.project(points)
     far_row, near_row = (round(v) for v in pixels[:, 1])
     if not (far_row < near_row and 0 <= far_row < camera.height_px - 8):
         raise CalibrationError(f"the {side} camera's region of search (rows {far_row} to {near_row}) is off the image")
@@ -171,6 +186,8 @@ class LanePolicy:
                                              self.config.kart_half_width_m)
                       for side in ("left", "right")
                       if side in cameras and cameras[side].pose_body_cam_array[0, 2] < math.cos(math.radians(30))}
+        # what each camera sees of the kart itself (the rig's body masks), left out of the search
+        self.body_masks = {name: cam.body_mask_image() for name, cam in cameras.items()}
         self.state = LaneFollowState()
         self.dt_s = 1.0 / rate_hz
         self.last_observation: LaneObservation | None = None
@@ -188,15 +205,26 @@ class LanePolicy:
         centre_image = frames.images.get("center")
         if self.config.boundaries == "tape":
             return self._follow_tape(frames.stamp_ns, centre_image)
-        observation = detect_lanes(centre_image, self.config.lanes) if centre_image is not None else None
+        observation = (detect_lanes(centre_image, self.config.lanes, body_mask=self._mask("center", centre_image))
+                       if centre_image is not None else None)
         away = {}
         for side, (band, column) in self.bands.items():
             image = frames.images.get(side)
-            away[side] = detect_side_boundary(image, band, column, self.config.side).steer if image is not None else 0.0
+            away[side] = detect_side_boundary(image, band, column, self.config.side, self._mask(side, image)
+                                              ).steer if image is not None else 0.0
         decision, self.state = lane_follow_step(self.config.follow, self.state, observation, away.get("left", 0.0),
                                                 away.get("right", 0.0), self.dt_s)
         self.last_observation = observation
         return self._command(frames.stamp_ns, decision)
+
+    def _mask(self, camera: str, image: Image | None) -> Image | None:
+        """The camera's body mask at the image's size (a camera may deliver another size than calibrated)."""
+        mask = self.body_masks.get(camera)
+        if mask is None or image is None or mask.shape[:2] == image.shape[:2]:
+            return mask
+        mask = cv2.resize(mask, (image.shape[1], image.shape[0]), interpolation=cv2.INTER_NEAREST)
+        self.body_masks[camera] = mask
+        return mask
 
     def _follow_tape(self, stamp_ns: int, image: Image | None) -> ActuatorCommand:
         observation = detect_tape_track(image, self.config.tape) if image is not None else None

@@ -23,7 +23,7 @@ import itertools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -68,6 +68,8 @@ class RenderConfig:
         scenery_spacing_m: roadside buildings and boards about this far apart along the track, each with its
             own facade (0: none, the bare circuit). Place recognition needs them: without, nothing near the
             track tells one place from another (:func:`kartpilot.sim.track.scenery_boxes`).
+        sky: ``track`` (the track's own, ``TrackSpec.sky``), ``clear`` (a sun that casts its light) or
+            ``overcast`` (light from the whole sky, a grey sky: the venue's frames).
     """
 
     time_of_day_h: float = 13.0
@@ -78,14 +80,20 @@ class RenderConfig:
     apron_m: float = 15.0
     texture_seed: int = 0
     scenery_spacing_m: float = 0.0
+    sky: Literal["track", "clear", "overcast"] = "track"
 
 
-def lighting_for_time(time_of_day_h: float) -> tuple[float, tuple[float, float, float], float]:
-    """(sun elevation in degrees, sun colour as RGB factors, ambient level) for an hour of the day.
+def lighting_for_time(time_of_day_h: float, overcast: bool = False) -> tuple[float, tuple[float, float, float], float]:
+    """(sun elevation in degrees, sun colour as RGB factors, ambient level) for an hour of the day; an overcast
+    sky turns most of the sun's light into ambient light.
 
     Ambient plus sun never exceeds 0.95: the software rasteriser's colour interpolation wraps around
     (a stray yellow pixel) where a lit colour saturates at a triangle edge.
     """
+    if overcast:
+        phase = min(max((time_of_day_h - 6.0) / 14.0, 0.0), 1.0)
+        level = 0.6 + 0.33 * math.sin(math.pi * phase)
+        return 60.0 * math.sin(math.pi * phase), (0.02, 0.02, 0.02), level
     phase = min(max((time_of_day_h - 6.0) / 14.0, 0.0), 1.0)
     elevation = 60.0 * math.sin(math.pi * phase)
     height = math.sin(math.radians(max(elevation, 0.0)))
@@ -105,6 +113,7 @@ class Renderer:
         if not cameras:
             raise RenderError("the renderer needs at least one camera")
         self.config = config or RenderConfig()
+        self._overcast = (self.config.sky if self.config.sky != "track" else track.spec.sky) == "overcast"
         self.cameras = dict(cameras)
         self._core = _panda()
         core = self._core
@@ -247,6 +256,8 @@ class Renderer:
             left, right = _offset_polyline(line, width / 2), _offset_polyline(line, -width / 2)
             for left_part, right_part in _chunks(left, right):
                 self._decal(_strip_mesh(core, left_part, right_part, tile_m=1.0), 6, paint)
+        if track.road_marks:
+            self._decal(_polygons_mesh(core, track.road_marks), 6, paint)
 
         solids = self.root.attach_new_node("solids")
         if show_cones and track.cones:
@@ -263,6 +274,12 @@ class Renderer:
                     node = solids.attach_new_node(_wall_mesh(core, part, spec.barrier_height_m))
                     node.set_texture(wall_tex)
                     node.set_two_sided(True)
+        if track.barrier_blocks:
+            blocks = np.array([_box_of(footprint, block.height_m)
+                               for footprint, block in zip(track.barrier_blocks, spec.barrier_blocks, strict=True)])
+            node = solids.attach_new_node(_boxes_mesh(core, blocks))
+            node.set_texture(self._texture_of(textures.barrier_texture()))
+            node.set_two_sided(True)
         boxes = scenery_boxes(track, self.config.scenery_spacing_m, seed + 5)
         for k in range(_FACADES):
             mine = boxes[k::_FACADES]
@@ -278,9 +295,9 @@ class Renderer:
         radius = self.config.background_radius_m
         lo, hi = textures.HORIZON_BAND_DEG
         band = self._background.attach_new_node(_cylinder_mesh(core, radius, lo, hi))
-        band.set_texture(self._texture_of(textures.horizon_band(seed), wrap=False))
+        band.set_texture(self._texture_of(textures.horizon_band(seed, overcast=self._overcast), wrap=False))
         elevations = np.array([hi, 12.0, 25.0, 45.0])
-        colours = [np.r_[np.array(textures.sky_bgr(e))[::-1] / 255.0, 1.0] for e in elevations]
+        colours = [np.r_[np.array(textures.sky_bgr(e, self._overcast))[::-1] / 255.0, 1.0] for e in elevations]
         for (e0, e1), (c0, c1) in zip(itertools.pairwise(elevations),
                                       itertools.pairwise(colours), strict=True):
             sky = self._background.attach_new_node(_cylinder_mesh(core, radius, e0, e1, (c0, c1)))
@@ -315,7 +332,7 @@ class Renderer:
 
     def _make_lights(self) -> tuple[Any, Any]:
         core = self._core
-        elevation, colour, ambient_level = lighting_for_time(self.config.time_of_day_h)
+        elevation, colour, ambient_level = lighting_for_time(self.config.time_of_day_h, self._overcast)
         ambient = core.AmbientLight("sky")
         ambient.set_color(core.LColor(ambient_level, ambient_level, ambient_level, 1))
         sun = core.DirectionalLight("sun")
@@ -599,6 +616,32 @@ def _cylinder_mesh(core: Any, radius_m: float, low_deg: float, high_deg: float,
     if colours is not None:
         colors = _interleave(np.tile(colours[0], (segments + 1, 1)), np.tile(colours[1], (segments + 1, 1)))
     return _mesh(core, vertices, _ribbon_triangles(segments + 1, facing_up=False), colors=colors, uvs=uvs)
+
+
+def _polygons_mesh(core: Any, polygons: tuple[Array, ...]) -> Any:
+    """Flat convex polygons on the ground (fans), textured in world coordinates at a metre a tile."""
+    vertices, triangles = [], []
+    base = 0
+    for polygon in polygons:
+        n = len(polygon)
+        vertices.append(np.c_[polygon, np.zeros(n)])
+        triangles += [[base, base + k, base + k + 1] for k in range(1, n - 1)]
+        base += n
+    xyz = np.vstack(vertices)
+    tris = np.asarray(triangles)
+    # wind every triangle counter-clockwise seen from above
+    a, b, c = xyz[tris[:, 0], :2], xyz[tris[:, 1], :2], xyz[tris[:, 2], :2]
+    cw = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) < 0
+    tris[cw] = tris[cw][:, [0, 2, 1]]
+    return _mesh(core, xyz, tris, uvs=xyz[:, :2])
+
+
+def _box_of(footprint: Array, height_m: float) -> list[float]:
+    """A footprint rectangle (4 x 2, corners in order) as a box row ``x, y, yaw, width, depth, height``."""
+    centre = footprint.mean(axis=0)
+    edge = footprint[1] - footprint[0]
+    width, depth = float(np.hypot(*edge)), float(np.hypot(*(footprint[2] - footprint[1])))
+    return [float(centre[0]), float(centre[1]), math.atan2(edge[1], edge[0]), width, depth, height_m]
 
 
 _FACADES = 12  # distinct facade textures, handed out to the scenery boxes in turn

@@ -16,14 +16,15 @@ import numpy as np
 
 from kartpilot.core.types import Image
 
-__all__ = ["HAZE_BGR", "HORIZON_BAND_DEG", "SURFACE_TILE_M", "facade_texture", "horizon_band", "sky_bgr",
-           "surface_texture", "tyre_wall_texture"]
+__all__ = ["HAZE_BGR", "HORIZON_BAND_DEG", "SURFACE_TILE_M", "barrier_texture", "facade_texture", "horizon_band",
+           "sky_bgr", "surface_texture", "tyre_wall_texture"]
 
 SURFACE_TILE_M = 4.0
 """World size of one tile of a ground texture, in metres."""
 
 _BASE_BGR = {
     "asphalt": (92.0, 90.0, 88.0),
+    "worn_asphalt": (138.0, 135.0, 140.0),  # the venue's pale, weathered asphalt (its frames: grey 128 overcast)
     "tartan": (50.0, 62.0, 150.0),
     "grass": (45.0, 105.0, 70.0),
     "paint": (232.0, 236.0, 236.0),
@@ -44,14 +45,14 @@ def _wrap_blur(image: np.ndarray, sigma_x: float, sigma_y: float) -> np.ndarray:
 
 @lru_cache(maxsize=8)
 def surface_texture(kind: str, size_px: int = 2048, seed: int = 0) -> Image:
-    """A seamless BGR texture for ``asphalt``, ``tartan``, ``grass`` or ``paint``."""
+    """A seamless BGR texture for ``asphalt``, ``worn_asphalt``, ``tartan``, ``grass`` or ``paint``."""
     if kind not in _BASE_BGR:
         raise ValueError(f"unknown surface {kind!r}")
     rng = np.random.default_rng(seed)
     fine = _blurred_noise(rng, size_px, 0.8)
     medium = _blurred_noise(rng, size_px, 6.0)
     coarse = _blurred_noise(rng, size_px, 40.0)
-    if kind == "asphalt":
+    if kind in ("asphalt", "worn_asphalt"):
         stones = (rng.random((size_px, size_px)) > 0.985).astype(np.float32)
         stones = cv2.dilate(stones, np.ones((3, 3), np.uint8)) * rng.choice([-1.0, 1.0], (size_px, size_px))
         shade = 16 * fine + 8 * medium + 2 * coarse + 12 * _wrap_blur(stones, 0.8, 0.8)
@@ -83,21 +84,33 @@ def tyre_wall_texture(seed: int = 0) -> Image:
     return np.clip(image + noise, 0, 255).astype(np.uint8)
 
 
+@lru_cache(maxsize=2)
+def barrier_texture(stripes: int = 4) -> Image:
+    """The face of a red-and-white barrier block: ``stripes`` red and as many white vertical bands (BGR)."""
+    image = np.empty((64, 64 * 2 * stripes, 3), np.uint8)
+    for k in range(2 * stripes):
+        image[:, 64 * k:64 * (k + 1)] = (40, 40, 200) if k % 2 == 0 else (235, 235, 235)
+    return image
+
+
 HORIZON_BAND_DEG = (-1.0, 4.0)
 """Elevations covered by :func:`horizon_band` (bottom, top); the sky above it is a plain gradient."""
 
 
-def sky_bgr(elevation_deg: float) -> tuple[float, float, float]:
-    """Sky colour (BGR, 0-255) at an elevation: pale at the horizon, deeper blue above."""
+def sky_bgr(elevation_deg: float, overcast: bool = False) -> tuple[float, float, float]:
+    """Sky colour (BGR, 0-255) at an elevation: pale at the horizon, deeper blue above; under an overcast sky
+    (the venue's frames) a bright grey that darkens a little upward."""
     t = min(max(elevation_deg / 35.0, 0.0), 1.0)
+    if overcast:
+        return 238.0 - 40.0 * t, 236.0 - 40.0 * t, 232.0 - 42.0 * t
     return 235.0 - 45.0 * t, 218.0 - 68.0 * t, 200.0 - 105.0 * t
 
 
 HAZE_BGR = (150.0, 160.0, 150.0)
 
 
-@lru_cache(maxsize=2)
-def horizon_band(seed: int = 0, width_px: int = 2048, height_px: int = 64) -> Image:
+@lru_cache(maxsize=4)
+def horizon_band(seed: int = 0, width_px: int = 2048, height_px: int = 64, overcast: bool = False) -> Image:
     """A 360-degree band around the horizon: a tree line with a few buildings against the sky.
 
     Rows span :data:`HORIZON_BAND_DEG` of elevation, top row first; columns go once around.
@@ -107,7 +120,7 @@ def horizon_band(seed: int = 0, width_px: int = 2048, height_px: int = 64) -> Im
     elevation = hi - (np.arange(height_px) + 0.5) / height_px * (hi - lo)
     image = np.empty((height_px, width_px, 3), np.float32)
     for r, e in enumerate(elevation):
-        image[r] = sky_bgr(e) if e >= 0 else HAZE_BGR
+        image[r] = sky_bgr(e, overcast) if e >= 0 else HAZE_BGR
     profile = np.cumsum(rng.normal(0, 0.5, width_px))
     profile = np.convolve(np.r_[profile[-30:], profile, profile[:30]], np.ones(21) / 21, "same")[30:-30]
     top_deg = 0.8 + 1.6 * (profile - profile.min()) / max(float(np.ptp(profile)), 1e-6)

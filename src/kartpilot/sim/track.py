@@ -44,11 +44,14 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array
 
 __all__ = [
+    "BarrierBlock",
     "Branch",
     "CenterlineSpec",
     "Curb",
+    "Dashed",
     "Marking",
     "Projection",
+    "RoadMark",
     "RoadPiece",
     "Segment",
     "Track",
@@ -56,6 +59,7 @@ __all__ = [
     "build_track",
     "bundled_tracks",
     "load_track",
+    "load_track_spec",
     "project_onto",
     "scenery_boxes",
 ]
@@ -126,8 +130,60 @@ class Branch:
 
 
 @dataclass(frozen=True)
+class Dashed:
+    """A stretch of a boundary's line painted dashed (the centre line of a two-lane road), ``dash_m`` of paint
+    then ``gap_m`` of none. The boundary still bounds the lane: the referee counts crossing it."""
+
+    side: Side = "left"
+    from_s_m: float = 0.0
+    to_s_m: float = 0.0
+    dash_m: float = 3.0
+    gap_m: float = 3.0
+
+    def __post_init__(self) -> None:
+        if not (self.dash_m > 0 and self.gap_m > 0 and self.from_s_m <= self.to_s_m):
+            raise ConfigError("track dashed: dash_m and gap_m must be positive and from_s_m at most to_s_m")
+
+
+@dataclass(frozen=True)
+class RoadMark:
+    """Paint across the lane at ``s_m``: a ``stop_line`` (a bar ``length_m`` deep along the road) or a ``zebra``
+    crossing (stripes ``stripe_m`` wide along the road, as deep as ``length_m``, across the surface)."""
+
+    kind: Literal["stop_line", "zebra"] = "stop_line"
+    s_m: float = 0.0
+    length_m: float = 0.3
+    stripe_m: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not (self.length_m > 0 and self.stripe_m > 0):
+            raise ConfigError("track road mark: length_m and stripe_m must be positive")
+
+
+@dataclass(frozen=True)
+class BarrierBlock:
+    """A red-and-white barrier standing beside the road: ``length_m`` long along it from ``s_m``, ``offset_m``
+    beyond the boundary on ``side`` (negative: inside the lane), ``height_m`` tall and ``depth_m`` thick."""
+
+    side: Side = "right"
+    s_m: float = 0.0
+    offset_m: float = 0.5
+    length_m: float = 2.0
+    height_m: float = 1.0
+    depth_m: float = 0.4
+
+    def __post_init__(self) -> None:
+        if not min(self.length_m, self.height_m, self.depth_m) > 0:
+            raise ConfigError("track barrier block: length_m, height_m and depth_m must be positive")
+
+
+@dataclass(frozen=True)
 class TrackSpec:
-    """Everything a track file can say. Defaults describe a plain lined asphalt road."""
+    """Everything a track file can say. Defaults describe a plain lined asphalt road.
+
+    ``lane_preset`` names the lane pipeline's preset a simulated drive uses on this track unless told otherwise
+    (``--preset``): ``kart``, the real kart's, where the track is drawn as the real venue looks; ``kart-sim`` on
+    sdc-assen, whose wide track and its split the thesis's Hough lines were developed on."""
 
     name: str = "track"
     description: str = ""
@@ -136,7 +192,7 @@ class TrackSpec:
     width_profile: tuple[tuple[float, float], ...] = ()
     left: Marking = field(default_factory=Marking)
     right: Marking = field(default_factory=Marking)
-    surface: Literal["asphalt", "tartan"] = "asphalt"
+    surface: Literal["asphalt", "worn_asphalt", "tartan"] = "asphalt"
     surface_margin_m: tuple[float, float] = (0.6, 0.6)
     ground: Literal["grass", "asphalt"] = "grass"
     decor_lines_m: tuple[float, ...] = ()
@@ -148,6 +204,11 @@ class TrackSpec:
     start_s_m: float = 0.0
     finish_s_m: float | None = None
     branches: tuple[Branch, ...] = ()
+    dashed: tuple[Dashed, ...] = ()
+    road_marks: tuple[RoadMark, ...] = ()
+    barrier_blocks: tuple[BarrierBlock, ...] = ()
+    sky: Literal["clear", "overcast"] = "clear"
+    lane_preset: str = "kart"
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -211,6 +272,10 @@ class Track:
     barriers: tuple[Array, ...]
     route_marked_left: NDArray[np.bool_]
     route_marked_right: NDArray[np.bool_]
+    road_marks: tuple[Array, ...] = ()
+    """Polygons (N x 2, world) of the paint across the lane: stop lines and zebra stripes."""
+    barrier_blocks: tuple[Array, ...] = ()
+    """Footprints (4 x 2, world, counter-clockwise) of the barrier blocks, as ``spec.barrier_blocks``."""
 
     def marked(self, side: Side, index: int) -> bool:
         """Whether the route's boundary on ``side`` is marked at a sample (not at a crossing or split)."""
@@ -266,6 +331,11 @@ def bundled_tracks() -> list[str]:
 
 def load_track(name_or_path: str | Path) -> Track:
     """A bundled track by name (``utrack``) or a track YAML file by path."""
+    return build_track(load_track_spec(name_or_path))
+
+
+def load_track_spec(name_or_path: str | Path) -> TrackSpec:
+    """A track's description, checked but not built (building samples the whole track)."""
     path = Path(name_or_path)
     if not path.suffix:
         if str(name_or_path) not in bundled_tracks():
@@ -275,8 +345,7 @@ def load_track(name_or_path: str | Path) -> Track:
             mapping = load_yaml_mapping(file)
     else:
         mapping = load_yaml_mapping(path)
-    spec = merge_config(TrackSpec(), mapping, "track")
-    return build_track(spec)
+    return merge_config(TrackSpec(), mapping, "track")
 
 
 def build_track(spec: TrackSpec) -> Track:
@@ -301,6 +370,8 @@ def build_track(spec: TrackSpec) -> Track:
             boundary = piece.boundary(side)  # type: ignore[arg-type]
             if marking.kind == "line":
                 keep = ~road.inside(boundary, -0.02)
+                if piece is route:
+                    keep &= ~_dash_gaps(route.s_m, [d for d in spec.dashed if d.side == side])
                 for run in _runs(boundary, keep, piece.closed):
                     lines.append(run)
                     widths.append(marking.line_width_m)
@@ -334,7 +405,52 @@ def build_track(spec: TrackSpec) -> Track:
                 keep = ~road.inside(wall, 0.8 * spec.barrier_offset_m)
                 barriers += [run for run in _runs(wall, keep, piece.closed) if len(run) > 10]
     return Track(spec, route, branches, tuple(cones), tuple(lines), tuple(widths), tuple(curbs), tuple(barriers),
-                 marked["left"], marked["right"])
+                 marked["left"], marked["right"], tuple(p for m in spec.road_marks for p in _road_mark(route, m)),
+                 tuple(_barrier_block(route, spec, b) for b in spec.barrier_blocks))
+
+
+def _dash_gaps(s_m: Array, stretches: list[Dashed]) -> NDArray[np.bool_]:
+    """Where a dashed stretch leaves a gap in its line."""
+    gaps = np.zeros(len(s_m), bool)
+    for d in stretches:
+        inside = (s_m >= d.from_s_m) & (s_m <= d.to_s_m)
+        gaps |= inside & (np.mod(s_m - d.from_s_m, d.dash_m + d.gap_m) >= d.dash_m)
+    return gaps
+
+
+def _frame_at(route: RoadPiece, s_m: float) -> tuple[Array, Array, Array, float]:
+    """(point, unit tangent, unit left normal, half width) of the route at ``s_m``."""
+    i = route.index_at(s_m)
+    h = float(route.heading_rad[i])
+    return route.xy_m[i], np.array([math.cos(h), math.sin(h)]), np.array([-math.sin(h), math.cos(h)]), float(
+        route.half_width_m[i])
+
+
+def _road_mark(route: RoadPiece, mark: RoadMark) -> list[Array]:
+    """The polygons of a stop line (one bar across the lane, its near edge at ``s_m``) or of a zebra's
+    stripes (bars along the road, from ``s_m`` on, spaced across the lane)."""
+    centre, along, left, half = _frame_at(route, mark.s_m)
+    if mark.kind == "stop_line":
+        return [np.array([centre - half * left, centre - half * left + mark.length_m * along,
+                          centre + half * left + mark.length_m * along, centre + half * left])]
+    stripes = []
+    pitch = 2 * mark.stripe_m
+    count = max(1, int((2 * half) // pitch))
+    first = -0.5 * (count - 1) * pitch
+    for k in range(count):
+        c = centre + (first + k * pitch) * left
+        w = 0.5 * mark.stripe_m * left
+        stripes.append(np.array([c - w, c - w + mark.length_m * along, c + w + mark.length_m * along, c + w]))
+    return stripes
+
+
+def _barrier_block(route: RoadPiece, spec: TrackSpec, block: BarrierBlock) -> Array:
+    centre, along, left, half = _frame_at(route, block.s_m)
+    sign = 1.0 if block.side == "left" else -1.0
+    inner = centre + sign * (half + block.offset_m) * left
+    outer = inner + sign * block.depth_m * left
+    corners = np.array([inner, inner + block.length_m * along, outer + block.length_m * along, outer])
+    return corners if sign > 0 else corners[::-1].copy()
 
 
 def project_onto(piece: RoadPiece, xy: Array, hint: int | None = None,

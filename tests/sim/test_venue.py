@@ -1,0 +1,67 @@
+"""The venue track (lelystad) with the real kart's camera model: the real kart's preset sees the rendered lines
+where the track's geometry puts them, and drives the S-bend closed loop; a simulated drive takes its track's
+lane preset."""
+
+import numpy as np
+import pytest
+
+from kartpilot.core.geometry import invert_pose, transform_points
+from kartpilot.perception.lanes import detect_lanes
+from kartpilot.runtime.config import load_stack_config, sim_lane_preset
+from kartpilot.runtime.simulate import run_simulation
+from kartpilot.sim.dynamics import VehicleState
+from kartpilot.sim.simulator import SimConfig, Simulator
+
+
+def _column(boundary_xy: np.ndarray, pose_world_cam: np.ndarray, camera, row: float) -> float | None:
+    """The boundary's column at ``row`` (its nearest stretch ahead of the camera), None if not in view."""
+    cam = transform_points(invert_pose(pose_world_cam), np.column_stack([boundary_xy, np.zeros(len(boundary_xy))]))
+    ahead = (cam[:, 2] > 0.3) & (cam[:, 2] < 30)
+    px = camera.project(np.where(ahead[:, None], cam, 1.0))
+    best = None
+    for k in np.flatnonzero(ahead[:-1] & ahead[1:]):
+        (x0, y0), (x1, y1) = px[k], px[k + 1]
+        if (y0 - row) * (y1 - row) <= 0 and y0 != y1 and (best is None or cam[k, 2] < best[0]):
+            best = (cam[k, 2], x0 + (row - y0) * (x1 - x0) / (y1 - y0))
+    return float(best[1]) if best is not None and 0 <= best[1] < camera.width_px else None
+
+
+def test_the_real_kart_preset_finds_the_rendered_venue_lines_where_they_are():
+    preset = load_stack_config(None, "kart").lane_policy.lanes
+    with Simulator(SimConfig(track="lelystad", vehicle="sdc-kart", seed=3, cameras=("center",))) as sim:
+        route, camera = sim.track.route, sim.cameras["center"]
+        assert (camera.width_px, camera.height_px) == (848, 480)
+        checked = 0
+        for s, offset in ((10.0, 0.0), (20.0, 0.3), (37.0, -0.2), (150.0, 0.0)):  # a straight, the bend, the zebra
+            i = route.index_at(s)
+            x, y = route.xy_m[i] + offset * route.normal()[i]
+            sim.state = VehicleState(x_m=float(x), y_m=float(y), yaw_rad=float(route.heading_rad[i]))
+            frame = sim.read()
+            observation = detect_lanes(frame.images["center"], preset)
+            assert observation.both_detected, s
+            pose = sim.camera_poses["center"][-1]
+            for side in ("left", "right"):
+                curve = getattr(observation, f"{side}_curve")
+                for row in (300.0, 360.0, 420.0):
+                    truth = _column(route.boundary(side), pose, camera, row)
+                    if truth is not None:
+                        assert abs(float(curve.x_at(row)) - truth) < 12.0, (s, side, row)
+                        checked += 1
+        assert checked >= 8
+
+
+@pytest.mark.slow
+def test_the_real_kart_preset_drives_the_venue_s_bend_closed_loop():
+    stack = load_stack_config(None, sim_lane_preset(None, "lelystad"))
+    config = SimConfig(track="lelystad", vehicle="sdc-kart", seed=4, speed_mode_mps=15 / 3.6, camera_rate_hz=15.0,
+                       max_time_s=24.0)
+    result = run_simulation(config, "lanes", stack=stack).result
+    print(result)
+    assert not result.disqualified, result.reason
+    assert result.distance_m > 60.0  # through the S-bend (40 to 56 m; the start is at 5 m)
+
+
+def test_a_simulated_drive_takes_its_track_s_lane_preset():
+    assert sim_lane_preset(None, "lelystad") == "kart"
+    assert sim_lane_preset(None, "sdc-assen") == "kart-sim"
+    assert sim_lane_preset("dashcam", "lelystad") == "dashcam"
