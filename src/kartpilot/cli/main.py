@@ -17,6 +17,7 @@ from kartpilot.cli import (
     calibrate_commands,
     can_commands,
     commands,
+    detect_commands,
     drive_commands,
     places_commands,
     record_commands,
@@ -34,6 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log each stage's decisions")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     commands.add_parsers(sub)
+    detect_commands.add_parsers(sub)
     calibrate_commands.add_parsers(sub)
     record_commands.add_parsers(sub)
     drive_commands.add_parsers(sub)

@@ -1,0 +1,207 @@
+"""The event's objects: the classical detectors on the labelled real frames, on the 119 venue frames (false alarms
+of the classes they do not hold), on rendered frames of the venue track with exact truth (stop lines and zebras:
+their distance), and their cost per detector on one core.
+
+    python benchmarks/detect.py --data ../shared/data --out docs/results/detect.json
+    python benchmarks/detect.py --render docs/results/detect.json   # into docs/detection.md
+
+Which data is which: the detectors' thresholds were set while looking at the 5 scenes, the Hanze kart's centre
+image and the 119 frames; every real figure here is on that development data. The rendered frames (seed 2) were
+not looked at while setting them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from common import write_json
+from kartpilot.calibration.board import BoardConfig, find_board
+from kartpilot.calibration.ground import calibrate_ground
+from kartpilot.core.vehicle import get_vehicle
+from kartpilot.perception.detect import DetectorConfig, ObjectDetector
+from kartpilot.perception.objects import box_iou
+from kartpilot.perception.obstacles import detect_barriers, detect_car, detect_people
+from kartpilot.perception.road_marks import detect_road_marks
+from kartpilot.perception.signals import detect_speed_signs, detect_traffic_lights
+from vo_table import put_between_markers
+
+ROOT = Path(__file__).resolve().parents[1]
+LABELS = ROOT / "tests" / "data" / "rdw_objects.json"
+PAGE = ROOT / "docs" / "detection.md"
+BOARD = BoardConfig(kind="charuco", columns=10, rows=8, square_m=0.115, marker_m=0.086, dictionary="DICT_4X4_100")
+
+
+def _matches(box: tuple[float, ...], label_box: list[float]) -> bool:
+    """The same object: boxes overlapping by a third, or one's centre inside the other (a far object's box is a
+    few pixels; the lamp's box is the head's)."""
+    def inside(c: tuple[float, float], b: tuple[float, ...] | list[float]) -> bool:
+        return b[0] <= c[0] <= b[2] and b[1] <= c[1] <= b[3]
+
+    lb = tuple(label_box)
+    return (box_iou(tuple(box), lb) >= 0.3 or inside(((box[0] + box[2]) / 2, (box[1] + box[3]) / 2), lb)  # type: ignore[arg-type]
+            or inside(((lb[0] + lb[2]) / 2, (lb[1] + lb[3]) / 2), box))
+
+
+def labelled(data: Path) -> dict[str, Any]:
+    labels = json.loads(LABELS.read_text())["images"]
+    kart = get_vehicle("sdc-kart").camera("center")
+    hanze = data / "rdw-kart" / "hanze-calibration"
+    images = {n: cv2.imread(str(hanze / f"{n}.jpg")) for n in ("left", "center", "right")}
+    hanze_camera = calibrate_ground({n: find_board(im, BOARD, n) for n, im in images.items()},  # type: ignore[misc]
+                                    {n: (1920, 1080) for n in images})["center"].camera
+    per_class: dict[str, dict[str, int]] = {}
+    false_alarms: list[dict[str, Any]] = []
+    misses: list[dict[str, Any]] = []
+    for name, objects in labels.items():
+        camera = hanze_camera if name.startswith("hanze") else kart
+        found = ObjectDetector(DetectorConfig(), camera)(cv2.imread(str(data / "rdw-kart" / name)))
+        used: set[int] = set()
+        for obj in objects:
+            row = per_class.setdefault(obj["label"], {"labelled": 0, "found": 0, "state_right": 0, "false_alarms": 0})
+            row["labelled"] += 1
+            hit = next((k for k, d in enumerate(found) if k not in used and d.label == obj["label"]
+                        and _matches(d.box_px, obj["box"])), None)
+            if hit is None:
+                misses.append({"image": name, "label": obj["label"], "height_px": obj["box"][3] - obj["box"][1]})
+                continue
+            used.add(hit)
+            row["found"] += 1
+            row["state_right"] += int(found[hit].state == obj.get("state", found[hit].state))
+        for k, d in enumerate(found):
+            if k not in used:
+                per_class.setdefault(d.label, {"labelled": 0, "found": 0, "state_right": 0, "false_alarms": 0})
+                per_class[d.label]["false_alarms"] += 1
+                false_alarms.append({"image": name, "label": d.label, "state": d.state,
+                                     "box": [round(v) for v in d.box_px], "distance_m": round(d.distance_m, 1)})
+    return {"classes": per_class, "misses": misses, "false_alarms": false_alarms}
+
+
+def venue_frames(data: Path) -> dict[str, Any]:
+    """Detections of the classes the 119 frames do not hold (false alarms), and counts of the others."""
+    absent = json.loads(LABELS.read_text())["absent_in_frames"]
+    detector = ObjectDetector(DetectorConfig(), get_vehicle("sdc-kart").camera("center"))
+    paths = sorted((data / "rdw-kart" / "lelystad-2024" / "frames").glob("*.jpg"))
+    counts: dict[str, int] = {}
+    alarms = 0
+    for path in paths:
+        for d in detector(cv2.imread(str(path))):
+            counts[d.label] = counts.get(d.label, 0) + 1
+            alarms += d.label in absent
+    return {"frames": len(paths), "false_alarms_of_absent_classes": alarms, "absent_classes": absent,
+            "detections": counts}
+
+
+def rendered(count: int = 60, seed: int = 2) -> dict[str, Any]:
+    """Stop lines and zebras on rendered frames of the venue track, against the track's geometry: found where
+    one lies 2 to 15 m ahead in the lane, its distance error, and reports where none does."""
+    from kartpilot.sim.dynamics import VehicleState
+    from kartpilot.sim.simulator import SimConfig, Simulator
+
+    rng = np.random.default_rng(seed)
+    out: dict[str, Any] = {"frames": count, "seed": seed}
+    rows: dict[str, dict[str, Any]] = {k: {"in_view": 0, "found": 0, "errors_m": [], "false_alarms": 0}
+                                       for k in ("stop_line", "zebra")}
+    with Simulator(SimConfig(track="lelystad", vehicle="sdc-kart", seed=seed, cameras=("center",))) as sim:
+        route, camera = sim.track.route, sim.cameras["center"]
+        marks = {m.kind: m.s_m for m in sim.track.spec.road_marks}
+        for _ in range(count):
+            label = "stop_line" if rng.random() < 0.5 else "zebra"
+            ahead = float(rng.uniform(0.0, 20.0))
+            s = marks[label] - ahead
+            i = route.index_at(s)
+            x, y = route.xy_m[i] + float(rng.uniform(-0.3, 0.3)) * route.normal()[i]
+            sim.state = VehicleState(x_m=float(x), y_m=float(y), yaw_rad=float(route.heading_rad[i]
+                                                                                 + rng.uniform(-0.05, 0.05)))
+            frame = sim.read()
+            assert frame is not None
+            found = detect_road_marks(frame.images["center"], camera)
+            in_view = 2.0 <= ahead <= 15.0
+            for kind in rows:
+                mine = [d for d in found if d.label == kind]
+                if kind == label and in_view:
+                    rows[kind]["in_view"] += 1
+                    if mine:
+                        rows[kind]["found"] += 1
+                        rows[kind]["errors_m"].append(min(abs(d.distance_m - ahead) for d in mine))
+                elif kind != label and mine:
+                    rows[kind]["false_alarms"] += 1
+    for kind, row in rows.items():
+        errors = np.asarray(row.pop("errors_m"))
+        row["median_error_m"] = float(np.median(errors)) if len(errors) else float("nan")
+        row["max_error_m"] = float(errors.max()) if len(errors) else float("nan")
+    out["marks"] = rows
+    return out
+
+
+def timing(data: Path) -> dict[str, float]:
+    """Milliseconds per 848x480 frame on one core, per detector (the best of three passes over the scenes)."""
+    cv2.setNumThreads(1)
+    camera = get_vehicle("sdc-kart").camera("center")
+    images = [cv2.imread(str(p)) for p in sorted((data / "rdw-kart" / "lelystad-2024" / "scenes").glob("*.jpg"))]
+    stages = {"traffic lights + speed signs": lambda im: detect_traffic_lights(im) + detect_speed_signs(im),
+              "stop lines + zebras": lambda im: detect_road_marks(im, camera),
+              "people (HOG)": lambda im: detect_people(im, camera),
+              "car": lambda im: detect_car(im, camera),
+              "barriers": lambda im: detect_barriers(im, camera)}
+    out = {}
+    for name, run in stages.items():
+        best = np.inf
+        for _ in range(3):
+            start = time.perf_counter()
+            for image in images:
+                run(image)
+            best = min(best, (time.perf_counter() - start) / len(images))
+        out[name] = 1000 * best
+    return out
+
+
+def render(results: dict[str, Any]) -> str:
+    lines = ["Measured by `benchmarks/detect.py`. Real frames: development data (the thresholds were set looking "
+             "at them); rendered frames: not looked at.", "",
+             "| class | labelled (real) | found | state right | false alarms (labelled images) |", "|---|---|---|---|---|"]
+    for name, row in sorted(results["labelled"]["classes"].items()):
+        lines.append(f"| {name} | {row['labelled']} | {row['found']} | {row['state_right']} | {row['false_alarms']} |")
+    v = results["frames"]
+    lines += ["", f"On the {v['frames']} venue frames (no traffic light, speed sign, stop line or zebra in them): "
+                  f"{v['false_alarms_of_absent_classes']} false alarms of those classes; detections of the others "
+                  f"(far, unlabelled): {', '.join(f'{k} {n}' for k, n in sorted(v['detections'].items())) or 'none'}.",
+              "", "Misses: " + ("; ".join(f"{m['label']} in {m['image'].split('/')[-1]} ({m['height_px']} px tall)"
+                                         for m in results["labelled"]["misses"]) or "none") + ".",
+              "", "False alarms on the labelled images: " + ("; ".join(
+                  f"{a['label']} in {a['image'].split('/')[-1]} at {a['distance_m']} m"
+                  for a in results["labelled"]["false_alarms"]) or "none") + ".", "",
+              f"Rendered venue frames ({results['rendered']['frames']}, seed {results['rendered']['seed']}, one mark "
+              "2 to 15 m ahead or none in view):", "",
+              "| mark | in view | found | median / max distance error | false alarms |", "|---|---|---|---|---|"]
+    for name, row in results["rendered"]["marks"].items():
+        lines.append(f"| {name} | {row['in_view']} | {row['found']} | {row['median_error_m']:.2f} / "
+                     f"{row['max_error_m']:.2f} m | {row['false_alarms']} |")
+    lines += ["", "| detector | ms per 848x480 frame, one core |", "|---|---|"]
+    lines += [f"| {name} | {ms:.1f} |" for name, ms in results["timing_ms"].items()]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "results" / "detect.json")
+    parser.add_argument("--render", type=Path, help="write this JSON's tables into docs/detection.md")
+    args = parser.parse_args()
+    if args.render:
+        put_between_markers(PAGE, render(json.loads(args.render.read_text())), "<!-- detection -->",
+                            "<!-- /detection -->")
+        return 0
+    write_json(args.out, {"labelled": labelled(args.data), "frames": venue_frames(args.data),
+                          "rendered": rendered(), "timing_ms": timing(args.data)})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

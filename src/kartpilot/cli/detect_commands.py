@@ -1,0 +1,120 @@
+"""``kartpilot detect``: the event's objects (traffic lights, speed signs, stop lines, zebras, people, a car, barriers,
+a parking bay) in an image, a folder, a video or a recording, to CSV, with optional overlays."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from kartpilot.calibration.rig import load_rig
+from kartpilot.cli.values import file_or_new_folder, output_file
+from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.files import write_csv_atomic
+from kartpilot.core.vehicle import get_vehicle
+from kartpilot.perception.continuity import is_cut, thumbnail
+from kartpilot.perception.detect import DetectorConfig, ObjectDetector
+from kartpilot.perception.objects import Detection
+from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
+
+__all__ = ["DETECT_COLUMNS", "add_parsers", "draw_detections"]
+
+DETECT_COLUMNS = ("frame", "file", "track_id", "label", "state", "confidence", "left", "top", "right", "bottom",
+                  "distance_m", "lateral_m", "source", "new_scene")
+
+_COLOURS = {"traffic_light": (0, 200, 255), "speed_sign": (0, 0, 255), "stop_line": (255, 255, 255),
+            "zebra": (255, 255, 0), "person": (255, 0, 255), "car": (255, 128, 0), "barrier": (0, 0, 180),
+            "parking_bay": (0, 255, 0)}
+
+
+def draw_detections(image: np.ndarray, detections: list[Detection]) -> np.ndarray:
+    """The image with each detection's box, label, state, distance and track id."""
+    canvas = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image.copy()
+    for d in detections:
+        colour = _COLOURS.get(d.label, (200, 200, 200))
+        left, top, right, bottom = (round(v) for v in d.box_px)
+        cv2.rectangle(canvas, (left, top), (right, bottom), colour, 2)
+        text = f"{d.label}{' ' + d.state if d.state else ''} #{d.track_id}"
+        if math.isfinite(d.distance_m):
+            text += f" {d.distance_m:.1f} m"
+        cv2.putText(canvas, text, (left, max(top - 4, 10)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA)
+    return canvas
+
+
+def _camera(args: argparse.Namespace) -> PinholeCamera:
+    """The centre camera whose mount places the objects: the rig's, else the real kart's model."""
+    if args.rig:
+        return load_rig(args.rig).camera("center")
+    return get_vehicle("sdc-kart").camera("center")
+
+
+def detect(args: argparse.Namespace) -> int:
+    """Objects per frame to CSV, one row per object (a frame with none has one row with an empty label)."""
+    config = DetectorConfig(detector=args.detector, classes=args.classes or "", people=not args.no_people)
+    detector = ObjectDetector(config, _camera(args))
+    kind, frames = open_frames(args.input)
+    overlay = Path(args.overlay) if args.overlay else None
+    video = None
+    if overlay is not None and overlay.suffix.lower() not in VIDEO_SUFFIXES:
+        overlay.mkdir(parents=True, exist_ok=True)
+    rows: list[list[object]] = []
+    counts: dict[str, int] = {}
+    previous = None
+    frames_seen = 0
+    try:
+        for frame_set in frames:
+            image = frame_set.images["center"]
+            current = thumbnail(image)
+            new_scene = args.independent or is_cut(previous, current)
+            previous = current
+            if new_scene:
+                detector.reset()
+            found = detector(image)
+            frames_seen += 1
+            head: list[object] = [frame_set.index, frame_set.name]
+            if not found:
+                rows.append([*head, "", "", "", "", "", "", "", "", "", "", "", int(new_scene)])
+            for d in found:
+                counts[d.label] = counts.get(d.label, 0) + 1
+                rows.append([*head, d.track_id, d.label, d.state, f"{d.confidence:.3f}",
+                             *(f"{v:.1f}" for v in d.box_px),
+                             f"{d.distance_m:.2f}" if math.isfinite(d.distance_m) else "",
+                             f"{d.lateral_m:.2f}" if math.isfinite(d.lateral_m) else "", d.source, int(new_scene)])
+            if overlay is not None:
+                drawn = draw_detections(image, found)
+                if overlay.suffix.lower() in VIDEO_SUFFIXES:
+                    from kartpilot.record.video import VideoFile
+
+                    if video is None:
+                        video = VideoFile(overlay, 30.0, (drawn.shape[1], drawn.shape[0]))
+                    video.write(drawn)
+                else:
+                    cv2.imwrite(str(overlay / f"{frame_set.index:06d}.png"), drawn)
+    finally:
+        if video is not None:
+            video.close()
+    write_csv_atomic(args.out, DETECT_COLUMNS, rows)
+    summary = ", ".join(f"{n} {label}" for label, n in sorted(counts.items())) or "nothing"
+    print(f"{frames_seen} frames ({kind}): {summary} -> {args.out}")
+    return 0
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser("detect", help="traffic lights, speed signs, stop lines, zebras, people, a car, "
+                                           "barriers and a parking bay, per frame, to CSV")
+    parser.add_argument("input", help="an image, a folder of images, a video or a recording")
+    parser.add_argument("--out", required=True, type=output_file, help="CSV, one row per object")
+    parser.add_argument("--detector", default="classical",
+                        help="classical (default), onnx:MODEL.onnx (a team's YOLO model exported to ONNX, in place "
+                             "of the classical detectors) or classical+onnx:MODEL.onnx (beside them)")
+    parser.add_argument("--classes", help="onnx: YAML mapping the model's class ids to kartpilot's classes")
+    parser.add_argument("--rig", help="rig file whose centre camera's mount places the objects on the ground "
+                                      "(default: the real SDC kart's centre camera, 0.56 m up, 6.8 deg down)")
+    parser.add_argument("--overlay", type=file_or_new_folder, help="draw the detections: a folder of PNGs or a video")
+    parser.add_argument("--no-people", action="store_true", help="skip the HOG people detector (the slowest part)")
+    parser.add_argument("--independent", action="store_true",
+                        help="every image on its own: no track ids carried from one to the next")
+    parser.set_defaults(handler=detect)

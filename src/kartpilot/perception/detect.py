@@ -1,0 +1,159 @@
+"""The event's objects in one call: the classical detectors, a team's ONNX model, or both; placed and tracked.
+
+``detector`` names what runs: ``classical`` (colour, shape and ground geometry, :mod:`signals`,
+:mod:`road_marks`, :mod:`obstacles`), ``onnx:MODEL.onnx`` (a team's model in their place, with ``classes``
+the YAML mapping its class ids, :mod:`onnx_detector`) or ``classical+onnx:MODEL.onnx`` (both). Every detection
+is placed on the ground through the camera's mount where it stands on the ground (a person, a car, a barrier,
+a road mark) and by its known size where it does not (a lamp, a sign); a person's state says whether they stand
+on a zebra crossing the kart sees, or beside it. :class:`ObjectDetector` holds the model and the tracker that
+gives each object an id over frames.
+
+Costs on one core at 848x480 (``benchmarks/detect.py``): the HOG people detector is most of it, which is why
+``people`` can be turned off (a team's model, or every few frames).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.errors import ConfigError
+from kartpilot.core.types import Image
+from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, place_on_ground
+from kartpilot.perception.obstacles import (
+    ObstacleConfig,
+    detect_barriers,
+    detect_car,
+    detect_people,
+    find_parking_bay,
+)
+from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
+from kartpilot.perception.road_marks import RoadMarkConfig, detect_road_marks
+from kartpilot.perception.signals import SignalConfig, detect_speed_signs, detect_traffic_lights, place_by_size
+
+__all__ = ["DetectorConfig", "ObjectDetector", "crossing_states", "detect_classical"]
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Attributes:
+        detector: ``classical``, ``onnx:MODEL.onnx`` or ``classical+onnx:MODEL.onnx``.
+        classes: the YAML file mapping the ONNX model's class ids to kartpilot's classes.
+        people: run the HOG people detector (the classical detectors' slowest part).
+        beside_crossing_m: a person this close to a zebra's ends or sides (on the ground) is beside it.
+    """
+
+    detector: str = "classical"
+    classes: str = ""
+    people: bool = True
+    beside_crossing_m: float = 2.5
+    signals: SignalConfig = field(default_factory=SignalConfig)
+    road_marks: RoadMarkConfig = field(default_factory=RoadMarkConfig)
+    obstacles: ObstacleConfig = field(default_factory=ObstacleConfig)
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+
+    def __post_init__(self) -> None:
+        classical, model = self.parts
+        if not classical and not model:
+            raise ConfigError(f"detector {self.detector!r}: use classical, onnx:MODEL.onnx or "
+                              "classical+onnx:MODEL.onnx")
+        if model and not self.classes:
+            raise ConfigError(f"detector {self.detector!r} needs the classes YAML that maps the model's class ids "
+                              "(--classes)")
+
+    @property
+    def parts(self) -> tuple[bool, str]:
+        """(whether the classical detectors run, the ONNX model's path or '')."""
+        classical, model = False, ""
+        for part in self.detector.split("+"):
+            if part == "classical":
+                classical = True
+            elif part.startswith("onnx:") and len(part) > 5:
+                model = part[5:]
+            else:
+                return False, ""
+        return classical, model
+
+
+def detect_classical(image: Image, camera: PinholeCamera | None, config: DetectorConfig = DetectorConfig()
+                     ) -> list[Detection]:
+    """Every classical detector on one image, placed on the ground where the camera's mount is known."""
+    signals = replace(config.signals, camera_height_m=float(camera.pose_body_cam_array[2, 3])) if (
+        camera is not None) else config.signals
+    out = detect_traffic_lights(image, signals, camera) + detect_speed_signs(image, signals, camera)
+    out += detect_road_marks(image, camera, config.road_marks)
+    if config.people:
+        out += detect_people(image, camera, config.obstacles)
+    cars = detect_car(image, camera, config.obstacles)
+    out += cars
+    # red on a car (its plate, its lights) is not a barrier
+    barriers = [b for b in detect_barriers(image, camera, config.obstacles)
+                if not any(_inside(b.box_px, c.box_px) for c in cars)]
+    out += barriers + find_parking_bay(barriers, camera, (image.shape[1], image.shape[0]))
+    return out
+
+
+def _inside(inner: tuple[float, float, float, float], outer: tuple[float, float, float, float]) -> bool:
+    cx, cy = (inner[0] + inner[2]) / 2, (inner[1] + inner[3]) / 2
+    return outer[0] <= cx <= outer[2] and outer[1] <= cy <= outer[3]
+
+
+def crossing_states(detections: list[Detection], beside_m: float) -> list[Detection]:
+    """Each person's state against the zebra crossings found with them: ``on_crossing`` where they stand on
+    one (on the ground), ``beside_crossing`` within ``beside_m`` of it, else unchanged."""
+    zebras = [d for d in detections if d.label == "zebra" and math.isfinite(d.distance_m)]
+    if not zebras:
+        return detections
+    out = []
+    for d in detections:
+        if d.label == "person" and math.isfinite(d.distance_m):
+            for z in zebras:
+                depth = 3.0  # a zebra's length along the road is not reported; the usual crossing is 3 m
+                along = z.distance_m - beside_m <= d.distance_m <= z.distance_m + depth + beside_m
+                if z.distance_m <= d.distance_m <= z.distance_m + depth and abs(d.lateral_m) <= 2.5:
+                    d = replace(d, state="on_crossing")
+                    break
+                if along and abs(d.lateral_m) <= 2.5 + beside_m:
+                    d = replace(d, state="beside_crossing")
+        out.append(d)
+    return out
+
+
+class ObjectDetector:
+    """The configured detectors with their state between frames: the ONNX session and the tracker."""
+
+    def __init__(self, config: DetectorConfig | None = None, camera: PinholeCamera | None = None) -> None:
+        self.config = config = config or DetectorConfig()
+        self.camera = camera
+        classical, model = config.parts
+        self.classical = classical
+        self.model = OnnxDetector(Path(model), load_class_map(config.classes)) if model else None
+        self.tracker = ObjectTracker(config.tracker)
+
+    def reset(self) -> None:
+        """A new scene: tracks do not carry over."""
+        self.tracker.reset()
+
+    def __call__(self, image: Image) -> list[Detection]:
+        if image is None or image.size == 0:
+            raise ConfigError("the object detector was given an empty image")
+        found = detect_classical(image, self.camera, self.config) if self.classical else []
+        if self.model is not None:
+            found += self._place(self.model(image), image)
+        found = crossing_states(found, self.config.beside_crossing_m)
+        return self.tracker.update(found)
+
+    def _place(self, detections: list[Detection], image: Image) -> list[Detection]:
+        """A model's boxes placed as the classical ones are: by size for lamps and signs, on the ground else."""
+        size = {"traffic_light": self.config.signals.lamp_diameter_m * 2.5,
+                "speed_sign": self.config.signals.sign_diameter_m}
+        h, w = image.shape[:2]
+        out = []
+        for d in detections:
+            if d.label in size:
+                out.append(place_by_size(d, self.camera, w, size[d.label]))
+            else:
+                out.extend(place_on_ground([d], self.camera, (w, h)))
+        return out

@@ -1,0 +1,277 @@
+"""Traffic lights and speed-limit signs by colour and shape: fast, on the CPU, and shy of false alarms.
+
+**Traffic light** (the event's: one signal head on a tripod, red above green). A lamp that is on is small, round,
+bright and strongly coloured (red or green); that alone also fits a red barrier, a sign's red ring, a red jacket or
+a red car light, so a lamp counts only inside its **housing**: the dark box around it (a dark ring about the lamp),
+which holds the other lamp, off and dark, beside it (below a red lamp, above a green one). A barrier or a ring has
+no dark box around it. The lamp stands above the camera (the head is higher than 0.56 m), so it lies above the
+horizon row.
+
+**Speed sign** (a Dutch round sign: a red ring around a white disc with a black number). The ring is found as a red
+region with a hole; the hole must be mostly white with a few dark strokes (the digits), which a red light, a barrier
+or a car's rear light do not have. The number is read by comparing the digits, cut out and scaled, with each value
+of ``values_kmh`` drawn in a plain font (normalised correlation): a small classifier with no training data and
+nothing to download. Signs stand on the right of the road in the Netherlands; one on the left (``sign_side``)
+belongs to the other direction.
+
+Distances: neither stands on the ground where the camera sees it (a tripod's head, a sign on a pole), so each is
+placed from its size: a lamp of ``lamp_diameter_m`` or a sign of ``sign_diameter_m`` ``d`` pixels across is ``f *
+size / d`` metres ahead.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.errors import ConfigError
+from kartpilot.core.types import Image
+from kartpilot.perception.objects import Detection
+
+__all__ = ["SignalConfig", "detect_speed_signs", "detect_traffic_lights", "place_by_size", "read_speed_value"]
+
+
+@dataclass(frozen=True)
+class SignalConfig:
+    """Attributes:
+        horizon: the horizon's row as a fraction of the height (from the camera's mount; a lamp lies above it).
+        min_lamp_px, max_lamp_px: a lit lamp's diameter in pixels, as a fraction of the image's height.
+        lamp_saturation, lamp_value: a lit lamp's least HSV saturation and value (0-255).
+        housing_dark: the housing's brightest grey level (the dark box and the unlit lamp).
+        housing_share: the least share of the housing's pixels (beside the lamp) that are that dark.
+        lamp_diameter_m, sign_diameter_m: real sizes, for the distance.
+        min_lamp_height_m, camera_height_m: a lit lamp is at least this high above the ground, seen from a
+            camera this high (the real kart's centre camera: 0.56 m).
+        light_side: ``right``: only signal heads right of the centre column count (where the event puts them,
+            and where Dutch signals stand); ``any``.
+        min_sign_px: a sign's least diameter in pixels, as a fraction of the height (smaller: too far to read).
+        ring_saturation: a sign's red ring's least HSV saturation (a faded or overexposed ring is pale).
+        sign_white_saturation: the disc's white is less saturated than this (HSV, 0-255) and within 75 % of the
+            disc's bright level (the 90th percentile); ``sign_white_share`` of the disc must be white.
+        values_kmh: the speed limits the reader knows (the event's signs: 10, 15 and 20).
+        min_value_score: the least correlation for a value to be read (below it the sign is reported with no value).
+        sign_side: ``right``: only signs right of the camera's centre column count (the Netherlands); ``any``.
+        max_distance_m: objects farther than this are not reported.
+    """
+
+    horizon: float = 0.34
+    min_lamp_px: float = 0.012
+    max_lamp_px: float = 0.15
+    lamp_saturation: int = 110
+    lamp_value: int = 100
+    housing_dark: int = 90
+    housing_share: float = 0.45
+    lamp_diameter_m: float = 0.2
+    min_lamp_height_m: float = 1.2
+    camera_height_m: float = 0.56
+    light_side: Literal["right", "any"] = "right"
+    sign_diameter_m: float = 0.6
+    min_sign_px: float = 0.035
+    ring_saturation: int = 50
+    sign_white_saturation: int = 70
+    sign_white_share: float = 0.45
+    values_kmh: tuple[int, ...] = (10, 15, 20, 30, 50)
+    min_value_score: float = 0.35
+    sign_side: Literal["right", "any"] = "right"
+    max_distance_m: float = 40.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.min_lamp_px < self.max_lamp_px <= 1.0:
+            raise ConfigError("signals: need 0 < min_lamp_px < max_lamp_px <= 1")
+        if min(self.lamp_diameter_m, self.sign_diameter_m, self.max_distance_m) <= 0 or not self.values_kmh:
+            raise ConfigError("signals: lamp_diameter_m, sign_diameter_m and max_distance_m must be positive and "
+                              "values_kmh not empty")
+
+
+def place_by_size(detection: Detection, camera: PinholeCamera | None, width_px: int, size_m: float,
+                  size_px: float | None = None) -> Detection:
+    """The detection placed from its known size: ``f * size / d`` ahead (``d``: ``size_px``, else the box's
+    larger side), its column giving the side."""
+    if camera is None:
+        return detection
+    scale = camera.width_px / width_px
+    diameter = (size_px if size_px is not None else max(detection.width_px, detection.height_px)) * scale
+    if diameter <= 0:
+        return detection
+    ahead = camera.fx_px * size_m / diameter
+    x = (detection.box_px[0] + detection.box_px[2]) / 2 * scale
+    lateral = -(x - camera.cx_px) / camera.fx_px * ahead
+    from dataclasses import replace
+
+    return replace(detection, distance_m=float(ahead), lateral_m=float(lateral))
+
+
+def _hsv(image: Image) -> Image:
+    if image.ndim != 3:
+        raise ConfigError("traffic lights and signs need a colour image")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
+
+
+def _red(hsv: Image, s_min: int, v_min: int) -> Image:
+    h, s, v = cv2.split(hsv)
+    return (((h <= 10) | (h >= 165)) & (s >= s_min) & (v >= v_min)).astype(np.uint8) * 255
+
+
+def _green(hsv: Image, s_min: int, v_min: int) -> Image:
+    h, s, v = cv2.split(hsv)
+    return ((h >= 40) & (h <= 100) & (s >= s_min) & (v >= v_min)).astype(np.uint8) * 255
+
+
+def detect_traffic_lights(image: Image, config: SignalConfig = SignalConfig(), camera: PinholeCamera | None = None
+                          ) -> list[Detection]:
+    """The lit lamps of signal heads, each as a ``traffic_light`` with state ``red`` or ``green`` and the whole
+    head's box."""
+    hsv = _hsv(image)
+    h, w = image.shape[:2]
+    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    horizon = config.horizon * h
+    lo, hi = config.min_lamp_px * h, config.max_lamp_px * h
+    out = []
+    for state, mask in (("red", _red(hsv, config.lamp_saturation, config.lamp_value)),
+                        ("green", _green(hsv, config.lamp_saturation, config.lamp_value))):
+        mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+        count, _, stats, centroids = cv2.connectedComponentsWithStats(mask[: int(horizon)], connectivity=8)
+        for k in range(1, count):
+            _, _, bw, bh, area = (int(v) for v in stats[k])
+            d = max(bw, bh)
+            if not lo <= d <= hi or not 0.6 <= bw / max(bh, 1) <= 1.6 or area < 0.45 * bw * bh:
+                continue
+            cx, cy = centroids[k]
+            # the lamp stands at least min_lamp_height_m up: at the distance its size gives, that many rows above
+            # the horizon (a green fence or a red jacket near the horizon is lower)
+            if horizon - cy < d * (config.min_lamp_height_m - config.camera_height_m) / config.lamp_diameter_m:
+                continue
+            if config.light_side == "right" and cx < (w - 1) / 2:
+                continue
+            # the housing: the lamp's own width beside it, and the other lamp's place (below red, above green)
+            other = (cy + 0.9 * d, cy + 2.0 * d) if state == "red" else (cy - 2.0 * d, cy - 0.9 * d)
+            box = (cx - 0.8 * d, min(other[0], cy - 0.7 * d), cx + 0.8 * d, max(other[1], cy + 0.7 * d))
+            share = _dark_share(gray, (cx - 0.5 * d, other[0], cx + 0.5 * d, other[1]), config.housing_dark)
+            ring = _ring_dark_share(gray, (cx, cy), d, config.housing_dark)
+            if min(share, ring) < config.housing_share:
+                continue  # no dark box around it: a red jacket, a barrier, a leaf in the sun
+            confidence = min(1.0, share) * min(1.0, area / (0.75 * bw * bh))
+            det = Detection("traffic_light", _clip(box, w, h), float(confidence), state)
+            det = place_by_size(det, camera, w, config.lamp_diameter_m, size_px=d)
+            if not det.distance_m > config.max_distance_m:
+                out.append(det)
+    return out
+
+
+def _dark_share(gray: Image, box: tuple[float, float, float, float], dark: int) -> float:
+    h, w = gray.shape
+    x0, y0, x1, y1 = (round(v) for v in box)
+    x0, x1, y0, y1 = max(x0, 0), min(x1, w), max(y0, 0), min(y1, h)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return 0.0
+    return float(np.mean(gray[y0:y1, x0:x1] <= dark))
+
+
+def _ring_dark_share(gray: Image, centre: tuple[float, float], d: float, dark: int) -> float:
+    """The share of dark pixels in the housing's ring around a lamp: the square of side 1.8 d about it, less the
+    lamp's disc (0.65 d in radius)."""
+    h, w = gray.shape
+    x0, x1 = max(int(centre[0] - 0.9 * d), 0), min(int(centre[0] + 0.9 * d) + 1, w)
+    y0, y1 = max(int(centre[1] - 0.9 * d), 0), min(int(centre[1] + 0.9 * d) + 1, h)
+    if x1 - x0 < 3 or y1 - y0 < 3:
+        return 0.0
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    ring = (xx - centre[0]) ** 2 + (yy - centre[1]) ** 2 > (0.65 * d) ** 2
+    return float(np.mean(gray[y0:y1, x0:x1][ring] <= dark))
+
+
+def _clip(box: tuple[float, float, float, float], w: int, h: int) -> tuple[float, float, float, float]:
+    return (float(max(box[0], 0)), float(max(box[1], 0)), float(min(box[2], w - 1)), float(min(box[3], h - 1)))
+
+
+def detect_speed_signs(image: Image, config: SignalConfig = SignalConfig(), camera: PinholeCamera | None = None
+                       ) -> list[Detection]:
+    """Round red-ringed signs with a white disc, each as a ``speed_sign`` with its value (state, km/h) where it
+    can be read."""
+    hsv = _hsv(image)
+    h, w = image.shape[:2]
+    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    red = cv2.morphologyEx(_red(hsv, config.ring_saturation, 60), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    contours, hierarchy = cv2.findContours(red, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    if hierarchy is None:
+        return []
+    out = []
+    for k, contour in enumerate(contours):
+        if hierarchy[0][k][3] != -1 or hierarchy[0][k][2] == -1 or len(contour) < 5:
+            continue  # an outer contour with a hole: a ring
+        x, y, bw, bh = cv2.boundingRect(contour)
+        if max(bw, bh) < config.min_sign_px * h or not 0.6 <= bw / max(bh, 1) <= 1.6:
+            continue
+        (ex, ey), (ma, mb), _ = cv2.fitEllipse(contour)
+        if min(ma, mb) / max(ma, mb, 1e-6) < 0.6:
+            continue
+        if config.sign_side == "right" and ex < (w - 1) / 2:
+            continue
+        disc = np.zeros((h, w), np.uint8)
+        cv2.ellipse(disc, ((ex, ey), (0.62 * ma, 0.62 * mb), 0.0), 255, -1)
+        inside = gray[disc > 0]
+        if inside.size < 20:
+            continue
+        # white: unsaturated and near the disc's brightest (a backlit sign's white is grey, not bright)
+        pale = hsv[..., 1][disc > 0] < config.sign_white_saturation
+        white = float(np.mean(pale & (inside >= 0.75 * float(np.percentile(inside, 90)))))
+        dark = float(np.mean(inside < 0.5 * float(np.percentile(inside, 90))))
+        if white < config.sign_white_share or not 0.04 <= dark <= 0.5:
+            continue
+        value, score = read_speed_value(gray, disc, config.values_kmh)
+        state = str(value) if score >= config.min_value_score else ""
+        confidence = white * (0.5 + 0.5 * max(score, 0.0))
+        det = Detection("speed_sign", _clip((x, y, x + bw, y + bh), w, h), float(min(confidence, 1.0)), state)
+        det = place_by_size(det, camera, w, config.sign_diameter_m)
+        if not det.distance_m > config.max_distance_m:
+            out.append(det)
+    return out
+
+
+_TEMPLATE = (24, 32)  # (width, height) the digits are compared at
+
+
+def read_speed_value(gray: Image, disc_mask: Image, values_kmh: tuple[int, ...]) -> tuple[int, float]:
+    """(value, score) of the number inside a sign's disc: its dark strokes, cut out and scaled, against each
+    value drawn in a plain font; score is the normalised correlation (-1 to 1), or -1 where the best value does
+    not stand out from the next (a far sign's digits are a few pixels tall: 2 and 3 look alike)."""
+    ys, xs = np.nonzero(disc_mask)
+    region = gray[ys.min():ys.max() + 1, xs.min():xs.max() + 1]
+    inside = disc_mask[ys.min():ys.max() + 1, xs.min():xs.max() + 1] > 0
+    threshold = 0.5 * float(np.percentile(region[inside], 90)) + 0.5 * float(np.percentile(region[inside], 5))
+    ink = ((region < threshold) & inside).astype(np.uint8)
+    rows, cols = np.nonzero(ink)
+    if len(rows) < 6:
+        return values_kmh[0], -1.0
+    digits = ink[rows.min():rows.max() + 1, cols.min():cols.max() + 1].astype(np.float32)
+    probe = cv2.resize(digits, _TEMPLATE, interpolation=cv2.INTER_AREA)
+    scores = sorted(((_correlation(probe, _digits_template(v)), v) for v in values_kmh), reverse=True)
+    best, score = scores[0][1], scores[0][0]
+    if len(scores) > 1 and score - scores[1][0] < _MARGIN:
+        return best, -1.0  # two values read about as well: too small or blurred to tell
+    return best, score
+
+
+_MARGIN = 0.05  # the best value's correlation must beat the next one's by this much
+
+
+def _correlation(a: np.ndarray, b: np.ndarray) -> float:
+    a, b = a - a.mean(), b - b.mean()
+    norm = math.sqrt(float((a * a).sum()) * float((b * b).sum()))
+    return float((a * b).sum() / norm) if norm > 0 else -1.0
+
+
+@lru_cache(maxsize=32)
+def _digits_template(value: int) -> np.ndarray:
+    """The number drawn in a plain, narrow font (as road signs' digits are), cut to its ink and scaled."""
+    canvas = np.zeros((120, 60 * len(str(value)) + 40), np.uint8)
+    cv2.putText(canvas, str(value), (10, 100), cv2.FONT_HERSHEY_SIMPLEX, 3.2, 255, 11, cv2.LINE_AA)
+    rows, cols = np.nonzero(canvas > 127)
+    ink = (canvas[rows.min():rows.max() + 1, cols.min():cols.max() + 1] > 127).astype(np.float32)
+    return cv2.resize(ink, _TEMPLATE, interpolation=cv2.INTER_AREA)

@@ -1,0 +1,38 @@
+"""kartpilot detect: one CSV row per object, a row for a frame with none, one-line errors."""
+
+import csv
+
+import cv2
+import numpy as np
+
+from kartpilot.cli.main import main
+from tests.perception.test_objects import _sign, scene
+
+
+def test_detect_writes_a_row_per_object_and_one_for_a_frame_with_none(tmp_path, capsys):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    with_sign = scene()
+    _sign(with_sign, (700, 90), 40, "20")
+    cv2.imwrite(str(folder / "a.png"), with_sign)
+    cv2.imwrite(str(folder / "b.png"), scene())
+    out = tmp_path / "objects.csv"
+    assert main(["detect", str(folder), "--out", str(out), "--no-people", "--overlay", str(tmp_path / "ov")]) == 0
+    rows = list(csv.DictReader(out.open()))
+    assert [(r["file"], r["label"], r["state"]) for r in rows] == [("a.png", "speed_sign", "20"), ("b.png", "", "")]
+    assert float(rows[0]["distance_m"]) > 0 and rows[0]["track_id"] == "1"
+    assert len(list((tmp_path / "ov").glob("*.png"))) == 2
+    assert "1 speed_sign" in capsys.readouterr().out
+
+
+def test_detect_errors_are_one_line_and_leave_no_file(tmp_path, capsys):
+    image = tmp_path / "a.png"
+    cv2.imwrite(str(image), np.full((48, 64, 3), 120, np.uint8))
+    out = tmp_path / "objects.csv"
+    assert main(["detect", str(image), "--out", str(out), "--detector", "onnx:team.onnx"]) == 1
+    assert "--classes" in capsys.readouterr().err and not out.exists()
+    classes = tmp_path / "classes.yaml"
+    classes.write_text("classes:\n  0: person\n")
+    assert main(["detect", str(image), "--out", str(out), "--detector", "onnx:missing.onnx", "--classes",
+                 str(classes)]) == 1
+    assert "no ONNX model" in capsys.readouterr().err and not out.exists()

@@ -1,0 +1,184 @@
+"""The event's objects on synthetic images: a lamp in its housing and not outside one, a sign and its value, a
+barrier, track ids over frames, places on the ground, and a team's ONNX model through the seam."""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from kartpilot.core.errors import ConfigError
+from kartpilot.core.vehicle import get_vehicle
+from kartpilot.perception.detect import DetectorConfig, ObjectDetector, crossing_states
+from kartpilot.perception.objects import Detection, ObjectTracker, place_on_ground
+from kartpilot.perception.obstacles import detect_barriers
+from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
+from kartpilot.perception.signals import detect_speed_signs, detect_traffic_lights
+
+CAMERA = get_vehicle("sdc-kart").camera("center")  # 848x480, 0.56 m up, 6.8 deg down: horizon near row 163
+
+
+def scene() -> np.ndarray:
+    """An overcast sky over grey asphalt, the horizon at row 163."""
+    image = np.full((480, 848, 3), 125, np.uint8)
+    image[:163] = (235, 232, 230)
+    return image
+
+
+def test_a_lit_lamp_counts_inside_its_housing_and_not_outside_one():
+    image = scene()
+    cv2.rectangle(image, (640, 40), (676, 112), (25, 25, 25), -1)  # the signal head, high on its tripod
+    cv2.circle(image, (658, 58), 12, (30, 30, 235), -1)  # red, lit; the green below it is dark
+    cv2.circle(image, (250, 120), 12, (30, 30, 235), -1)  # a red disc against the sky: no housing
+    lights = detect_traffic_lights(image, camera=CAMERA)
+    assert [(d.label, d.state) for d in lights] == [("traffic_light", "red")]
+    light = lights[0]
+    assert light.box_px[0] <= 658 <= light.box_px[2] and light.box_px[1] <= 58 <= light.box_px[3]
+    assert light.distance_m == pytest.approx(640 * 0.2 / 25, rel=0.2)  # a 0.2 m lamp 25 px across
+    # green: the lit lamp below, the dark one above
+    green = scene()
+    cv2.rectangle(green, (640, 10), (676, 82), (25, 25, 25), -1)
+    cv2.circle(green, (658, 64), 12, (90, 230, 40), -1)
+    assert [d.state for d in detect_traffic_lights(green)] == ["green"]
+
+
+def test_a_red_barrier_on_the_ground_is_a_barrier_not_a_light():
+    image = scene()
+    for k in range(11):  # red and white stripes, 2 m of barrier about 8 m ahead
+        colour = (30, 30, 210) if k % 2 == 0 else (240, 240, 240)
+        cv2.rectangle(image, (520 + 14 * k, 150), (533 + 14 * k, 215), colour, -1)
+    assert detect_traffic_lights(image, camera=CAMERA) == []
+    barriers = detect_barriers(image, CAMERA)
+    assert barriers and all(b.label == "barrier" for b in barriers)
+    assert 3.0 < barriers[0].distance_m < 15.0
+
+
+def _sign(image: np.ndarray, centre: tuple[int, int], radius: int, text: str) -> None:
+    cv2.circle(image, centre, radius, (30, 30, 200), -1)
+    cv2.circle(image, centre, int(radius * 0.78), (245, 245, 245), -1)
+    scale = radius / 30
+    (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, max(2, radius // 8))
+    cv2.putText(image, text, (centre[0] - tw // 2, centre[1] + th // 2), cv2.FONT_HERSHEY_SIMPLEX, scale,
+                (20, 20, 20), max(2, radius // 8), cv2.LINE_AA)
+
+
+@pytest.mark.parametrize("value", ["10", "15", "20"])
+def test_a_speed_sign_and_its_value_on_the_right_only(value):
+    image = scene()
+    _sign(image, (700, 90), 40, value)
+    signs = detect_speed_signs(image, camera=CAMERA)
+    assert [(d.label, d.state) for d in signs] == [("speed_sign", value)]
+    assert signs[0].distance_m == pytest.approx(640 * 0.6 / 81, rel=0.2)
+    left = scene()
+    _sign(left, (150, 90), 40, value)  # the other direction's sign
+    assert detect_speed_signs(left, camera=CAMERA) == []
+
+
+def test_track_ids_persist_over_frames_and_restart_after_a_reset():
+    tracker = ObjectTracker()
+    a = Detection("person", (100, 100, 140, 200), 0.9)
+    b = Detection("car", (400, 150, 500, 220), 0.9)
+    first = tracker.update([a, b])
+    moved = tracker.update([Detection("person", (106, 101, 146, 202), 0.9), Detection("car", (405, 150, 505, 221), 0.8)])
+    assert [d.track_id for d in moved] == [d.track_id for d in first]
+    assert len({d.track_id for d in first}) == 2
+    # a person where the car was is a new object, not the car
+    other = tracker.update([Detection("person", (405, 150, 505, 221), 0.9)])
+    assert other[0].track_id not in {d.track_id for d in first}
+    tracker.reset()
+    assert tracker.update([a])[0].track_id not in {d.track_id for d in first}
+
+
+def test_a_box_standing_on_the_ground_is_placed_where_it_stands():
+    from kartpilot.core.geometry import invert_pose, transform_points
+
+    ground = np.array([[8.0, -1.0, 0.0]])  # 8 m ahead of the body origin, 1 m right
+    u, v = CAMERA.project(transform_points(invert_pose(CAMERA.pose_body_cam_array), ground))[0]
+    placed = place_on_ground([Detection("person", (u - 10, v - 100, u + 10, v), 0.9)], CAMERA, (848, 480))[0]
+    assert placed.distance_m == pytest.approx(8.0, abs=0.05) and placed.lateral_m == pytest.approx(-1.0, abs=0.05)
+    # a smaller image of the same camera gives the same place
+    half = place_on_ground([Detection("person", (u / 2 - 5, v / 2 - 50, u / 2 + 5, v / 2), 0.9)], CAMERA, (424, 240))
+    assert half[0].distance_m == pytest.approx(8.0, abs=0.2)
+
+
+def test_a_person_on_or_beside_the_crossing():
+    zebra = Detection("zebra", (0, 300, 848, 340), 0.8, distance_m=6.0, lateral_m=0.0)
+    on = Detection("person", (400, 200, 420, 300), 0.8, distance_m=7.0, lateral_m=0.5)
+    beside = Detection("person", (700, 200, 720, 300), 0.8, distance_m=7.0, lateral_m=-3.5)
+    away = Detection("person", (700, 200, 720, 300), 0.8, distance_m=20.0, lateral_m=-3.5)
+    states = [d.state for d in crossing_states([zebra, on, beside, away], 2.5)]
+    assert states == ["", "on_crossing", "beside_crossing", ""]
+
+
+def tiny_yolo(path, boxes_xywh, class_scores, layout="v8", size=64):
+    """An ONNX model whose output does not depend on the image: the given boxes (model pixels) and scores, in
+    YOLOv8's (1, 4 + classes, boxes) or YOLOv5's (1, boxes, 5 + classes) layout."""
+    onnx = pytest.importorskip("onnx")
+    from onnx import TensorProto, helper
+
+    # a real export has thousands of candidate boxes, far more than classes: pad with empty ones
+    boxes = np.vstack([np.asarray(boxes_xywh, np.float32), np.tile([[1, 1, 1, 1]], (16, 1)).astype(np.float32)])
+    scores = np.vstack([np.asarray(class_scores, np.float32), np.zeros((16, len(class_scores[0])), np.float32)])
+    if layout == "v8":
+        table = np.concatenate([boxes, scores], axis=1).T[None]
+    else:
+        table = np.concatenate([boxes, np.ones((len(boxes), 1), np.float32), scores], axis=1)[None]
+    const = helper.make_tensor("table", TensorProto.FLOAT, table.shape, table.ravel().tolist())
+    nodes = [helper.make_node("ReduceMean", ["images"], ["mean"], keepdims=0),
+             helper.make_node("Mul", ["mean", "zero"], ["nothing"]),
+             helper.make_node("Add", ["table", "nothing"], ["output0"])]
+    zero = helper.make_tensor("zero", TensorProto.FLOAT, [1], [0.0])
+    graph = helper.make_graph(nodes, "tiny", [helper.make_tensor_value_info("images", TensorProto.FLOAT,
+                                                                            [1, 3, size, size])],
+                              [helper.make_tensor_value_info("output0", TensorProto.FLOAT, list(table.shape))],
+                              initializer=[const, zero])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 8
+    onnx.save(model, str(path))
+    return path
+
+
+@pytest.mark.parametrize("layout", ["v8", "v5"])
+def test_a_team_s_onnx_model_runs_through_the_seam(tmp_path, layout):
+    # a 64x64 model; the 128x64 image is letterboxed to 64x32 with 16 px of padding above and below
+    model = tiny_yolo(tmp_path / "team.onnx", [[32, 32, 8, 16], [10, 40, 4, 4], [50, 30, 6, 6]],
+                      [[0.9, 0.05, 0.0], [0.1, 0.2, 0.1], [0.0, 0.1, 0.8]], layout)
+    classes = tmp_path / "classes.yaml"
+    classes.write_text("classes:\n  0: {label: traffic_light, state: red}\n  1: person\n  2: {label: car}\n"
+                       "score_threshold: 0.5\n")
+    found = OnnxDetector(model, load_class_map(classes))(np.zeros((64, 128, 3), np.uint8))
+    assert sorted((d.label, d.state) for d in found) == [("car", ""), ("traffic_light", "red")]
+    light = next(d for d in found if d.label == "traffic_light")
+    # model (28..36, 24..40) -> image x (56..72), y ((24-16)*2 .. (40-16)*2) = (16..48)
+    assert light.box_px == pytest.approx((56.0, 16.0, 72.0, 48.0), abs=0.5)
+    assert light.source == "team.onnx" and light.confidence == pytest.approx(0.9, abs=1e-5)
+    # through the detector beside the classical ones, placed and tracked
+    both = ObjectDetector(DetectorConfig(detector=f"classical+onnx:{model}", classes=str(classes)), CAMERA)
+    tracked = both(np.zeros((64, 128, 3), np.uint8))
+    assert {d.label for d in tracked} >= {"traffic_light", "car"} and all(d.track_id > 0 for d in tracked)
+
+
+def test_onnx_seam_errors_name_what_is_wrong(tmp_path):
+    classes = tmp_path / "classes.yaml"
+    classes.write_text("classes:\n  0: {label: lorry}\n")
+    with pytest.raises(ConfigError, match="classes.0.label"):
+        load_class_map(classes)
+    classes.write_text("classes:\n  0: person\nthreshold: 0.3\n")
+    with pytest.raises(ConfigError, match="threshold"):
+        load_class_map(classes)
+    classes.write_text("classes:\n  0: person\n")
+    with pytest.raises(ConfigError, match="no ONNX model"):
+        OnnxDetector(tmp_path / "missing.onnx", load_class_map(classes))
+    (tmp_path / "junk.onnx").write_bytes(b"not a model")
+    with pytest.raises(ConfigError, match="not an ONNX model"):
+        OnnxDetector(tmp_path / "junk.onnx", load_class_map(classes))
+    with pytest.raises(ConfigError, match="classes YAML"):
+        DetectorConfig(detector="onnx:team.onnx")
+    with pytest.raises(ConfigError, match="use classical"):
+        DetectorConfig(detector="yolo")
+
+
+def test_the_classical_detectors_report_nothing_on_empty_asphalt():
+    found = ObjectDetector(DetectorConfig(), CAMERA)(scene())
+    assert found == []
+    assert not any(math.isnan(d.confidence) for d in found)
