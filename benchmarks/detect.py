@@ -132,7 +132,7 @@ def rendered(count: int = 60, seed: int = 2) -> dict[str, Any]:
                         rows[kind]["errors_m"].append(min(abs(d.distance_m - ahead) for d in mine))
                 elif kind != label and mine:
                     rows[kind]["false_alarms"] += 1
-    for kind, row in rows.items():
+    for row in rows.values():
         errors = np.asarray(row.pop("errors_m"))
         row["median_error_m"] = float(np.median(errors)) if len(errors) else float("nan")
         row["max_error_m"] = float(errors.max()) if len(errors) else float("nan")
@@ -165,7 +165,8 @@ def timing(data: Path) -> dict[str, float]:
 def render(results: dict[str, Any]) -> str:
     lines = ["Measured by `benchmarks/detect.py`. Real frames: development data (the thresholds were set looking "
              "at them); rendered frames: not looked at.", "",
-             "| class | labelled (real) | found | state right | false alarms (labelled images) |", "|---|---|---|---|---|"]
+             "| class | labelled (real) | found | state right | false alarms (labelled images) |",
+             "|---|---|---|---|---|"]
     for name, row in sorted(results["labelled"]["classes"].items()):
         lines.append(f"| {name} | {row['labelled']} | {row['found']} | {row['state_right']} | {row['false_alarms']} |")
     v = results["frames"]

@@ -4,9 +4,9 @@ import csv
 
 import cv2
 import numpy as np
+from tests.perception.test_objects import _sign, scene
 
 from kartpilot.cli.main import main
-from tests.perception.test_objects import _sign, scene
 
 
 def test_detect_writes_a_row_per_object_and_one_for_a_frame_with_none(tmp_path, capsys):
