@@ -110,7 +110,7 @@ def rendered(count: int = 60, seed: int = 2) -> dict[str, Any]:
                                        for k in ("stop_line", "zebra")}
     with Simulator(SimConfig(track="lelystad", vehicle="sdc-kart", seed=seed, cameras=("center",))) as sim:
         route, camera = sim.track.route, sim.cameras["center"]
-        marks = {m.kind: m.s_m for m in sim.track.spec.road_marks}
+        marks: dict[str, float] = {m.kind: m.s_m for m in sim.track.spec.road_marks}
         for _ in range(count):
             label = "stop_line" if rng.random() < 0.5 else "zebra"
             ahead = float(rng.uniform(0.0, 20.0))
