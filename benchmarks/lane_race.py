@@ -42,6 +42,7 @@ DRIVES: list[Drive] = [
     (30.0, 4, DEFAULTS, 0.0), (30.0, 5, DEFAULTS, 0.0),
     (60.0, 1, DEFAULTS, 0.0), (15.0, 1, STEER_RULE, 0.0), (30.0, 1, STEER_RULE, 0.0), (30.0, 1, UNSURE_SLOWER, 0.0),
     # the speed held on the kart's measured speed (its 0x440 report, through the simulated CAN bus), braking too
+    (30.0, 1, DEFAULTS, 30 / 3.6), (30.0, 3, DEFAULTS, 30 / 3.6),
     (60.0, 1, DEFAULTS, 60 / 3.6), (60.0, 1, RACE_60, 60 / 3.6), (60.0, 2, RACE_60, 60 / 3.6),
     (60.0, 3, RACE_60, 60 / 3.6),
 ]

@@ -40,7 +40,7 @@ from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.render import RenderConfig
 from kartpilot.sim.simulator import SimConfig
 
-SIM = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0,
+SIM = SimConfig(track="sdc-assen", vehicle="sdc-kart-steep", cameras=("center",), camera_rate_hz=10.0,
                 render=RenderConfig(scenery_spacing_m=15.0))
 
 

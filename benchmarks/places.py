@@ -32,7 +32,7 @@ from kartpilot.sim.simulator import SimConfig
 
 def drive(folder: Path, seconds: float, seed: int, speed_mps: float, time_of_day_h: float,
           offset_m: float) -> RecordingReader:
-    config = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0,
+    config = SimConfig(track="sdc-assen", vehicle="sdc-kart-steep", cameras=("center",), camera_rate_hz=10.0,
                        max_time_s=seconds, seed=seed,
                        render=RenderConfig(time_of_day_h=time_of_day_h, scenery_spacing_m=15.0))
     run_simulation(config, "centerline", driver_config=CenterlineDriverConfig(speed_mps=speed_mps,

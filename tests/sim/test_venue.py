@@ -65,3 +65,35 @@ def test_a_simulated_drive_takes_its_track_s_lane_preset():
     assert sim_lane_preset(None, "lelystad") == "kart"
     assert sim_lane_preset(None, "sdc-assen") == "kart-sim"
     assert sim_lane_preset("dashcam", "lelystad") == "dashcam"
+
+
+def test_scenario_props_are_rendered_as_they_are_and_their_truth_comes_with_each_frame():
+    """A signal head that turns from red to green, a 20 km/h sign, a person walking across and the car: each
+    in the exact truth with its state and place; the traffic-light detector reads the rendered phase."""
+    from kartpilot.perception.signals import detect_traffic_lights
+    from kartpilot.sim.track import Prop
+
+    props = (Prop(kind="traffic_light", s_m=30.5, offset_m=-2.0, phases=(("red", 1.0), ("green", 10.0))),
+             Prop(kind="speed_sign", s_m=40.0, offset_m=-2.2, value_kmh=20),
+             Prop(kind="person", s_m=26.0, offset_m=-2.5, walk_to_offset_m=2.5, walk_start_s=1.0,
+                  walk_speed_mps=1.0),
+             Prop(kind="car", s_m=36.0, offset_m=0.0))
+    with Simulator(SimConfig(track="lelystad", vehicle="sdc-kart", seed=1, cameras=("center",), props=props,
+                             camera_rate_hz=2.0)) as sim:
+        route = sim.track.route
+        i = route.index_at(18.0)
+        sim.state = VehicleState(x_m=float(route.xy_m[i, 0]), y_m=float(route.xy_m[i, 1]),
+                                 yaw_rad=float(route.heading_rad[i]))
+        states = []
+        for _ in range(4):  # t = 0, 0.5, 1.0, 1.5 s: red, red, green, green
+            truth = {d.label: d for d in sim.object_truth("center")}
+            frame = sim.read()
+            seen = detect_traffic_lights(frame.images["center"], camera=sim.cameras["center"])
+            states.append((truth["traffic_light"].state, [d.state for d in seen]))
+            assert truth["car"].distance_m == pytest.approx(36.0 - 18.0, abs=0.3)
+            assert truth["stop_line"].distance_m == pytest.approx(30.0 - 18.0, abs=0.3)
+            sim.step_index += 1
+        assert states == [("red", ["red"]), ("red", ["red"]), ("green", ["green"]), ("green", ["green"])]
+        assert truth["speed_sign"].state == "20"
+        # the person has walked from 2.5 m right toward the left
+        assert truth["person"].lateral_m == pytest.approx(-2.0, abs=0.05)

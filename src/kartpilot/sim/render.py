@@ -33,7 +33,7 @@ from kartpilot.core.errors import KartpilotError
 from kartpilot.core.geometry import Array
 from kartpilot.core.types import Image
 from kartpilot.sim import textures
-from kartpilot.sim.track import SAMPLE_SPACING_M, Track, scenery_boxes
+from kartpilot.sim.track import PROP_SIZES_M, SAMPLE_SPACING_M, Prop, Track, scenery_boxes
 
 __all__ = ["RenderConfig", "Renderer", "lighting_for_time"]
 
@@ -280,6 +280,11 @@ class Renderer:
             node = solids.attach_new_node(_boxes_mesh(core, blocks))
             node.set_texture(self._texture_of(textures.barrier_texture()))
             node.set_two_sided(True)
+        self._track = track
+        self._people: list[tuple[Any, Prop, Array]] = []
+        self._lamps: list[tuple[Any, Prop, str]] = []
+        for number, prop in enumerate(spec.props):
+            self._add_prop(solids, track, prop, number)
         boxes = scenery_boxes(track, self.config.scenery_spacing_m, seed + 5)
         for k in range(_FACADES):
             mine = boxes[k::_FACADES]
@@ -288,6 +293,69 @@ class Renderer:
                 node.set_texture(self._texture_of(textures.facade_texture(seed + 100 + k)))
                 node.set_two_sided(True)
         self._light(solids)
+
+    def set_time(self, time_s: float) -> None:
+        """Move the scenario's props to where they are at a time of the run: people walking, lights' phases."""
+        for node, prop, start in self._people:
+            foot, _ = self._track.prop_frame(prop, time_s)
+            node.set_pos(float(foot[0] - start[0]), float(foot[1] - start[1]), 0.0)
+        for node, prop, colour in self._lamps:
+            node.set_color_scale(*((1.0, 1.0, 1.0, 1.0) if prop.light_at(time_s) == colour else (0.2, 0.2, 0.2, 1.0)))
+
+    def _add_prop(self, parent: Any, track: Track, prop: Prop, number: int) -> None:
+        """One scenario prop, as the real one looks: a signal head on a pole, a sign, a person, the car."""
+        core = self._core
+        foot, facing = track.prop_frame(prop, 0.0)
+        width, depth, height = PROP_SIZES_M[prop.kind]
+        across = facing + math.pi / 2
+        toward = np.array([math.cos(facing), math.sin(facing)])
+        if prop.kind == "car":
+            node = parent.attach_new_node(_boxes_mesh(core, np.array([[foot[0], foot[1], across, width, depth,
+                                                                        height]])))
+            node.set_texture(self._texture_of(textures.car_texture()))
+            node.set_two_sided(True)
+            return
+        if prop.kind == "person":
+            # legs, a torso and a head: the outline a people detector knows, not a box
+            jacket = tuple(float(v) / 255 for v in textures.person_texture(number)[80, 32][::-1])
+            person = parent.attach_new_node("person")
+            side = np.array([math.cos(across), math.sin(across)])
+            parts = [(foot - 0.1 * side, 0.0, 0.14, 0.85, (0.2, 0.18, 0.18)),
+                     (foot + 0.1 * side, 0.0, 0.14, 0.85, (0.2, 0.18, 0.18)),
+                     (foot, 0.85, 0.44, 0.62, jacket), (foot, 1.5, 0.2, 0.25, (0.75, 0.6, 0.5))]
+            for xy, z, w_m, h_m, colour in parts:
+                part = person.attach_new_node(_boxes_mesh(core, np.array([[xy[0], xy[1], across, w_m, 0.25, h_m]])))
+                part.set_z(z)
+                part.set_texture_off(10)
+                part.set_color(*colour, 1.0)
+                part.set_two_sided(True)
+            self._people.append((person, prop, foot.copy()))
+            return
+        pole_top = 1.5 if prop.kind == "traffic_light" else height - 0.6
+        pole = parent.attach_new_node(_boxes_mesh(core, np.array([[foot[0], foot[1], across, 0.05, 0.05, pole_top]])))
+        pole.set_texture_off(10)
+        pole.set_color(0.25, 0.25, 0.25, 1.0)
+        if prop.kind == "speed_sign":
+            centre = np.r_[foot + 0.03 * toward, height - 0.3]
+            sign = parent.attach_new_node(_disc_mesh(core, centre, across, 0.3))
+            sign.set_texture(self._texture_of(textures.speed_sign_texture(prop.value_kmh)))
+            sign.set_two_sided(True)
+            return
+        head = parent.attach_new_node(_boxes_mesh(core, np.array([[foot[0], foot[1], across, width, depth,
+                                                                    height - pole_top]])))
+        head.set_z(pole_top)  # the head sits on the pole
+        head.set_texture_off(10)
+        head.set_color(0.08, 0.08, 0.08, 1.0)
+        head.set_two_sided(True)
+        lamps: tuple[tuple[str, float, tuple[float, float, float, float]], ...] = (
+            ("red", height - 0.15, (1.0, 0.12, 0.08, 1.0)), ("green", height - 0.45, (0.15, 1.0, 0.45, 1.0)))
+        for lamp_colour, z, rgba in lamps:
+            centre = np.r_[foot + (depth / 2 + 0.01) * toward, z]
+            lamp = parent.attach_new_node(_disc_mesh(core, centre, across, 0.1, rgba))
+            lamp.set_texture_off(10)
+            lamp.set_light_off(10)
+            lamp.set_two_sided(True)
+            self._lamps.append((lamp, prop, lamp_colour))
 
     def _add_background(self, seed: int) -> None:
         """A plain sky gradient above a thin textured band of trees at the horizon: cheap to fill."""
@@ -634,6 +702,21 @@ def _polygons_mesh(core: Any, polygons: tuple[Array, ...]) -> Any:
     cw = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) < 0
     tris[cw] = tris[cw][:, [0, 2, 1]]
     return _mesh(core, xyz, tris, uvs=xyz[:, :2])
+
+
+def _disc_mesh(core: Any, centre: Array, across_yaw: float, radius: float,
+               rgba: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0), segments: int = 24) -> Any:
+    """An upright disc about ``centre`` (x, y, z) in the plane of the horizontal direction ``across_yaw`` and
+    the vertical, textured with a square image's inscribed circle (u along ``across_yaw``, v up)."""
+    a = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    across = np.array([math.cos(across_yaw), math.sin(across_yaw), 0.0])
+    rim = centre + radius * (np.cos(a)[:, None] * across + np.sin(a)[:, None] * np.array([0.0, 0.0, 1.0]))
+    vertices = np.vstack([centre, rim])
+    uvs = np.vstack([[0.5, 0.5], np.column_stack([0.5 + 0.5 * np.cos(a), 0.5 + 0.5 * np.sin(a)])])
+    triangles = np.array([[0, 1 + k, 1 + (k + 1) % segments] for k in range(segments)])
+    normal = np.cross(across, [0.0, 0.0, 1.0])
+    return _mesh(core, vertices, triangles, normals=np.tile(normal, (len(vertices), 1)),
+                 colors=np.tile(rgba, (len(vertices), 1)), uvs=uvs)
 
 
 def _box_of(footprint: Array, height_m: float) -> list[float]:

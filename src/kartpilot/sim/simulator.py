@@ -21,10 +21,11 @@ from kartpilot.core.geometry import Array
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image
 from kartpilot.core.vehicle import VehicleParams, get_vehicle
+from kartpilot.perception.objects import Detection
 from kartpilot.sim.dynamics import GRAVITY_MPS2, Disturbances, VehicleState, step_vehicle
 from kartpilot.sim.referee import Referee, RefereeConfig, RunResult
 from kartpilot.sim.render import RenderConfig, Renderer
-from kartpilot.sim.track import Track, load_track, project_onto
+from kartpilot.sim.track import Prop, Track, load_track, project_onto
 
 __all__ = ["CameraEffectsConfig", "DisturbanceConfig", "SimConfig", "Simulator", "body_pose"]
 
@@ -96,6 +97,8 @@ class SimConfig:
     effects: CameraEffectsConfig = field(default_factory=CameraEffectsConfig)
     disturbances: DisturbanceConfig = field(default_factory=DisturbanceConfig)
     referee: RefereeConfig = field(default_factory=RefereeConfig)
+    props: tuple[Prop, ...] = ()
+    """A scenario's objects, added to the track's own (``track.props``)."""
 
 
 def body_pose(state: VehicleState) -> Array:
@@ -116,6 +119,8 @@ class Simulator:
         if config.camera_rate_hz <= 0:
             raise ConfigError("sim.camera_rate_hz must be positive")
         self.track = track or load_track(config.track)
+        if config.props:
+            self.track = replace(self.track, spec=replace(self.track.spec, props=self.track.spec.props + config.props))
         self.vehicle = vehicle or get_vehicle(config.vehicle)
         if config.speed_mode_mps > 0:
             self.vehicle = replace(self.vehicle, top_speed_mps=min(self.vehicle.top_speed_mps, config.speed_mode_mps))
@@ -203,6 +208,52 @@ class Simulator:
         state = state or self.state
         return body_pose(state) @ self._vibration(state) @ self.cameras[name].pose_body_cam_array
 
+    def object_truth(self, camera: str) -> list[Detection]:
+        """The scenario's objects as ``camera`` sees them now, exactly: each prop (a light with its phase, a sign
+        with its value, a person, the car), stop line, zebra and barrier block in front of the camera and in its
+        image, with its box (its 3D box's corners projected, clipped to the image), its distance ahead and to
+        the left of the kart's body frame on the ground, and its state."""
+        cam = self.cameras[camera]
+        world_cam = self.camera_pose(camera)
+        cam_world = np.linalg.inv(world_cam)
+        body_world = np.linalg.inv(body_pose(self.state))
+        track, t = self.track, self.time_s
+        items: list[tuple[str, str, Array, Array]] = []  # label, state, corners (world), foot (world)
+        for prop in track.spec.props:
+            corners = track.prop_corners(prop, t)
+            foot = corners[:4, :2].mean(axis=0)
+            if prop.kind == "traffic_light":
+                corners = corners.copy()
+                corners[:4, 2] = 1.5  # the head, not the pole
+            elif prop.kind == "speed_sign":
+                corners = corners.copy()
+                corners[:4, 2] = corners[4, 2] - 0.6  # the disc
+            state = prop.light_at(t) if prop.kind == "traffic_light" else (
+                str(prop.value_kmh) if prop.kind == "speed_sign" else "")
+            items.append((prop.kind, state, corners, foot))
+        for number, mark in enumerate(track.spec.road_marks):
+            polygons = np.vstack([p for p, k in zip(track.road_marks, track.road_mark_of, strict=True) if k == number])
+            items.append((mark.kind, "", np.column_stack([polygons, np.zeros(len(polygons))]), polygons.mean(axis=0)))
+        for block, footprint in zip(track.spec.barrier_blocks, track.barrier_blocks, strict=True):
+            corners = np.vstack([np.column_stack([footprint, np.zeros(4)]),
+                                 np.column_stack([footprint, np.full(4, block.height_m)])])
+            items.append(("barrier", "", corners, footprint.mean(axis=0)))
+        out = []
+        for label, state, corners, foot in items:
+            in_cam = corners @ cam_world[:3, :3].T + cam_world[:3, 3]
+            if np.any(in_cam[:, 2] <= 0.2):
+                continue
+            px = cam.project(in_cam)
+            left, top = max(float(px[:, 0].min()), 0.0), max(float(px[:, 1].min()), 0.0)
+            right = min(float(px[:, 0].max()), cam.width_px - 1.0)
+            bottom = min(float(px[:, 1].max()), cam.height_px - 1.0)
+            if right <= left or bottom <= top:
+                continue
+            body = body_world[:3, :3] @ np.r_[foot, 0.0] + body_world[:3, 3]
+            out.append(Detection(label, (left, top, right, bottom), 1.0, state, distance_m=float(body[0]),
+                                 lateral_m=float(body[1]), source="truth"))
+        return out
+
     def ground_truth(self, camera: str) -> Trajectory:
         """The poses of ``camera`` at every frame read so far."""
         if not self.stamps_ns:
@@ -241,6 +292,7 @@ class Simulator:
         assert self._renderer is not None
         effects = self.config.effects
         n = max(1, effects.motion_blur_subframes)
+        self._renderer.set_time(self.time_s)
         if n == 1:
             images = self._renderer.render(poses)
         else:

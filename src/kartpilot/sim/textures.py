@@ -16,8 +16,8 @@ import numpy as np
 
 from kartpilot.core.types import Image
 
-__all__ = ["HAZE_BGR", "HORIZON_BAND_DEG", "SURFACE_TILE_M", "barrier_texture", "facade_texture", "horizon_band",
-           "sky_bgr", "surface_texture", "tyre_wall_texture"]
+__all__ = ["HAZE_BGR", "HORIZON_BAND_DEG", "SURFACE_TILE_M", "barrier_texture", "car_texture", "facade_texture",
+           "horizon_band", "person_texture", "sky_bgr", "speed_sign_texture", "surface_texture", "tyre_wall_texture"]
 
 SURFACE_TILE_M = 4.0
 """World size of one tile of a ground texture, in metres."""
@@ -90,6 +90,48 @@ def barrier_texture(stripes: int = 4) -> Image:
     image = np.empty((64, 64 * 2 * stripes, 3), np.uint8)
     for k in range(2 * stripes):
         image[:, 64 * k:64 * (k + 1)] = (40, 40, 200) if k % 2 == 0 else (235, 235, 235)
+    return image
+
+
+@lru_cache(maxsize=8)
+def speed_sign_texture(value_kmh: int, size_px: int = 256) -> Image:
+    """A round Dutch speed-limit sign (a red ring, a white disc, the number in black) on a square; the disc
+    touches the square's sides (BGR)."""
+    image = np.full((size_px, size_px, 3), 235, np.uint8)
+    centre, radius = (size_px // 2, size_px // 2), size_px // 2 - 1
+    cv2.circle(image, centre, radius, (35, 30, 200), -1, cv2.LINE_AA)
+    cv2.circle(image, centre, int(radius * 0.78), (240, 240, 240), -1, cv2.LINE_AA)
+    text = str(value_kmh)
+    scale = size_px / 100 * (2.4 if len(text) < 3 else 1.7)
+    thickness = max(2, size_px // 24)
+    (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness)
+    cv2.putText(image, text, (centre[0] - tw // 2, centre[1] + th // 2), cv2.FONT_HERSHEY_SIMPLEX, scale,
+                (20, 20, 20), thickness, cv2.LINE_AA)
+    return image
+
+
+@lru_cache(maxsize=8)
+def person_texture(seed: int = 0) -> Image:
+    """A standing person seen from any side: a head, a jacket of a random colour, dark trousers (BGR, 64x256,
+    top row the head)."""
+    rng = np.random.default_rng(seed)
+    image = np.full((256, 64, 3), 40, np.uint8)
+    image[:36, 16:48] = (120, 150, 190)  # the head
+    image[36:140] = np.clip(rng.uniform(30, 220, 3), 0, 255).astype(np.uint8)  # the jacket
+    image[140:] = (50, 45, 45)  # trousers
+    image[140:, 30:34] = 30
+    return image
+
+
+@lru_cache(maxsize=2)
+def car_texture() -> Image:
+    """The event's inflatable car from behind or the side: white, a dark window band, red lights, a number
+    plate (BGR, 256x128)."""
+    image = np.full((128, 256, 3), 235, np.uint8)
+    image[12:50, 30:226] = (110, 80, 60)  # the window
+    image[66:82, 20:50] = image[66:82, 206:236] = (40, 40, 210)  # the lights
+    image[80:94, 96:160] = (40, 170, 235)  # the plate
+    image[108:, :] = (30, 30, 30)  # the tyres' shadow
     return image
 
 

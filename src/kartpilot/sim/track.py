@@ -44,6 +44,7 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array
 
 __all__ = [
+    "PROP_SIZES_M",
     "BarrierBlock",
     "Branch",
     "CenterlineSpec",
@@ -51,6 +52,7 @@ __all__ = [
     "Dashed",
     "Marking",
     "Projection",
+    "Prop",
     "RoadMark",
     "RoadPiece",
     "Segment",
@@ -178,6 +180,55 @@ class BarrierBlock:
 
 
 @dataclass(frozen=True)
+class Prop:
+    """A scenario's object at ``s_m`` along the route, ``offset_m`` left (+) or right (-) of its centre line,
+    facing the kart as it comes.
+
+    Kinds: ``traffic_light`` (a signal head on a tripod; ``phases`` are (colour, seconds) in turn from the start
+    of the run, the last one held), ``speed_sign`` (a round sign of ``value_kmh`` on a pole), ``person`` (standing;
+    from ``walk_start_s`` seconds on, walking across the road at ``walk_speed_mps`` to ``walk_to_offset_m``) and
+    ``car`` (the event's inflatable car, stationary)."""
+
+    kind: Literal["traffic_light", "speed_sign", "person", "car"] = "car"
+    s_m: float = 0.0
+    offset_m: float = 0.0
+    value_kmh: int = 20
+    phases: tuple[tuple[Literal["red", "green"], float], ...] = (("red", 10.0), ("green", 1.0))
+    walk_to_offset_m: float = 0.0
+    walk_start_s: float = 0.0
+    walk_speed_mps: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.walk_speed_mps < 0 or not self.phases or any(d <= 0 for _, d in self.phases):
+            raise ConfigError("track prop: walk_speed_mps must not be negative and each phase must last a while")
+        if not 0 < self.value_kmh <= 130:
+            raise ConfigError("track prop: value_kmh must be a speed limit in km/h")
+
+    def light_at(self, time_s: float) -> str:
+        """A traffic light's colour at a time of the run."""
+        elapsed = 0.0
+        for colour, seconds in self.phases:
+            elapsed += seconds
+            if time_s < elapsed:
+                return colour
+        return self.phases[-1][0]
+
+    def offset_at(self, time_s: float) -> float:
+        """A person's lateral offset at a time of the run (walking once started, then standing at the end)."""
+        if self.walk_speed_mps <= 0 or time_s <= self.walk_start_s:
+            return self.offset_m
+        travelled = (time_s - self.walk_start_s) * self.walk_speed_mps
+        span = self.walk_to_offset_m - self.offset_m
+        return self.walk_to_offset_m if travelled >= abs(span) else self.offset_m + math.copysign(travelled, span)
+
+
+PROP_SIZES_M = {"traffic_light": (0.3, 0.25, 2.1), "speed_sign": (0.6, 0.05, 2.2), "person": (0.5, 0.3, 1.75),
+                "car": (1.7, 3.8, 1.45)}
+"""(width across the road, depth along it, height) of each kind of prop, metres; a sign's disc is 0.6 m across and
+its top 2.2 m up, a signal head's lamps are 0.2 m across."""
+
+
+@dataclass(frozen=True)
 class TrackSpec:
     """Everything a track file can say. Defaults describe a plain lined asphalt road.
 
@@ -207,6 +258,7 @@ class TrackSpec:
     dashed: tuple[Dashed, ...] = ()
     road_marks: tuple[RoadMark, ...] = ()
     barrier_blocks: tuple[BarrierBlock, ...] = ()
+    props: tuple[Prop, ...] = ()
     sky: Literal["clear", "overcast"] = "clear"
     lane_preset: str = "kart"
     seed: int = 0
@@ -276,6 +328,25 @@ class Track:
     """Polygons (N x 2, world) of the paint across the lane: stop lines and zebra stripes."""
     barrier_blocks: tuple[Array, ...] = ()
     """Footprints (4 x 2, world, counter-clockwise) of the barrier blocks, as ``spec.barrier_blocks``."""
+    road_mark_of: tuple[int, ...] = ()
+    """For each of ``road_marks``, the index of the ``spec.road_marks`` entry it belongs to (a zebra's stripes)."""
+
+    def prop_frame(self, prop: Prop, time_s: float = 0.0) -> tuple[Array, float]:
+        """((x, y) of a prop's foot on the ground, its facing: the yaw of the direction it faces, toward the
+        kart coming along the route) at a time of the run."""
+        i = self.route.index_at(prop.s_m)
+        heading = float(self.route.heading_rad[i])
+        offset = prop.offset_at(time_s) if prop.kind == "person" else prop.offset_m
+        return self.route.xy_m[i] + offset * self.route.normal()[i], heading + math.pi
+
+    def prop_corners(self, prop: Prop, time_s: float = 0.0) -> Array:
+        """The 8 corners (world, metres) of a prop's box at a time of the run."""
+        foot, facing = self.prop_frame(prop, time_s)
+        width, depth, height = PROP_SIZES_M[prop.kind]
+        c, s = math.cos(facing), math.sin(facing)
+        along, across = np.array([c, s]), np.array([-s, c])
+        corners = [foot + a * depth / 2 * along + b * width / 2 * across for a in (-1, 1) for b in (-1, 1)]
+        return np.array([[x, y, z] for z in (0.0, height) for x, y in corners])
 
     def marked(self, side: Side, index: int) -> bool:
         """Whether the route's boundary on ``side`` is marked at a sample (not at a crossing or split)."""
@@ -406,7 +477,8 @@ def build_track(spec: TrackSpec) -> Track:
                 barriers += [run for run in _runs(wall, keep, piece.closed) if len(run) > 10]
     return Track(spec, route, branches, tuple(cones), tuple(lines), tuple(widths), tuple(curbs), tuple(barriers),
                  marked["left"], marked["right"], tuple(p for m in spec.road_marks for p in _road_mark(route, m)),
-                 tuple(_barrier_block(route, spec, b) for b in spec.barrier_blocks))
+                 tuple(_barrier_block(route, spec, b) for b in spec.barrier_blocks),
+                 tuple(k for k, m in enumerate(spec.road_marks) for _ in _road_mark(route, m)))
 
 
 def _dash_gaps(s_m: Array, stretches: list[Dashed]) -> NDArray[np.bool_]:
