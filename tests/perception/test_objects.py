@@ -34,7 +34,8 @@ def test_a_lit_lamp_counts_inside_its_housing_and_not_outside_one():
     assert [(d.label, d.state) for d in lights] == [("traffic_light", "red")]
     light = lights[0]
     assert light.box_px[0] <= 658 <= light.box_px[2] and light.box_px[1] <= 58 <= light.box_px[3]
-    assert light.distance_m == pytest.approx(640 * 0.2 / 25, rel=0.2)  # a 0.2 m lamp 25 px across
+    # a 0.2 m lamp 25 px across, seen from the camera 1.2 m ahead of the body frame's origin
+    assert light.distance_m == pytest.approx(1.2 + 640 * 0.2 / 25, rel=0.15)
     # green: the lit lamp below, the dark one above
     green = scene()
     cv2.rectangle(green, (640, 10), (676, 82), (25, 25, 25), -1)
@@ -68,7 +69,7 @@ def test_a_speed_sign_and_its_value_on_the_right_only(value):
     _sign(image, (700, 90), 40, value)
     signs = detect_speed_signs(image, camera=CAMERA)
     assert [(d.label, d.state) for d in signs] == [("speed_sign", value)]
-    assert signs[0].distance_m == pytest.approx(640 * 0.6 / 81, rel=0.2)
+    assert signs[0].distance_m == pytest.approx(1.2 + 640 * 0.6 / 81, rel=0.15)
     left = scene()
     _sign(left, (150, 90), 40, value)  # the other direction's sign
     assert detect_speed_signs(left, camera=CAMERA) == []

@@ -29,6 +29,7 @@ from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import Image
 from kartpilot.perception.objects import Detection, place_on_ground
+from kartpilot.perception.paint import PaintConfig, paint_mask
 from kartpilot.perception.road_marks import camera_for_image
 
 __all__ = ["ObstacleConfig", "detect_barriers", "detect_car", "detect_people", "find_parking_bay"]
@@ -141,7 +142,13 @@ def detect_car(image: Image, camera: PinholeCamera | None, config: ObstacleConfi
     distance[int(horizon):] = np.max(np.abs(below - rows[:, None, :]) / spread, axis=2)
     hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
     grass = (hsv[..., 0] >= 30) & (hsv[..., 0] <= 90) & (hsv[..., 1] >= 50)
-    thing = ((distance > config.colour_sigmas) & ~grass).astype(np.uint8)
+    # painted lines are not things: the lane finder's thin white ridges, widened a little, are left out
+    horizon_fraction = horizon / h
+    paint = paint_mask(image, min(int(horizon) + 1, h - 8), horizon, 1.0,
+                       PaintConfig(horizon=horizon_fraction)) > 0
+    lines = np.zeros((h, w), bool)
+    lines[min(int(horizon) + 1, h - 8):] = cv2.dilate(paint.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    thing = ((distance > config.colour_sigmas) & ~grass & ~lines).astype(np.uint8)
     thing[: max(int(horizon) - 2, 0)] = 0  # above: the sky, trees; a car is found by its part below the horizon
     thing = cv2.morphologyEx(thing, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
     count, _, stats, _ = cv2.connectedComponentsWithStats(thing, connectivity=8)

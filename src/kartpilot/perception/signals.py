@@ -91,20 +91,22 @@ class SignalConfig:
 
 def place_by_size(detection: Detection, camera: PinholeCamera | None, width_px: int, size_m: float,
                   size_px: float | None = None) -> Detection:
-    """The detection placed from its known size: ``f * size / d`` ahead (``d``: ``size_px``, else the box's
-    larger side), its column giving the side."""
+    """The detection placed from its known size: ``f * size / d`` along the camera's axis (``d``: ``size_px``,
+    else the box's larger side), in the body frame through the camera's mount."""
     if camera is None:
         return detection
     scale = camera.width_px / width_px
     diameter = (size_px if size_px is not None else max(detection.width_px, detection.height_px)) * scale
     if diameter <= 0:
         return detection
-    ahead = camera.fx_px * size_m / diameter
+    depth = camera.fx_px * size_m / diameter  # along the camera's axis
     x = (detection.box_px[0] + detection.box_px[2]) / 2 * scale
-    lateral = -(x - camera.cx_px) / camera.fx_px * ahead
+    y = (detection.box_px[1] + detection.box_px[3]) / 2 * scale  # the same field of view: one scale
+    ray = camera.rays(np.array([[x, y]]))[0]
+    body = camera.pose_body_cam_array[:3, :3] @ (ray * depth) + camera.pose_body_cam_array[:3, 3]
     from dataclasses import replace
 
-    return replace(detection, distance_m=float(ahead), lateral_m=float(lateral))
+    return replace(detection, distance_m=float(body[0]), lateral_m=float(body[1]))
 
 
 def _hsv(image: Image) -> Image:
