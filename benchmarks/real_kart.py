@@ -198,7 +198,7 @@ def measure(data: Path) -> dict[str, Any]:
     return out
 
 
-def _against_hanze(npz: Path, views: dict, mounts: dict) -> dict[str, float]:
+def _against_hanze(npz: Path, views: dict, mounts: dict) -> dict[str, Any]:
     """Where the side cameras see board corners that the centre camera sees too: each corner mapped into the
     centre image (640x360, the team's scale) by the team's side-to-centre homography and by ours (side pixel to
     the ground through the side camera's pose, then into the centre camera), against where the centre camera
@@ -206,7 +206,7 @@ def _against_hanze(npz: Path, views: dict, mounts: dict) -> dict[str, float]:
     team = np.load(npz)
     scale = 640 / 1920
     offsets, ref = team["offsets"], int(team["ref_idx"])
-    out = {}
+    out: dict[str, Any] = {}
     for k, name in ((0, "left"), (2, "right")):
         side, centre = views[name], views["center"]
         shared = np.intersect1d(side.ids, centre.ids)
