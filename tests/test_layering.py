@@ -1,8 +1,8 @@
 """Imports run one way, from the pipeline's first stage to the top: a package imports only packages below it.
 
-core < calibration < sensors < perception < odometry < planning, actuation < control; beside one another sim,
-record and eval; then runtime (the loop, one drive session), then study (sweeps of whole runs), then cli.
-Within a package anything goes."""
+core < calibration < sensors < perception < odometry < planning, actuation < control; beside one another
+behaviour (the event's decisions, above control), sim, record and eval; then runtime (the loop, one drive
+session), then study (sweeps of whole runs), then cli. Within a package anything goes."""
 
 import ast
 from pathlib import Path
@@ -10,7 +10,7 @@ from pathlib import Path
 import kartpilot
 
 RANK = {"core": 0, "calibration": 1, "sensors": 2, "perception": 3, "odometry": 4, "planning": 5, "actuation": 5,
-        "control": 6, "sim": 7, "record": 7, "eval": 7, "runtime": 8, "study": 9, "cli": 10}
+        "control": 6, "behaviour": 7, "sim": 7, "record": 7, "eval": 7, "runtime": 8, "study": 9, "cli": 10}
 
 
 def _imports(path: Path) -> set[str]:

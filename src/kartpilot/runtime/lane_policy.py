@@ -19,6 +19,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from kartpilot.behaviour.events import BehaviourConfig, BehaviourDecision, BehaviourState, behaviour_step
 from kartpilot.control.lane_follow import (
     LaneDecision,
     LaneFollowConfig,
@@ -31,6 +32,7 @@ from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import CalibrationError, ConfigError
 from kartpilot.core.geometry import invert_pose, transform_points
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image, VehicleFeedback
+from kartpilot.perception.detect import DetectorConfig, ObjectDetector
 from kartpilot.perception.lanes import (
     LaneConfig,
     LaneObservation,
@@ -39,6 +41,7 @@ from kartpilot.perception.lanes import (
     detect_side_boundary,
     draw_lanes,
 )
+from kartpilot.perception.objects import Detection
 from kartpilot.perception.tape import TapeConfig, TapeObservation, detect_tape_track, draw_tape_track
 
 __all__ = [
@@ -88,6 +91,10 @@ class LanePolicyConfig:
         speed_mps: with the kart's measured speed, the speed the follower's full throttle stands for
             (0: open-loop throttle, the thesis's).
         speed_pi: the speed controller's gains.
+        events: the event's rules above lane following (:mod:`kartpilot.behaviour.events`): the objects in the
+            centre camera (``detector``; people off by default, the HOG detector's cost) turn into a speed cap and
+            stops before a red light's line or a crossing (``behaviour``). Needs ``speed_mps`` and the measured
+            speed.
     """
 
     boundaries: Literal["lines", "tape"] = "lines"
@@ -101,10 +108,16 @@ class LanePolicyConfig:
     roi_far_m: float = 25.0
     speed_mps: float = 0.0
     speed_pi: SpeedPIConfig = field(default_factory=SpeedPIConfig)
+    events: bool = False
+    detector: DetectorConfig = field(default_factory=lambda: DetectorConfig(people=False))
+    behaviour: BehaviourConfig = field(default_factory=BehaviourConfig)
 
     def __post_init__(self) -> None:
         if not self.speed_mps >= 0:
             raise ConfigError("lane_policy.speed_mps must be 0 (open loop) or positive")
+        if self.events and self.speed_mps <= 0:
+            raise ConfigError("lane_policy.events needs lane_policy.speed_mps: the event's rules hold the speed on "
+                              "the kart's measured speed")
 
 
 LANE_PRESETS: dict[str, LanePolicyConfig] = {
@@ -117,8 +130,8 @@ LANE_PRESETS: dict[str, LanePolicyConfig] = {
     "kart": LanePolicyConfig(lanes=_REAL_KART_LINES, far_m=0.5, follow=LaneFollowConfig(heading_gain=0.25)),
     # a car's dash camera, higher up and looking further: a trapezoid narrowing to the vanishing point
     "dashcam": LanePolicyConfig(lanes=LaneConfig()),
-    # the simulator's kart: the thesis's edges and straight lines (the defaults of a simulated drive); the paint
-    # finder does not yet hold the simulator's far, thin lines of sdc-assen (docs/real-kart.md)
+    # the thesis's edges and straight lines, sdc-assen's preset (its lane_preset): the paint finder halts at
+    # sdc-assen's split, where the lane widens to 9 m (docs/real-kart.md)
     "kart-sim": LanePolicyConfig(),
     # a small car on a taped indoor track, through a wide-angle lens (a Donkey Car or a PiRacer)
     "tape": LanePolicyConfig(boundaries="tape"),
@@ -197,6 +210,10 @@ class LanePolicy:
         self.last_command: ActuatorCommand | None = None
         self.measured_speed_mps: float | None = None
         self.speed_state = SpeedPIState()
+        self.objects = ObjectDetector(self.config.detector, centre) if self.config.events else None
+        self.behaviour = BehaviourState.start(self.config.behaviour)
+        self.last_behaviour: BehaviourDecision | None = None
+        self.last_objects: list[Detection] = []
 
     def observe_vehicle(self, feedback: VehicleFeedback) -> None:
         """The kart's own measurements before a step; a fresh speed closes the speed loop (``speed_mps``)."""
@@ -216,6 +233,10 @@ class LanePolicy:
         decision, self.state = lane_follow_step(self.config.follow, self.state, observation, away.get("left", 0.0),
                                                 away.get("right", 0.0), self.dt_s)
         self.last_observation = observation
+        if self.objects is not None:
+            self.last_objects = self.objects(centre_image) if centre_image is not None else []
+            self.last_behaviour, self.behaviour = behaviour_step(
+                self.config.behaviour, self.behaviour, self.last_objects, self.measured_speed_mps or 0.0, self.dt_s)
         return self._command(frames.stamp_ns, decision)
 
     def _mask(self, camera: str, image: Image | None) -> Image | None:
@@ -238,9 +259,15 @@ class LanePolicy:
         self.last_decision = decision
         throttle, brake = decision.throttle, decision.brake
         if self.config.speed_mps > 0 and self.measured_speed_mps is not None and decision.reason != "halt":
-            throttle, brake, self.speed_state = speed_pi(self.config.speed_pi, self.speed_state,
-                                                         self.config.speed_mps * decision.throttle,
+            target = self.config.speed_mps * decision.throttle
+            if self.last_behaviour is not None:  # the event's rules cap it (0: stand)
+                target = min(target, self.last_behaviour.speed_cap_mps)
+            throttle, brake, self.speed_state = speed_pi(self.config.speed_pi, self.speed_state, target,
                                                          self.measured_speed_mps, self.dt_s)
+            if self.last_behaviour is not None and target < 0.05:
+                throttle, brake = 0.0, max(brake, 1.0 if self.measured_speed_mps < 0.5 else brake)
+        elif self.last_behaviour is not None and self.last_behaviour.speed_cap_mps < 0.05:
+            throttle, brake = 0.0, 1.0  # no measured speed: a stop the rules ask for is a stop
         self.last_command = ActuatorCommand(stamp_ns, decision.steer_rad, throttle, brake)
         return self.last_command
 
@@ -277,7 +304,14 @@ class LanePolicy:
         values["confidence"] = observation.confidence if observation is not None else 0.0
         values.update(steer_rad=command.steer_rad, throttle=command.throttle, brake=command.brake,
                       rule=decision.reason)
-        return {"lanes": values}
+        topics: dict[str, dict[str, float | int | str]] = {"lanes": values}
+        if self.last_behaviour is not None:  # the event's rules: their state, reason and what they saw
+            b = self.last_behaviour
+            topics["behaviour"] = {"state": b.state, "reason": b.reason, "speed_cap_mps": b.speed_cap_mps,
+                                   "stop_distance_m": b.stop_distance_m, "limit_kmh": self.behaviour.limit_kmh,
+                                   "objects": ";".join(f"{d.label}:{d.state}@{d.distance_m:.1f}"
+                                                       for d in self.last_objects)}
+        return topics
 
     def overlay(self, frames: FrameSet) -> Image | None:
         """The pipeline's view: the centre image with the boundaries it found and where they meet (the

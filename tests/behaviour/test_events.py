@@ -1,0 +1,96 @@
+"""The event's rules as a state machine: start on green, the posted limit, stopping before the line at red with
+the brake's delay, yielding at a crossing; driven here by a point kart on a straight road."""
+
+import math
+
+import pytest
+
+from kartpilot.behaviour.events import BehaviourConfig, BehaviourState, behaviour_step, stopping_speed
+from kartpilot.perception.objects import Detection
+
+
+def _at(label, distance_m, state="", lateral_m=-2.0):
+    return Detection(label, (0, 0, 1, 1), 0.9, state, distance_m=distance_m, lateral_m=lateral_m)
+
+
+def drive(config, scene, seconds=30.0, speed=0.0, dt=0.05, accel=1.5, brake=3.0, delay=0.4):
+    """A point kart on a straight road: ``scene(position_m, t)`` lists the detections (distances from the kart);
+    the kart's speed follows the decision's cap, accelerating at ``accel`` and braking at ``brake`` after the
+    brake's ``delay``. Returns the positions, speeds and states over time."""
+    state = BehaviourState.start(config)
+    x, t, braking_for = 0.0, 0.0, 0.0
+    log = []
+    while t < seconds:
+        decision, state = behaviour_step(config, state, scene(x, t), speed, dt)
+        if speed > decision.speed_cap_mps + 0.05:
+            braking_for += dt
+            if braking_for >= delay:
+                speed = max(decision.speed_cap_mps, speed - brake * dt)
+        else:
+            braking_for = 0.0
+            speed = min(decision.speed_cap_mps, speed + accel * dt)
+        x += speed * dt
+        t += dt
+        log.append((t, x, speed, decision.state))
+    return log
+
+
+def test_the_kart_waits_for_green_at_the_start():
+    config = BehaviourConfig(start_on_green=True)
+    log = drive(config, lambda x, t: [_at("traffic_light", 10 - x, "red" if t < 5 else "green")], seconds=8)
+    moved = next(t for t, x, v, s in log if x > 0.01)
+    assert 5.0 <= moved <= 5.2
+    assert all(s == "wait_start" for t, x, v, s in log if t < 4.9)
+
+
+def test_the_posted_limit_caps_the_speed_until_another_sign():
+    config = BehaviourConfig(limit_kmh=20)
+    log = drive(config, lambda x, t: [_at("speed_sign", 30 - x, "10")] if x < 30 else [], seconds=20)
+    top = max(v for t, x, v, s in log)
+    assert top <= 10 / 3.6 + 1e-9 and top > 9 / 3.6 * 0.95
+
+
+@pytest.mark.parametrize("speed_kmh", [10.0, 20.0])
+@pytest.mark.parametrize("line_m", [12.0, 25.0])
+def test_a_red_light_stops_the_kart_before_the_line_and_green_lets_it_go(speed_kmh, line_m):
+    config = BehaviourConfig(limit_kmh=speed_kmh, front_m=0.0)  # a point kart
+
+    def scene(x, t):
+        ahead = line_m - x
+        if ahead < 1.2:  # the line goes out of view under the kart's nose
+            return [_at("traffic_light", ahead + 0.5, "red" if t < 20 else "green")]
+        return [_at("traffic_light", ahead + 0.5, "red" if t < 20 else "green"), _at("stop_line", ahead)]
+
+    log = drive(config, scene, speed=speed_kmh / 3.6 * 0.9, seconds=25)
+    stopped = [x for t, x, v, s in log if 12 < t < 19]
+    gap = line_m - stopped[-1]
+    print(f"\n{speed_kmh:g} km/h, line at {line_m:g} m: stopped {gap:.2f} m before it")
+    assert 0.2 <= gap <= 1.5
+    assert max(stopped) - min(stopped) < 0.01  # it stays stopped
+    assert log[-1][1] > line_m + 2  # gone on green
+    states = [s for t, x, v, s in log]
+    assert "stop_red" in states and "wait_red" in states and states[-1] == "drive"
+
+
+def test_a_pedestrian_at_the_crossing_stops_the_kart_until_the_crossing_is_clear():
+    config = BehaviourConfig(limit_kmh=15, front_m=0.0)
+
+    def scene(x, t):
+        zebra = _at("zebra", 15 - x)
+        person = _at("person", 16 - x, "on_crossing" if t < 12 else "beside_crossing", 0.0)
+        return [zebra, person] if t < 14 else [zebra]
+
+    log = drive(config, scene, seconds=22)
+    waiting = [x for t, x, v, s in log if 9 < t < 14]
+    assert 0.2 <= 15 - waiting[-1] <= 1.5
+    assert log[-1][1] > 17  # went on once clear
+    left_at = next(t for t, x, v, s in log if t > 14 and s == "drive")
+    assert left_at >= 14 + config.clear_s - 0.1
+
+
+def test_stopping_speed_and_bad_measurements():
+    assert stopping_speed(0.0, 1.5, 0.4) == 0.0
+    v = stopping_speed(10.0, 1.5, 0.4)
+    assert v * 0.4 + v * v / 3.0 == pytest.approx(10.0)
+    decision, _ = behaviour_step(BehaviourConfig(), BehaviourState.start(BehaviourConfig()), [], math.nan, 0.05)
+    assert math.isfinite(decision.speed_cap_mps)
