@@ -15,8 +15,8 @@ from kartpilot.sim.track import Prop, project_onto
 def test_the_kart_stops_before_the_line_at_red_and_goes_on_green():
     policy_config = replace(LANE_PRESETS["kart"], speed_mps=15 / 3.6, events=True)
     light = Prop(kind="traffic_light", s_m=36.0, offset_m=-2.5, phases=(("red", 14.0), ("green", 1e6)))
-    config = SimConfig(track="lelystad", vehicle="sdc-kart", seed=3, camera_rate_hz=15.0,
-                       speed_mode_mps=15 / 3.6, props=(light,), max_time_s=20.0)
+    config = SimConfig(track="lelystad", vehicle="sdc-kart", seed=3, camera_rate_hz=10.0,
+                       speed_mode_mps=15 / 3.6, props=(light,), max_time_s=18.0)
     with Simulator(config) as sim:
         policy = LanePolicy(sim.cameras, policy_config, config.camera_rate_hz)
         front = sim.vehicle.wheelbase_m + sim.vehicle.front_overhang_m

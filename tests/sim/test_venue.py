@@ -53,7 +53,7 @@ def test_the_real_kart_preset_finds_the_rendered_venue_lines_where_they_are():
 @pytest.mark.slow
 def test_the_real_kart_preset_drives_the_venue_s_bend_closed_loop():
     stack = load_stack_config(None, sim_lane_preset(None, "lelystad"))
-    config = SimConfig(track="lelystad", vehicle="sdc-kart", seed=4, speed_mode_mps=15 / 3.6, camera_rate_hz=15.0,
+    config = SimConfig(track="lelystad", vehicle="sdc-kart", seed=4, speed_mode_mps=15 / 3.6, camera_rate_hz=10.0,
                        max_time_s=24.0)
     result = run_simulation(config, "lanes", stack=stack).result
     print(result)

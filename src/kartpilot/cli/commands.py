@@ -21,7 +21,7 @@ from kartpilot.cli.drive_commands import with_default_speed_mode
 from kartpilot.cli.values import VIEW_HELP, file_or_new_folder, new_folder, number, output_file, view_target
 from kartpilot.control.lane_follow import LaneFollowState, heading_follow_step, lane_follow_step
 from kartpilot.core.errors import ConfigError, DataError
-from kartpilot.core.files import write_csv_atomic, write_text_atomic
+from kartpilot.core.files import write_csv_atomic, write_json_atomic, write_text_atomic
 from kartpilot.core.geometry import mount_pose, transform_points
 from kartpilot.core.trajectory import Trajectory, read_trajectory, write_trajectory
 from kartpilot.core.types import FrameSet
@@ -46,6 +46,7 @@ from kartpilot.record.video import VideoFile
 from kartpilot.runtime.config import load_stack_config, sim_lane_preset
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
 from kartpilot.runtime.lane_policy import LANE_PRESETS
+from kartpilot.runtime.scenarios import run_scenario
 from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sensors.base import StereoSource
@@ -53,6 +54,7 @@ from kartpilot.sensors.donkeycar import DonkeyTub
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
 from kartpilot.sim.referee import RunResult
+from kartpilot.sim.scenarios import SCENARIOS
 from kartpilot.sim.simulator import SimConfig
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
 
@@ -235,7 +237,21 @@ def _print_result(result: RunResult, run: SimRun) -> None:
           f"sim {result.sim_time_s:.1f} s in {result.wall_time_s:.1f} s wall, {run.steps} steps")
 
 
+def _scenario(args: argparse.Namespace) -> int:
+    """One of the event's scenarios on one seed, closed loop, scored by its referee."""
+    stack = load_stack_config(args.config, args.preset or "kart")
+    result = run_scenario(args.scenario, args.seed if args.seed is not None else 1, stack)
+    verdict = "passed" if result["passed"] else "failed: " + "; ".join(result["faults"])
+    print(f"scenario {result['name']}, seed {result['seed']}: {verdict}")
+    if args.result:
+        write_json_atomic(args.result, {"scenarios": [result]})
+        print(f"result written to {args.result}")
+    return 0 if result["passed"] else 1
+
+
 def simulate(args: argparse.Namespace) -> int:
+    if args.scenario:
+        return _scenario(args)
     stack = load_stack_config(args.config)
     config, driver = stack.sim, stack.centerline_driver
     overrides = {"track": args.track, "vehicle": args.vehicle, "seed": args.seed, "camera_rate_hz": args.rate}
@@ -515,6 +531,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     sim.add_argument("--vehicle", choices=("rc-kart", "sdc-kart"))
     sim.add_argument("--driver", choices=("centerline", "commands", "lanes"), default="centerline",
                      help="lanes: the lane-following pipeline on the rendered cameras (sdc-kart)")
+    sim.add_argument("--scenario", choices=SCENARIOS,
+                     help="one of the event's scenarios on the venue track, closed loop with the event's rules, "
+                          "scored as the event does (--seed varies it; exit 1 on a fault)")
     sim.add_argument("--preset", choices=tuple(LANE_PRESETS),
                      help="lanes: the lane pipeline's preset (default: the track's, lane_preset in its file)")
     sim.add_argument("--speed-mode", type=number(above=0),  # lanes on the sdc-kart: a known-good mode by default

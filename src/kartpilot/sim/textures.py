@@ -102,8 +102,10 @@ def speed_sign_texture(value_kmh: int, size_px: int = 256) -> Image:
     cv2.circle(image, centre, radius, (35, 30, 200), -1, cv2.LINE_AA)
     cv2.circle(image, centre, int(radius * 0.78), (240, 240, 240), -1, cv2.LINE_AA)
     text = str(value_kmh)
-    scale = size_px / 100 * (2.4 if len(text) < 3 else 1.7)
     thickness = max(2, size_px // 24)
+    # the digits as a real sign has them: about a third of the disc high, well inside the ring
+    (w1, h1), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 1.0, thickness)
+    scale = min(0.36 * size_px / h1, 0.55 * size_px / w1)
     (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness)
     cv2.putText(image, text, (centre[0] - tw // 2, centre[1] + th // 2), cv2.FONT_HERSHEY_SIMPLEX, scale,
                 (20, 20, 20), thickness, cv2.LINE_AA)
