@@ -58,6 +58,29 @@ def test_corrupt_image_is_a_data_error(tmp_path) -> None:
         read_gray(tmp_path / "absent.png")
 
 
+@pytest.mark.parametrize("suffix", [".jpg", ".png"])
+def test_a_cut_off_image_is_a_data_error_not_a_half_grey_frame(tmp_path, suffix) -> None:
+    """OpenCV decodes a JPEG or PNG cut off half-way (its lower part grey) with only a warning; kartpilot
+    refuses it, in a folder given to ``kartpilot lanes`` too."""
+    import cv2
+
+    from kartpilot.cli.main import main
+
+    image = (np.random.default_rng(0).random((120, 160, 3)) * 255).astype(np.uint8)
+    whole = tmp_path / f"whole{suffix}"
+    cv2.imwrite(str(whole), image)
+    assert read_gray(whole).shape == (120, 160)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    data = whole.read_bytes()
+    (folder / f"cut{suffix}").write_bytes(data[: len(data) // 2])
+    with pytest.raises(DataError, match="cut off"):
+        read_gray(folder / f"cut{suffix}")
+    out = tmp_path / "lanes.csv"
+    assert main(["lanes", str(folder), "--out", str(out)]) == 1
+    assert not out.exists()
+
+
 def test_real_kitti_06() -> None:
     root = data_path("kitti-odometry")
     source = KittiOdometrySource(root, "06")

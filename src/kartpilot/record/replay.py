@@ -15,6 +15,7 @@ import cv2
 from kartpilot.core.errors import DataError, KartpilotError, RecordingError
 from kartpilot.core.types import FrameSet
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
+from kartpilot.sensors.base import read_image
 from kartpilot.sensors.donkeycar import DonkeyTub, is_donkey_tub
 
 __all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "RecordingFrameSource", "StereoReplaySource", "open_frames"]
@@ -50,10 +51,7 @@ def open_frames(path: str | Path, camera: str = "center") -> tuple[str, Iterator
 
 def _images(paths: list[Path]) -> Iterator[FrameSet]:
     for k, path in enumerate(paths):
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if image is None:
-            raise DataError(f"cannot read the image {path}")
-        yield FrameSet(k, k, {"center": image}, name=path.name)
+        yield FrameSet(k, k, {"center": read_image(path)}, name=path.name)
 
 
 def _video(path: Path) -> Iterator[FrameSet]:

@@ -321,4 +321,14 @@ class LanePolicy:
             return draw_tape_track(image, self.last_tape)
         if image is None or self.last_observation is None:
             return None
-        return draw_lanes(image, self.last_observation)
+        drawn = draw_lanes(image, self.last_observation)
+        if self.last_behaviour is not None:  # the event's rules: what they see and what they decided
+            for d in self.last_objects:
+                left, top, right, bottom = (round(v) for v in d.box_px)
+                cv2.rectangle(drawn, (left, top), (right, bottom), (0, 200, 255), 2)
+                cv2.putText(drawn, f"{d.label} {d.state} {d.distance_m:.1f} m", (left, max(top - 4, 12)),
+                            cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 200, 255), 1, cv2.LINE_AA)
+            b = self.last_behaviour
+            cv2.putText(drawn, f"{b.state}: {b.reason} (cap {b.speed_cap_mps * 3.6:.0f} km/h)", (10, 22),
+                        cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 200, 255), 2, cv2.LINE_AA)
+        return drawn

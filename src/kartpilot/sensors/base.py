@@ -64,11 +64,28 @@ def read_gray(path: str | Path) -> Image:
 
 
 def read_image(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> Image:
-    """Read an image (BGR by default; OpenCV's ``flags``); a missing, corrupt or empty file raises DataError."""
+    """Read an image (BGR by default; OpenCV's ``flags``); a missing, corrupt, cut-off or empty file raises
+    DataError. A JPEG or PNG cut off in its writing (a full disk, a copy stopped half-way) still decodes in
+    OpenCV, with its lower part grey, so its end marker is checked first."""
     path = Path(path)
     if not path.is_file():
         raise DataError(f"image not found: {path}")
+    _check_complete(path)
     image = cv2.imread(str(path), flags)
     if image is None or image.size == 0:
         raise DataError(f"cannot read image (corrupt or not an image): {path}")
     return image
+
+
+def _check_complete(path: Path) -> None:
+    """A JPEG must end with its end-of-image marker, a PNG with its IEND chunk (a few padding bytes allowed)."""
+    with path.open("rb") as f:
+        head = f.read(8)
+        f.seek(0, 2)
+        size = f.tell()
+        f.seek(max(size - 64, 0))
+        tail = f.read()
+    if head[:3] == b"\xff\xd8\xff" and b"\xff\xd9" not in tail.rstrip(b"\x00\r\n ")[-4:]:
+        raise DataError(f"the JPEG {path} is cut off: it has no end-of-image marker")
+    if head == b"\x89PNG\r\n\x1a\n" and b"IEND" not in tail[-16:]:
+        raise DataError(f"the PNG {path} is cut off: it has no IEND chunk")
