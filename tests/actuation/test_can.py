@@ -55,6 +55,18 @@ def test_a_dbc_without_the_kart_s_messages_is_named(tmp_path):
         load_dbc(tmp_path / "missing.dbc")
 
 
+def test_a_dbc_given_for_the_rdw_kart_is_refused_not_ignored(tmp_path):
+    from kartpilot.actuation.can_bus import CanConfig, make_protocol, protocol_database
+
+    sdc = get_vehicle("sdc-kart")
+    config = CanConfig(dbc=str(tmp_path / "team.dbc"))
+    with pytest.raises(ConfigError, match="speaks rdw"):
+        make_protocol(config, sdc)
+    with pytest.raises(ConfigError, match=r"can\.protocol: kartpilot"):
+        protocol_database(config, sdc)
+    assert make_protocol(CanConfig(), sdc).name == "rdw"
+
+
 def test_the_limits_narrow_the_kart_s_own_range_and_are_checked():
     sdc = get_vehicle("sdc-kart")
     assert ActuatorLimits().for_vehicle(sdc).max_steer_rad == sdc.max_steer_rad

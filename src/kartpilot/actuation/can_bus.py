@@ -115,11 +115,21 @@ class CanConfig:
                 raise ConfigError(f"can.{name} must be a positive number, got {value}")
 
 
+def _protocol_name(config: CanConfig, vehicle: VehicleParams) -> str:
+    """The protocol the kart speaks; a DBC file given for the ``rdw`` protocol is an error, not ignored."""
+    name = vehicle.protocol if config.protocol == "vehicle" else config.protocol
+    if name == "rdw" and config.dbc:
+        raise ConfigError(f"can.dbc ({config.dbc}) is the kartpilot protocol's DBC, but the {vehicle.name} speaks "
+                          "rdw, whose messages the organiser fixes and kartpilot ships (actuation/rdw.dbc): drop "
+                          "can.dbc, or set can.protocol: kartpilot to drive with it")
+    return name
+
+
 def make_protocol(config: CanConfig, vehicle: VehicleParams, steering: SteeringCalibration | None = None,
                   start_ns: int = 0) -> KartProtocol:
     """The protocol the kart speaks (``config.protocol``, or the vehicle's); ``steering`` overrides the
     vehicle's calibration (a rig file's)."""
-    name = vehicle.protocol if config.protocol == "vehicle" else config.protocol
+    name = _protocol_name(config, vehicle)
     if name == "rdw":
         return RdwProtocol(steering or vehicle.steering, config.rdw, start_ns)
     return KartpilotProtocol(config.dbc, config.ecus, config.status_timeout_s, start_ns)
@@ -127,7 +137,7 @@ def make_protocol(config: CanConfig, vehicle: VehicleParams, steering: SteeringC
 
 def protocol_database(config: CanConfig, vehicle: VehicleParams) -> cantools.database.can.Database:
     """The messages of the protocol the kart speaks (as :func:`make_protocol` picks it), to decode its traffic."""
-    name = vehicle.protocol if config.protocol == "vehicle" else config.protocol
+    name = _protocol_name(config, vehicle)
     return load_rdw_dbc() if name == "rdw" else load_dbc(config.dbc)
 
 
