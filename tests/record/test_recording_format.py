@@ -62,6 +62,25 @@ def test_recording_cut_off_by_a_crash_still_opens(tmp_path, source: SyntheticSte
     assert len(RecordingStereoSource(folder)) == 3
 
 
+def test_lanes_opens_a_recording_cut_off_mid_row(tmp_path, source: SyntheticStereoSource) -> None:
+    """A drive killed while it listed a frame: the row names a file that was never written. ``kartpilot lanes``
+    keeps every frame flushed before it (it refused the whole recording)."""
+    import csv
+
+    from kartpilot.cli.main import main
+
+    folder = tmp_path / "killed"
+    writer = RecordingWriter(folder, _cameras(source), stereo_pair=("left", "right"))
+    for frame in list(source)[:3]:
+        writer.write_frame("left", frame.stamp_ns, frame.left)
+        writer.write_frame("right", frame.stamp_ns, frame.right)
+    with (folder / "cameras" / "left" / "frames.csv").open("a") as handle:
+        handle.write("3,3000000000,30000")  # cut in the middle of the file's name
+    out = tmp_path / "lanes.csv"
+    assert main(["lanes", str(folder), "--out", str(out)]) == 0
+    assert len(list(csv.DictReader(out.open()))) == 3
+
+
 def test_refuses_to_overwrite_and_rejects_foreign_folders(tmp_path, source: SyntheticStereoSource) -> None:
     folder = tmp_path / "run"
     RecordingWriter(folder, _cameras(source)).close()

@@ -376,6 +376,8 @@ class RecordingReader:
                 if is_torn_last_line(content, number, len(listed) + 1):
                     continue
                 raise RecordingError(f"{csv_path}:{number}: not a frame (stamp_ns, file): {exc}") from None
+            if number == len(listed) + 1 and not self.closed and not path.is_file():
+                continue  # the last row of a recording cut off while it was written, its image not there
             # a listed frame whose image is gone stays listed: reading it fails, and the reader counts it as
             # unreadable (VO bridges it) instead of the frame silently vanishing
             rows.append((stamp, path, capture))

@@ -74,11 +74,19 @@ def _video(path: Path) -> Iterator[FrameSet]:
 
 
 def _recording(reader: RecordingReader, camera: str) -> Iterator[FrameSet]:
-    for k, (stamp, path) in enumerate(reader.frames(camera)):
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if image is None:
-            raise DataError(f"cannot read the recording's frame {path}")
+    """The camera's frames; in a recording that was not closed (a killed drive), a frame that cannot be read is
+    left out with a warning: everything flushed is kept, as the recording's format promises."""
+    k = 0
+    for stamp, path in reader.frames(camera):
+        try:
+            image = read_image(path)
+        except DataError as exc:
+            if reader.closed:
+                raise DataError(f"cannot read the recording's frame {path}: {exc}") from None
+            log.warning("%s was not closed properly: left out %s (%s)", reader.folder, path.name, exc)
+            continue
         yield FrameSet(k, stamp, {"center": image}, name=path.name)
+        k += 1
 
 
 class RecordingFrameSource:
