@@ -1,9 +1,11 @@
 """The kart's web page in a real browser: headless Chromium (Debian's package, which .ci/run installs)
 driven by Selenium, against the page served by WebServer and a supervisor stepping in a thread."""
 
+import json
 import shutil
 import threading
 import time
+import urllib.error
 import urllib.request
 
 import numpy as np
@@ -112,7 +114,7 @@ def test_arming_driving_and_the_emergency_stop_from_a_real_browser(served):
         options.add_argument(flag)
     browser = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
     try:
-        browser.get(server.url)
+        browser.get(server.pairing_url)  # the operator's browser pairs
         assert _wait(lambda: web.view()["link_age_s"] is not None)  # the page posts its heartbeat
         browser.find_element(By.ID, "manual").click()
         assert _wait(lambda: supervisor.state == "manual")
@@ -140,3 +142,44 @@ def test_arming_driving_and_the_emergency_stop_from_a_real_browser(served):
         assert "operator link lost (web)" in supervisor.reason
     finally:
         browser.quit()
+
+
+def _post(url: str, body: dict, cookie: str | None = None) -> int:
+    request = urllib.request.Request(url, data=json.dumps(body).encode(), method="POST",
+                                     headers={"Content-Type": "application/json",
+                                              **({"Cookie": cookie} if cookie else {})})
+    try:
+        with urllib.request.urlopen(request) as reply:
+            return reply.status
+    except urllib.error.HTTPError as exc:
+        return exc.code
+
+
+def test_only_the_paired_operator_drives_and_anyone_may_stop(served):
+    """The issue's attack: a second browser on the hotspot cleared the operator's emergency stop, asked for
+    autonomy and drove. Now it is refused; the pairing code works once; a NaN steer is refused too."""
+    web, server, supervisor, log = served
+    with urllib.request.urlopen(server.pairing_url) as reply:  # the operator's phone
+        cookie = reply.headers["Set-Cookie"].split(";")[0]
+    with urllib.request.urlopen(server.pairing_url) as reply:  # the code is spent
+        assert reply.headers["Set-Cookie"] is None
+    assert _post(server.url + "input", {"steer": 0.0}, cookie) == 200
+    assert _post(server.url + "request", {"request": "manual"}, cookie) == 200
+    assert _wait(lambda: supervisor.state == "manual")
+    # a bystander may stop the kart
+    assert _post(server.url + "estop", {}) == 200
+    assert _wait(lambda: supervisor.state == "fault")
+    # but not re-arm it, ask for autonomy or drive: refused and counted
+    for path, body in (("request", {"request": "rearm"}), ("request", {"request": "autonomous"}),
+                       ("input", {"steer": 1.0, "throttle": 1.0})):
+        assert _post(server.url + path, body) == 403
+        assert _post(server.url + path, body, "kartpilot_session=guessed") == 403
+    assert web.refused == 6
+    time.sleep(0.2)
+    assert supervisor.state == "fault" and log[-1].brake == 1.0
+    # a NaN control from the operator is refused, not used
+    assert _post(server.url + "input", {"steer": float("nan")}, cookie) == 400
+    with urllib.request.urlopen(urllib.request.Request(server.url + "state", headers={"Cookie": cookie})) as reply:
+        assert json.loads(reply.read())["operator"] is True
+    with urllib.request.urlopen(server.url + "state") as reply:
+        assert json.loads(reply.read())["operator"] is False

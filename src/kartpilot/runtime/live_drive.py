@@ -177,5 +177,5 @@ def _people(setup: LiveDriveSetup, stack: StackConfig, closing: ExitStack
         server = WebServer(web).start()
         closing.callback(server.close)
         operators.append(web)
-        print(f"web page: {server.url}")
+        print(f"web page: {server.url} (view only); the operator opens, once, {server.pairing_url}")
     return CombinedOperator(operators), web

@@ -5,6 +5,13 @@ a large emergency-stop button, arm and disarm buttons, and steer, throttle and b
 or touch). It posts its controls ten times a second; those posts are the link's heartbeat. The
 server is the standard library's threading HTTP server: no framework is needed for five routes.
 
+**Only its operator drives the kart.** A kart's hotspot is shared with a team's laptops and phones. When the
+server starts, it makes a one-time pairing code and prints the pairing address (``/?pair=CODE``); the first
+browser to open it becomes the operator (a session cookie) and the code is spent. Every control, request
+(manual, autonomous, disarm, re-arm) and heartbeat from anyone else is refused (403) and logged; they see the
+page, view only. The emergency stop is the exception: anyone on the page may stop the kart (stopping is always
+safe; only the operator can re-arm it). Controls must be finite numbers.
+
 :class:`WebOperator` is the page as an operator input for the supervisor. Its link counts as lost
 when no post has arrived for ``link_timeout_s``, like any other watchdog. An emergency stop from
 the page holds until a re-arm request.
@@ -14,6 +21,8 @@ from __future__ import annotations
 
 import json
 import logging
+import math
+import secrets
 import threading
 import time
 from collections import deque
@@ -23,6 +32,7 @@ from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
+from urllib.parse import parse_qs
 
 import cv2
 
@@ -34,6 +44,7 @@ __all__ = ["WebConfig", "WebOperator", "WebServer"]
 log = logging.getLogger(__name__)
 
 PAGE = Path(__file__).with_name("webui.html")
+COOKIE = "kartpilot_session"
 REQUESTS = ("manual", "autonomous", "disarm", "rearm")
 
 
@@ -73,14 +84,41 @@ class WebOperator:
         self._view: dict[str, Any] = {"state": "disarmed", "reason": "", "transitions": []}
         self._jpeg: bytes | None = None
         self.posts = 0
+        self.pair_code = secrets.token_urlsafe(6)
+        self._session: str | None = None
+        self.refused = 0
+
+    # pairing
+    def pair(self, code: str) -> str | None:
+        """A session for the browser that brings the pairing code, once; None after (or for a wrong code)."""
+        with self._lock:
+            if self._session is not None or not secrets.compare_digest(code, self.pair_code):
+                log.warning("web page: a pairing attempt was refused")
+                return None
+            self._session = secrets.token_hex(16)
+            log.info("web page: an operator is paired")
+            return self._session
+
+    def is_operator(self, session: str | None) -> bool:
+        with self._lock:
+            return self._session is not None and session is not None and secrets.compare_digest(session,
+                                                                                                self._session)
+
+    def refuse(self, what: str) -> None:
+        with self._lock:
+            self.refused += 1
+        log.warning("web page: %s from a browser that is not the paired operator: refused", what)
 
     # page -> kart
     def on_input(self, data: dict[str, Any]) -> None:
         with self._lock:
             self._last_post_ns = self.clock()
             self.posts += 1
-            for key in ("steer", "throttle", "brake"):
-                value = float(data.get(key, 0.0))
+            values = {key: float(data.get(key, 0.0)) for key in ("steer", "throttle", "brake")}
+            bad = [key for key, value in values.items() if not math.isfinite(value)]
+            if bad:
+                raise ValueError(f"{', '.join(bad)} must be a finite number")
+            for key, value in values.items():
                 self._controls[key] = min(max(value, -1.0 if key == "steer" else 0.0), 1.0)
             self._controls["hold"] = bool(data.get("hold", False))
 
@@ -146,12 +184,30 @@ def _handler(operator: WebOperator) -> type[BaseHTTPRequestHandler]:
             self.end_headers()
             self.wfile.write(body)
 
+        def _session(self) -> str | None:
+            for part in (self.headers.get("Cookie") or "").split(";"):
+                name, _, value = part.strip().partition("=")
+                if name == COOKIE:
+                    return value
+            return None
+
         def do_GET(self) -> None:
-            path = self.path.split("?")[0]
+            path, _, query = self.path.partition("?")
             if path == "/":
-                self._reply(HTTPStatus.OK, PAGE.read_bytes(), "text/html; charset=utf-8")
+                code = parse_qs(query).get("pair", [""])[0]
+                session = operator.pair(code) if code else None
+                self.send_response(HTTPStatus.OK)
+                if session is not None:
+                    self.send_header("Set-Cookie", f"{COOKIE}={session}; Path=/; HttpOnly; SameSite=Strict")
+                body = PAGE.read_bytes()
+                self.send_header("Content-Type", "text/html; charset=utf-8")
+                self.send_header("Content-Length", str(len(body)))
+                self.send_header("Cache-Control", "no-store")
+                self.end_headers()
+                self.wfile.write(body)
             elif path == "/state":
-                self._reply(HTTPStatus.OK, json.dumps(operator.view()).encode(), "application/json")
+                view = {**operator.view(), "operator": operator.is_operator(self._session())}
+                self._reply(HTTPStatus.OK, json.dumps(view).encode(), "application/json")
             elif path == "/camera.jpg":
                 jpeg = operator.jpeg()
                 if jpeg is None:
@@ -167,15 +223,19 @@ def _handler(operator: WebOperator) -> type[BaseHTTPRequestHandler]:
                 data = json.loads(self.rfile.read(length) or b"{}")
                 if not isinstance(data, dict):
                     raise ValueError("a JSON object is expected")
-                if self.path == "/input":
-                    operator.on_input(data)
-                elif self.path == "/request":
-                    operator.on_request(str(data.get("request", "")))
-                elif self.path == "/estop":
+                if self.path == "/estop":  # anyone may stop the kart; only the operator re-arms it
                     operator.on_estop()
-                else:
+                elif self.path not in ("/input", "/request"):
                     self._reply(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
                     return
+                elif not operator.is_operator(self._session()):
+                    operator.refuse(self.path[1:])
+                    self._reply(HTTPStatus.FORBIDDEN, b"not the paired operator: view only", "text/plain")
+                    return
+                elif self.path == "/input":
+                    operator.on_input(data)
+                else:
+                    operator.on_request(str(data.get("request", "")))
             except (ValueError, TypeError) as exc:
                 self._reply(HTTPStatus.BAD_REQUEST, str(exc).encode(), "text/plain")
                 return
@@ -201,6 +261,11 @@ class WebServer:
     def url(self) -> str:
         host, port = str(self.server.server_address[0]), int(self.server.server_address[1])
         return f"http://{'127.0.0.1' if host in ('0.0.0.0', '') else host}:{port}/"
+
+    @property
+    def pairing_url(self) -> str:
+        """The address the operator opens, once, to become the one who drives."""
+        return f"{self.url}?pair={self.operator.pair_code}"
 
     def start(self) -> WebServer:
         self._thread.start()
