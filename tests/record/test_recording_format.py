@@ -212,3 +212,37 @@ def test_a_donkey_tub_imports_as_a_recording_and_exports_to_images_and_csv(tmp_p
     np.testing.assert_array_equal(image, cv2.imread(str(reader.frames("center")[1][1])))
     assert main(["recordings", "export", str(tmp_path / "rec"), "--out", str(tmp_path / "export")]) == 2
     assert "not empty" in capsys.readouterr().err
+
+
+def test_a_killed_simulated_drive_keeps_its_ground_truth(tmp_path) -> None:
+    """``kill -9`` during ``sim --record``: the recording opens, not closed, with the ground truth of the frames
+    it kept (the truth was written only on close). Waits on the recording's contents, not on the clock."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    folder = tmp_path / "killed"
+    command = [str(Path(sys.executable).with_name("kartpilot")), "sim", "--track", "straight20", "--vehicle",
+               "rc-kart", "--cameras", "left", "--rate", "10", "--record", str(folder), "--no-progress"]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    frames = folder / "cameras" / "left" / "frames.csv"
+    try:
+        deadline = time.monotonic() + 300  # a bound for a broken run, not a measure of speed
+        while time.monotonic() < deadline and process.poll() is None:
+            if frames.is_file() and frames.read_text().count("\n") > 12:
+                break
+            time.sleep(0.05)
+        assert process.poll() is None, "the drive ended before it could be killed"
+        os.kill(process.pid, signal.SIGKILL)
+    finally:
+        process.wait()
+    reader = RecordingReader(folder)
+    assert not reader.closed
+    kept = reader.frames("left")
+    truth = reader.groundtruth()
+    assert truth is not None and len(truth.stamps_s) >= min(len(kept), 12) - 2
+    stamps = np.array([stamp for stamp, _ in kept], float)
+    assert all(np.min(np.abs(stamps - s * 1e9)) < 1e3 for s in truth.stamps_s)  # each pose is a kept frame's

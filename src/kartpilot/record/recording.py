@@ -43,7 +43,7 @@ from kartpilot.calibration.rectify import stereo_setup
 from kartpilot.core.camera import PinholeCamera, StereoRig, camera_from_dict, camera_to_dict
 from kartpilot.core.errors import RecordingError
 from kartpilot.core.files import is_torn_last_line, read_text_file, write_json_atomic
-from kartpilot.core.geometry import Array, invert_pose
+from kartpilot.core.geometry import Array, invert_pose, quaternion_xyzw_from_pose
 from kartpilot.core.trajectory import Trajectory, read_tum, write_tum
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image, StereoFrame
 from kartpilot.sensors.base import StereoSource, read_gray
@@ -282,6 +282,16 @@ class RecordingWriter:
             self._open("can", self.folder / "can.csv", CAN_COLUMNS)
         self._line("can", f"{stamp_ns},{direction},{arbitration_id:#x},{bytes(data).hex()}\n")
         self.can_count += 1
+
+    def write_truth_pose(self, stamp_ns: int, pose: Array) -> None:
+        """One ground-truth pose as soon as it is known, appended to ``groundtruth.tum`` and flushed like every
+        line, so a run killed before it closes keeps its truth up to there (``write_groundtruth`` at the end
+        rewrites the file whole)."""
+        self._check_open()
+        if "groundtruth" not in self._files:
+            self._open("groundtruth", self.folder / "groundtruth.tum", ("# timestamp tx ty tz qx qy qz qw",))
+        values = [*np.asarray(pose)[:3, 3], *quaternion_xyzw_from_pose(np.asarray(pose))]
+        self._line("groundtruth", f"{stamp_ns * 1e-9:.9f} " + " ".join(f"{v:.9f}" for v in values) + "\n")
 
     def write_groundtruth(self, trajectory: Trajectory) -> None:
         write_tum(self.folder / "groundtruth.tum", trajectory)

@@ -197,7 +197,12 @@ def _run(sim: Simulator, source: FrameSource, policy: Policy, sink: CommandSink,
              if outputs.video_path else None)
     bar = tqdm(total=round(_goal_m(sim), 1), unit="m", disable=(not outputs.progress) or None, leave=False)
 
+    truth_camera = _gt_camera(sim) if sim.cameras else None
+
     def on_step(frames: FrameSet, command: ActuatorCommand) -> None:
+        if recorders.writer is not None and truth_camera is not None and sim.stamps_ns:
+            # the truth as it is known: a run killed before it closes keeps it (the recording's own promise)
+            recorders.writer.write_truth_pose(sim.stamps_ns[-1], sim.camera_poses[truth_camera][-1])
         if video is not None:
             video.write(frames)
         bar.update(round(min(max(sim.referee.progress_m, 0.0), bar.total), 1) - bar.n)
