@@ -243,6 +243,7 @@ def test_a_killed_simulated_drive_keeps_its_ground_truth(tmp_path) -> None:
     assert not reader.closed
     kept = reader.frames("left")
     truth = reader.groundtruth()
-    assert truth is not None and len(truth.stamps_s) >= min(len(kept), 12) - 2
-    stamps = np.array([stamp for stamp, _ in kept], float)
-    assert all(np.min(np.abs(stamps - s * 1e9)) < 1e3 for s in truth.stamps_s)  # each pose is a kept frame's
+    assert truth is not None and len(kept) >= 12
+    # every frame kept has its true pose (the truth may run ahead: frames still queued for writing were lost)
+    truth_ns = np.asarray(truth.stamps_s) * 1e9
+    assert all(np.min(np.abs(truth_ns - stamp)) < 1e3 for stamp, _ in kept)
