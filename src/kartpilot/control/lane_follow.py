@@ -272,7 +272,7 @@ def _nothing_seen(config: LaneFollowConfig, state: LaneFollowState) -> tuple[Lan
 
 def _bend_ahead(centre: LaneObservation, deviation_rad: float) -> float:
     """The bend the speed plan slows for: where both boundaries were found as curves, the bearing of the lane's
-    centre at the farthest row both are seen (the aim lies nearer, about 6 m ahead: too late to slow for a
+    centre at the farthest row both are seen (the aim lies nearer, about 4 m ahead: too late to slow for a
     tight bend at speed); else the deviation the steer follows (the thesis's far meeting point)."""
     left, right = centre.left_curve, centre.right_curve
     if left is None or right is None:

@@ -81,7 +81,7 @@ class LaneConfig:
             as curves, :mod:`kartpilot.perception.paint`; ``paint`` holds its settings, and ``process_scale``
             applies to both).
         aim_below_horizon: ``paint``: the row the follower aims at, as a fraction of the way from the horizon
-            down to the bottom row (0.2 on the real kart's camera: about 6 m ahead). Each boundary is reported
+            down to the bottom row (0.35: about 4 m ahead of the real kart's camera). Each boundary is reported
             as its chord from the bottom row to this row, and the aim is the lane's centre there; the thesis's
             aim, the meeting point of the two lines, lies at the horizon, where a curve's bend is exaggerated
             and the kart cuts into the bend before it starts (the venue's 10 m S-bend in the simulator).
