@@ -25,8 +25,10 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from kartpilot.calibration.ground import ground_points
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
+from kartpilot.core.geometry import invert_pose, transform_points
 from kartpilot.core.types import Image
 from kartpilot.perception.objects import Detection, place_on_ground
 from kartpilot.perception.paint import PaintConfig, paint_mask
@@ -232,19 +234,13 @@ def find_parking_bay(barriers: list[Detection], camera: PinholeCamera | None, im
 
 def _horizon_row(camera: PinholeCamera) -> float:
     """The row where the ground at a great distance ahead appears."""
-    from kartpilot.core.geometry import invert_pose, transform_points
-
     far = transform_points(invert_pose(camera.pose_body_cam_array), np.array([[1.0e4, 0.0, 0.0]]))
     return float(camera.project(far)[0, 1])
 
 
 def _ground_lateral(camera: PinholeCamera, u: float, v: float) -> float:
-    from kartpilot.calibration.ground import ground_points
-
     return float(ground_points(camera, np.array([[u, v]]))[0, 1])
 
 
 def _ground_ahead(camera: PinholeCamera, u: float, v: float) -> float:
-    from kartpilot.calibration.ground import ground_points
-
     return float(ground_points(camera, np.array([[u, v]]))[0, 0])

@@ -22,7 +22,7 @@ size / d`` metres ahead.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Literal
 
@@ -104,8 +104,6 @@ def place_by_size(detection: Detection, camera: PinholeCamera | None, width_px: 
     y = (detection.box_px[1] + detection.box_px[3]) / 2 * scale  # the same field of view: one scale
     ray = camera.rays(np.array([[x, y]]))[0]
     body = camera.pose_body_cam_array[:3, :3] @ (ray * depth) + camera.pose_body_cam_array[:3, 3]
-    from dataclasses import replace
-
     return replace(detection, distance_m=float(body[0]), lateral_m=float(body[1]))
 
 
