@@ -28,6 +28,7 @@ from kartpilot.perception.obstacles import (
     detect_car,
     detect_people,
     find_parking_bay,
+    horizon_row,
 )
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
 from kartpilot.perception.road_marks import RoadMarkConfig, detect_road_marks
@@ -80,8 +81,10 @@ class DetectorConfig:
 def detect_classical(image: Image, camera: PinholeCamera | None, config: DetectorConfig = DetectorConfig()
                      ) -> list[Detection]:
     """Every classical detector on one image, placed on the ground where the camera's mount is known."""
-    signals = replace(config.signals, camera_height_m=float(camera.pose_body_cam_array[2, 3])) if (
-        camera is not None) else config.signals
+    signals = config.signals
+    if camera is not None:  # the horizon and the camera's height from its mount, not the defaults' kart
+        signals = replace(signals, camera_height_m=float(camera.pose_body_cam_array[2, 3]),
+                          horizon=min(max(horizon_row(camera) / camera.height_px, 0.0), 1.0))
     out = detect_traffic_lights(image, signals, camera) + detect_speed_signs(image, signals, camera)
     out += detect_road_marks(image, camera, config.road_marks)
     if config.people:

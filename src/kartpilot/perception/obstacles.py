@@ -31,10 +31,9 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import invert_pose, transform_points
 from kartpilot.core.types import Image
 from kartpilot.perception.objects import Detection, place_on_ground
-from kartpilot.perception.paint import PaintConfig, paint_mask
 from kartpilot.perception.road_marks import camera_for_image
 
-__all__ = ["ObstacleConfig", "detect_barriers", "detect_car", "detect_people", "find_parking_bay"]
+__all__ = ["ObstacleConfig", "detect_barriers", "detect_car", "detect_people", "find_parking_bay", "horizon_row"]
 
 
 @dataclass(frozen=True)
@@ -133,7 +132,7 @@ def detect_car(image: Image, camera: PinholeCamera | None, config: ObstacleConfi
         return []
     h, w = image.shape[:2]
     cam = camera_for_image(camera, w, h)
-    horizon = _horizon_row(cam)
+    horizon = horizon_row(cam)
     lab = cv2.cvtColor(cv2.GaussianBlur(image, (5, 5), 0), cv2.COLOR_BGR2LAB).astype(np.float32)
     _, spread = _asphalt_model(lab, h, w)
     # the road's colour row by row (it pales with distance): each row's median, a car covering less than half
@@ -144,13 +143,7 @@ def detect_car(image: Image, camera: PinholeCamera | None, config: ObstacleConfi
     distance[int(horizon):] = np.max(np.abs(below - rows[:, None, :]) / spread, axis=2)
     hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
     grass = (hsv[..., 0] >= 30) & (hsv[..., 0] <= 90) & (hsv[..., 1] >= 50)
-    # painted lines are not things: the lane finder's thin white ridges, widened a little, are left out
-    horizon_fraction = horizon / h
-    paint = paint_mask(image, min(int(horizon) + 1, h - 8), horizon, 1.0,
-                       PaintConfig(horizon=horizon_fraction)) > 0
-    lines = np.zeros((h, w), bool)
-    lines[min(int(horizon) + 1, h - 8):] = cv2.dilate(paint.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-    thing = ((distance > config.colour_sigmas) & ~grass & ~lines).astype(np.uint8)
+    thing = ((distance > config.colour_sigmas) & ~grass).astype(np.uint8)
     thing[: max(int(horizon) - 2, 0)] = 0  # above: the sky, trees; a car is found by its part below the horizon
     thing = cv2.morphologyEx(thing, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
     count, _, stats, _ = cv2.connectedComponentsWithStats(thing, connectivity=8)
@@ -182,7 +175,7 @@ def detect_barriers(image: Image, camera: PinholeCamera | None, config: Obstacle
         return []
     h, w = image.shape[:2]
     cam = camera_for_image(camera, w, h) if camera is not None else None
-    horizon = _horizon_row(cam) if cam is not None else config.horizon * h
+    horizon = horizon_row(cam) if cam is not None else config.horizon * h
     hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
     hue, sat, val = cv2.split(hsv)
     red = (((hue <= 10) | (hue >= 165)) & (sat >= 110) & (val >= 60)).astype(np.uint8)
@@ -232,7 +225,7 @@ def find_parking_bay(barriers: list[Detection], camera: PinholeCamera | None, im
     return out
 
 
-def _horizon_row(camera: PinholeCamera) -> float:
+def horizon_row(camera: PinholeCamera) -> float:
     """The row where the ground at a great distance ahead appears."""
     far = transform_points(invert_pose(camera.pose_body_cam_array), np.array([[1.0e4, 0.0, 0.0]]))
     return float(camera.project(far)[0, 1])
