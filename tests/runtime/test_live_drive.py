@@ -39,8 +39,9 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _post(url: str, body: dict) -> None:
-    request = urllib.request.Request(url, json.dumps(body).encode(), {"Content-Type": "application/json"})
+def _post(url: str, body: dict, headers: dict[str, str] | None = None) -> None:
+    request = urllib.request.Request(url, json.dumps(body).encode(),
+                                     {"Content-Type": "application/json", **(headers or {})})
     urllib.request.urlopen(request, timeout=1.0).read()
 
 
@@ -110,24 +111,28 @@ def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(p
     port = _free_port()
     url = f"http://127.0.0.1:{port}/"
 
-    def person():
+    cookie: dict[str, str] = {}
+
+    def person():  # the operator's phone: pairs once, then drives
         deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline:
             try:
-                _post(url + "input", {"hold": True})
+                with urllib.request.urlopen(url + "?pair=test-code") as reply:
+                    cookie["Cookie"] = reply.headers["Set-Cookie"].split(";")[0]
                 break
             except OSError:
                 time.sleep(0.05)
-        _post(url + "request", {"request": "autonomous"})
+        _post(url + "input", {"hold": True}, cookie)
+        _post(url + "request", {"request": "autonomous"}, cookie)
         for _ in range(10):
-            _post(url + "input", {"hold": True})
+            _post(url + "input", {"hold": True}, cookie)
             time.sleep(0.1)
 
     threading.Thread(target=person, daemon=True).start()
     # the watchdogs' timing is tested with a simulated clock; here threads share two cores with a video decoder
     can_config = CanConfig(channel=channel, protocol=protocol, status_timeout_s=0.3,
                            rdw=RdwConfig(sensor_timeout_s=0.5, feedback_timeout_s=0.5))
-    setup = LiveDriveSetup(rig, pipeline, sdc, route, web_port=port,
+    setup = LiveDriveSetup(rig, pipeline, sdc, route, web_port=port, web_pair_code="test-code",
                            outputs=SessionOutputs(record_dir=tmp_path / "live"), duration_s=3.0)
     try:
         summary = run_live_drive(setup, replace(StackConfig(), can=can_config))

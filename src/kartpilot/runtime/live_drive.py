@@ -77,6 +77,7 @@ class LiveDriveSetup:
     web_port: int | None = None
     outputs: SessionOutputs = field(default_factory=SessionOutputs)
     duration_s: float | None = None
+    web_pair_code: str = ""  # empty: a random one-time code, printed with the pairing address
 
 
 def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
@@ -173,7 +174,7 @@ def _people(setup: LiveDriveSetup, stack: StackConfig, closing: ExitStack
         operators.append(gamepad)
     web = None
     if setup.web_port is not None:
-        web = WebOperator(WebConfig(port=setup.web_port))
+        web = WebOperator(WebConfig(port=setup.web_port, pair_code=setup.web_pair_code))
         server = WebServer(web).start()
         closing.callback(server.close)
         operators.append(web)

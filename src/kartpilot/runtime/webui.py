@@ -55,6 +55,8 @@ class WebConfig:
         link_timeout_s: the page's link is lost when it has posted nothing for this long.
         max_steer_rad, throttle, brake: what the page's full left/right, up and down ask for.
         jpeg_quality: the camera view's quality.
+        pair_code: the one-time pairing code (empty: a new random one each time the page is served, the
+            default; a fixed one is for a team's own tooling, and tests).
     """
 
     host: str = "0.0.0.0"
@@ -64,6 +66,7 @@ class WebConfig:
     throttle: float = 0.3
     brake: float = 1.0
     jpeg_quality: int = 70
+    pair_code: str = ""
 
     def __post_init__(self) -> None:
         if self.link_timeout_s <= 0:
@@ -84,7 +87,7 @@ class WebOperator:
         self._view: dict[str, Any] = {"state": "disarmed", "reason": "", "transitions": []}
         self._jpeg: bytes | None = None
         self.posts = 0
-        self.pair_code = secrets.token_urlsafe(6)
+        self.pair_code = self.config.pair_code or secrets.token_urlsafe(6)
         self._session: str | None = None
         self.refused = 0
 
@@ -171,77 +174,78 @@ class WebOperator:
             return self._jpeg
 
 
-def _handler(operator: WebOperator) -> type[BaseHTTPRequestHandler]:
-    class Handler(BaseHTTPRequestHandler):
-        def log_message(self, format: str, *args: Any) -> None:
-            log.debug("web: " + format, *args)
+class _Handler(BaseHTTPRequestHandler):
+    """The page's routes; ``operator`` is set on the subclass :func:`_handler` makes for one server."""
 
-        def _reply(self, status: HTTPStatus, body: bytes, kind: str) -> None:
-            self.send_response(status)
-            self.send_header("Content-Type", kind)
-            self.send_header("Content-Length", str(len(body)))
-            self.send_header("Cache-Control", "no-store")
-            self.end_headers()
-            self.wfile.write(body)
+    operator: WebOperator
 
-        def _session(self) -> str | None:
-            for part in (self.headers.get("Cookie") or "").split(";"):
-                name, _, value = part.strip().partition("=")
-                if name == COOKIE:
-                    return value
-            return None
+    def log_message(self, format: str, *args: Any) -> None:
+        log.debug("web: " + format, *args)
 
-        def do_GET(self) -> None:
-            path, _, query = self.path.partition("?")
-            if path == "/":
-                code = parse_qs(query).get("pair", [""])[0]
-                session = operator.pair(code) if code else None
-                self.send_response(HTTPStatus.OK)
-                if session is not None:
-                    self.send_header("Set-Cookie", f"{COOKIE}={session}; Path=/; HttpOnly; SameSite=Strict")
-                body = PAGE.read_bytes()
-                self.send_header("Content-Type", "text/html; charset=utf-8")
-                self.send_header("Content-Length", str(len(body)))
-                self.send_header("Cache-Control", "no-store")
-                self.end_headers()
-                self.wfile.write(body)
-            elif path == "/state":
-                view = {**operator.view(), "operator": operator.is_operator(self._session())}
-                self._reply(HTTPStatus.OK, json.dumps(view).encode(), "application/json")
-            elif path == "/camera.jpg":
-                jpeg = operator.jpeg()
-                if jpeg is None:
-                    self._reply(HTTPStatus.NO_CONTENT, b"", "image/jpeg")
-                else:
-                    self._reply(HTTPStatus.OK, jpeg, "image/jpeg")
+    def _reply(self, status: HTTPStatus, body: bytes, kind: str, cookie: str | None = None) -> None:
+        self.send_response(status)
+        if cookie is not None:
+            self.send_header("Set-Cookie", f"{COOKIE}={cookie}; Path=/; HttpOnly; SameSite=Strict")
+        self.send_header("Content-Type", kind)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        self.wfile.write(body)
+
+    def _session(self) -> str | None:
+        for part in (self.headers.get("Cookie") or "").split(";"):
+            name, _, value = part.strip().partition("=")
+            if name == COOKIE:
+                return value
+        return None
+
+    def do_GET(self) -> None:
+        operator = self.operator
+        path, _, query = self.path.partition("?")
+        if path == "/":
+            code = parse_qs(query).get("pair", [""])[0]
+            session = operator.pair(code) if code else None
+            self._reply(HTTPStatus.OK, PAGE.read_bytes(), "text/html; charset=utf-8", session)
+        elif path == "/state":
+            view = {**operator.view(), "operator": operator.is_operator(self._session())}
+            self._reply(HTTPStatus.OK, json.dumps(view).encode(), "application/json")
+        elif path == "/camera.jpg":
+            jpeg = operator.jpeg()
+            if jpeg is None:
+                self._reply(HTTPStatus.NO_CONTENT, b"", "image/jpeg")
             else:
+                self._reply(HTTPStatus.OK, jpeg, "image/jpeg")
+        else:
+            self._reply(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
+
+    def do_POST(self) -> None:
+        operator = self.operator
+        length = int(self.headers.get("Content-Length") or 0)
+        try:
+            data = json.loads(self.rfile.read(length) or b"{}")
+            if not isinstance(data, dict):
+                raise ValueError("a JSON object is expected")
+            if self.path == "/estop":  # anyone may stop the kart; only the operator re-arms it
+                operator.on_estop()
+            elif self.path not in ("/input", "/request"):
                 self._reply(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
-
-        def do_POST(self) -> None:
-            length = int(self.headers.get("Content-Length") or 0)
-            try:
-                data = json.loads(self.rfile.read(length) or b"{}")
-                if not isinstance(data, dict):
-                    raise ValueError("a JSON object is expected")
-                if self.path == "/estop":  # anyone may stop the kart; only the operator re-arms it
-                    operator.on_estop()
-                elif self.path not in ("/input", "/request"):
-                    self._reply(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
-                    return
-                elif not operator.is_operator(self._session()):
-                    operator.refuse(self.path[1:])
-                    self._reply(HTTPStatus.FORBIDDEN, b"not the paired operator: view only", "text/plain")
-                    return
-                elif self.path == "/input":
-                    operator.on_input(data)
-                else:
-                    operator.on_request(str(data.get("request", "")))
-            except (ValueError, TypeError) as exc:
-                self._reply(HTTPStatus.BAD_REQUEST, str(exc).encode(), "text/plain")
                 return
-            self._reply(HTTPStatus.OK, b"{}", "application/json")
+            elif not operator.is_operator(self._session()):
+                operator.refuse(self.path[1:])
+                self._reply(HTTPStatus.FORBIDDEN, b"not the paired operator: view only", "text/plain")
+                return
+            elif self.path == "/input":
+                operator.on_input(data)
+            else:
+                operator.on_request(str(data.get("request", "")))
+        except (ValueError, TypeError) as exc:
+            self._reply(HTTPStatus.BAD_REQUEST, str(exc).encode(), "text/plain")
+            return
+        self._reply(HTTPStatus.OK, b"{}", "application/json")
 
-    return Handler
+
+def _handler(operator: WebOperator) -> type[BaseHTTPRequestHandler]:
+    return type("Handler", (_Handler,), {"operator": operator})
 
 
 class WebServer:
