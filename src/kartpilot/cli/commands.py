@@ -36,7 +36,7 @@ from kartpilot.odometry.places import load_places
 from kartpilot.odometry.run import run_mono_localizer, run_vo
 from kartpilot.odometry.stereo_vo import VO_STAGES, StereoVO
 from kartpilot.odometry.vo import VisualOdometry, VOStep
-from kartpilot.perception.continuity import is_cut, thumbnail
+from kartpilot.perception.continuity import with_scene_starts
 from kartpilot.perception.lanes import LaneObservation, LaneStages, detect_lanes, draw_lanes
 from kartpilot.perception.stereo import BlockMatchConfig, compute_disparity
 from kartpilot.perception.tape import detect_tape_track, draw_tape_track
@@ -338,14 +338,10 @@ def lanes(args: argparse.Namespace) -> int:
     overlay = _Overlay(args.overlay) if args.overlay else None
     steers: list[float] = []
     rows: list[list[object]] = []
-    previous = None
     cuts = 0
     try:
-        for frame_set in frames:
+        for frame_set, new_scene in with_scene_starts(frames, args.independent):
             image = frame_set.images["center"]
-            current = thumbnail(image)
-            new_scene = args.independent or is_cut(previous, current)
-            previous = current
             if new_scene:
                 state = LaneFollowState()
                 cuts += 1

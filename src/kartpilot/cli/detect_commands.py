@@ -15,7 +15,7 @@ from kartpilot.cli.values import file_or_new_folder, output_file
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.files import write_csv_atomic
 from kartpilot.core.vehicle import get_vehicle
-from kartpilot.perception.continuity import is_cut, thumbnail
+from kartpilot.perception.continuity import with_scene_starts
 from kartpilot.perception.detect import DetectorConfig, ObjectDetector
 from kartpilot.perception.objects import Detection
 from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
@@ -62,14 +62,10 @@ def detect(args: argparse.Namespace) -> int:
         overlay.mkdir(parents=True, exist_ok=True)
     rows: list[list[object]] = []
     counts: dict[str, int] = {}
-    previous = None
     frames_seen = 0
     try:
-        for frame_set in frames:
+        for frame_set, new_scene in with_scene_starts(frames, args.independent):
             image = frame_set.images["center"]
-            current = thumbnail(image)
-            new_scene = args.independent or is_cut(previous, current)
-            previous = current
             if new_scene:
                 detector.reset()
             found = detector(image)

@@ -11,13 +11,15 @@ the venue's separate scenes by 0.18 to 0.30, and unrelated road photos by 0.27 t
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
+
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from kartpilot.core.types import Image
+from kartpilot.core.types import FrameSet, Image
 
-__all__ = ["CUT_THRESHOLD", "is_cut", "thumbnail"]
+__all__ = ["CUT_THRESHOLD", "is_cut", "thumbnail", "with_scene_starts"]
 
 CUT_THRESHOLD = 0.15
 
@@ -33,3 +35,14 @@ def is_cut(previous: NDArray[np.float64] | None, current: NDArray[np.float64], t
            ) -> bool:
     """Whether ``current`` starts a new scene after ``previous`` (thumbnails; True when there is none before)."""
     return previous is None or float(np.mean(np.abs(previous - current))) > threshold
+
+
+def with_scene_starts(frames: Iterable[FrameSet], independent: bool = False, camera: str = "center"
+                      ) -> Iterator[tuple[FrameSet, bool]]:
+    """Each frame set with whether it starts a new scene (``independent``: every one does), judged on
+    ``camera``'s image: where state smoothed over frames must start afresh."""
+    previous = None
+    for frame_set in frames:
+        current = thumbnail(frame_set.images[camera])
+        yield frame_set, independent or is_cut(previous, current)
+        previous = current
