@@ -140,6 +140,12 @@ def rendered(count: int = 60, seed: int = 2) -> dict[str, Any]:
     return out
 
 
+ACT_M = 15.0
+"""The distance within which the kart must have seen an object to act on it: from 20 km/h (the highest limit
+posted at the 2024 event), 0.4 s of the brake's delay and 1.5 m/s² of braking stop the kart in 12.5 m, and its
+front is 1.5 m ahead of the camera."""
+
+
 def rendered_props(count: int = 40, seed: int = 3) -> dict[str, Any]:
     """The scenario props on rendered frames of the venue track with exact truth (``Simulator.object_truth``):
     a signal head (red, then green), a 20 km/h sign, a person and the car, the kart 4 to 25 m before them, a
@@ -176,24 +182,45 @@ def rendered_props(count: int = 40, seed: int = 3) -> dict[str, Any]:
             used: set[int] = set()
             for obj in truth:
                 row = rows.setdefault(obj.label, {"in_view": 0, "found": 0, "state_right": 0, "errors_m": [],
-                                                  "false_alarms": 0})
+                                                  "false_alarms": 0, "in_act": 0, "found_in_act": 0})
                 row["in_view"] += 1
+                row["in_act"] += int(obj.distance_m <= ACT_M)
                 hit = next((n for n, d in enumerate(found) if n not in used and d.label == obj.label
                             and _matches(d.box_px, list(obj.box_px))), None)
                 if hit is None:
                     continue
                 used.add(hit)
                 row["found"] += 1
+                row["found_in_act"] += int(obj.distance_m <= ACT_M)
                 row["state_right"] += int(found[hit].state == obj.state)
                 row["errors_m"].append(abs(found[hit].distance_m - obj.distance_m))
+                if 8.0 <= obj.distance_m <= 12.0:
+                    row.setdefault("rel_errors_10m", []).append(abs(found[hit].distance_m / obj.distance_m - 1))
             for n, d in enumerate(found):
                 if n not in used:
                     rows.setdefault(d.label, {"in_view": 0, "found": 0, "state_right": 0, "errors_m": [],
-                                              "false_alarms": 0})["false_alarms"] += 1
+                                              "false_alarms": 0, "in_act": 0, "found_in_act": 0}
+                                    )["false_alarms"] += 1
+    return {"frames": count, "seed": seed, "classes": rows}
+
+
+def props_over_seeds(seeds: tuple[int, ...] = (4, 5, 6), count: int = 40) -> dict[str, Any]:
+    """:func:`rendered_props` on several seeds (none looked at while tuning: seed 3 was), summed per class."""
+    rows: dict[str, dict[str, Any]] = {}
+    for seed in seeds:
+        for name, row in rendered_props(count, seed)["classes"].items():
+            into = rows.setdefault(name, {})
+            for key, value in row.items():
+                into[key] = into.get(key, [] if isinstance(value, list) else 0) + value
     for row in rows.values():
         errors = np.asarray(row.pop("errors_m"))
+        rel = np.asarray(row.pop("rel_errors_10m", []))
         row["median_error_m"] = float(np.median(errors)) if len(errors) else float("nan")
-    return {"frames": count, "seed": seed, "classes": rows}
+        row["median_rel_error_10m"] = float(np.median(rel)) if len(rel) else float("nan")
+        row["recall_in_act"] = row["found_in_act"] / row["in_act"] if row["in_act"] else float("nan")
+        reported = row["found"] + row["false_alarms"]
+        row["precision"] = row["found"] / reported if reported else float("nan")
+    return {"frames": count * len(seeds), "seeds": list(seeds), "act_m": ACT_M, "classes": rows}
 
 
 def timing(data: Path) -> dict[str, float]:
@@ -244,14 +271,20 @@ def render(results: dict[str, Any]) -> str:
                      f"{row['max_error_m']:.2f} m | {row['false_alarms']} |")
     props = results.get("rendered_props")
     if props:
-        lines += ["", f"Rendered scenario props ({props['frames']} frames, seed {props['seed']}: a signal head red "
-                      "then green, a 20 km/h sign, a person, the car; the kart 4 to 25 m before one of them), "
-                      "against exact truth:", "",
-                  "| class | in view (< 25 m) | found | state right | median distance error | false alarms |",
-                  "|---|---|---|---|---|---|"]
+        lines += ["", f"Rendered scenario props ({props['frames']} frames, seeds "
+                      f"{', '.join(map(str, props['seeds']))}, held out (seed 3 was looked at while building the "
+                      "upright-thing finder): a signal head red then green, a 20 km/h "
+                      "sign, a person, the car; the kart 4 to 25 m before one of them), against exact truth. "
+                      f"Recall is counted within {props['act_m']:.0f} m, where the kart must have seen an object to "
+                      "act on it from 20 km/h; precision over all detections of the class:", "",
+                  "| class | in view (< 25 m) | found | recall within act | precision | state right | median "
+                  "distance error | median error at 8 to 12 m | false alarms |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for name, row in sorted(props["classes"].items()):
-            lines.append(f"| {name} | {row['in_view']} | {row['found']} | {row['state_right']} | "
-                         f"{row['median_error_m']:.2f} m | {row['false_alarms']} |")
+            lines.append(f"| {name} | {row['in_view']} | {row['found']} | {row['recall_in_act']:.2f} "
+                         f"({row['found_in_act']}/{row['in_act']}) | {row['precision']:.2f} | {row['state_right']} | "
+                         f"{row['median_error_m']:.2f} m | {100 * row['median_rel_error_10m']:.0f} % | "
+                         f"{row['false_alarms']} |")
     lines += ["", "| detector | ms per 848x480 frame, one core | frames/s |", "|---|---|---|"]
     lines += [f"| {name} | {ms:.1f} | {1000 / ms:.0f} |" for name, ms in results["timing_ms"].items()]
     return "\n".join(lines) + "\n"
@@ -268,7 +301,7 @@ def main() -> int:
                             "<!-- /detection -->")
         return 0
     write_json(args.out, {"labelled": labelled(args.data), "frames": venue_frames(args.data),
-                          "rendered": rendered(), "rendered_props": rendered_props(), "timing_ms": timing(args.data)})
+                          "rendered": rendered(), "rendered_props": props_over_seeds(), "timing_ms": timing(args.data)})
     return 0
 
 

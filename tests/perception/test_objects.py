@@ -11,7 +11,7 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.perception.detect import DetectorConfig, ObjectDetector, crossing_states
 from kartpilot.perception.objects import Detection, ObjectTracker, place_on_ground
-from kartpilot.perception.obstacles import detect_barriers
+from kartpilot.perception.obstacles import detect_barriers, detect_car, detect_standing_people
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
 from kartpilot.perception.signals import detect_speed_signs, detect_traffic_lights
 
@@ -101,6 +101,39 @@ def test_a_box_standing_on_the_ground_is_placed_where_it_stands():
     # a smaller image of the same camera gives the same place
     half = place_on_ground([Detection("person", (u / 2 - 5, v / 2 - 50, u / 2 + 5, v / 2), 0.9)], CAMERA, (424, 240))
     assert half[0].distance_m == pytest.approx(8.0, abs=0.2)
+
+
+def _standing(image: np.ndarray, ahead_m: float, left_m: float, width_m: float, height_m: float,
+              colour: tuple[int, int, int]) -> tuple[float, float, float, float]:
+    """Paint an upright box of a size in metres standing on the ground; returns its image box."""
+    from kartpilot.core.geometry import invert_pose, transform_points
+
+    corners = np.array([[ahead_m, left_m + width_m / 2, 0.0], [ahead_m, left_m - width_m / 2, height_m]])
+    (u0, v0), (u1, v1) = CAMERA.project(transform_points(invert_pose(CAMERA.pose_body_cam_array), corners))
+    cv2.rectangle(image, (round(u0), round(v1)), (round(u1), round(v0)), colour, -1)
+    return u0, v1, u1, v0
+
+
+@pytest.mark.parametrize(("ahead_m", "within"), [(6.0, 0.1), (12.0, 0.1), (18.0, 0.15)])
+def test_an_upright_thing_is_a_car_or_a_person_by_its_size_and_paint_is_neither(ahead_m, within):
+    image = scene()
+    _standing(image, ahead_m, 0.0, 1.7, 1.45, (220, 215, 200))        # a white car in the lane
+    _standing(image, ahead_m, -3.0, 0.5, 1.75, (120, 40, 30))         # a person in a blue jacket, to the right
+    _standing(image, ahead_m, 3.0, 2.0, 1.0, (30, 30, 200))           # a red barrier on the left: neither
+    cv2.line(image, (300, 479), (400, 200), (250, 250, 250), 8)       # lane paint, flat on the ground: neither
+    cars = detect_car(image, CAMERA)
+    people = detect_standing_people(image, CAMERA)
+    print("car at", ahead_m, "m placed at", cars and round(cars[0].distance_m, 2))
+    assert len(cars) == 1 and cars[0].distance_m == pytest.approx(ahead_m, rel=within)
+    assert abs(cars[0].lateral_m) < 0.3
+    assert len(people) == 1 and people[0].distance_m == pytest.approx(ahead_m, rel=within)
+    assert people[0].lateral_m == pytest.approx(-3.0, rel=within)
+
+
+def test_a_barrier_across_the_lane_is_not_a_car():
+    image = scene()
+    _standing(image, 8.0, 0.0, 2.0, 1.0, (30, 30, 200))
+    assert detect_car(image, CAMERA) == []
 
 
 def test_a_person_on_or_beside_the_crossing():

@@ -70,8 +70,9 @@ def test_a_simulated_drive_takes_its_track_s_lane_preset():
 def test_scenario_props_are_rendered_as_they_are_and_their_truth_comes_with_each_frame():
     """A signal head that turns from red to green, a 20 km/h sign, a person walking across and the car: each
     in the exact truth with its state and place; the traffic-light detector reads the rendered phase."""
+    from kartpilot.perception.detect import DetectorConfig, detect_classical
     from kartpilot.perception.signals import detect_traffic_lights
-    from kartpilot.sim.track import Prop
+    from kartpilot.sim.track import PROP_SIZES_M, Prop
 
     props = (Prop(kind="traffic_light", s_m=30.5, offset_m=-2.0, phases=(("red", 1.0), ("green", 10.0))),
              Prop(kind="speed_sign", s_m=40.0, offset_m=-2.2, value_kmh=20),
@@ -90,10 +91,17 @@ def test_scenario_props_are_rendered_as_they_are_and_their_truth_comes_with_each
             frame = sim.read()
             seen = detect_traffic_lights(frame.images["center"], camera=sim.cameras["center"])
             states.append((truth["traffic_light"].state, [d.state for d in seen]))
-            assert truth["car"].distance_m == pytest.approx(36.0 - 18.0, abs=0.3)
+            # the car's distance is to the face the kart meets, half its length before its middle
+            assert truth["car"].distance_m == pytest.approx(36.0 - 18.0 - PROP_SIZES_M["car"][1] / 2, abs=0.3)
             assert truth["stop_line"].distance_m == pytest.approx(30.0 - 18.0, abs=0.3)
             sim.step_index += 1
         assert states == [("red", ["red"]), ("red", ["red"]), ("green", ["green"]), ("green", ["green"])]
         assert truth["speed_sign"].state == "20"
         # the person has walked from 2.5 m right toward the left
         assert truth["person"].lateral_m == pytest.approx(-2.0, abs=0.05)
+        # the upright-thing finder sees the rendered person and car where they are (within 10 %)
+        found = {d.label: d for d in detect_classical(frame.images["center"], sim.cameras["center"],
+                                                      DetectorConfig(people=False))}
+        for label in ("person", "car"):
+            print(label, "truth", round(truth[label].distance_m, 2), "found", round(found[label].distance_m, 2))
+            assert found[label].distance_m == pytest.approx(truth[label].distance_m, rel=0.1)

@@ -21,14 +21,16 @@ from pathlib import Path
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import Image
-from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, place_on_ground
+from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, box_iou, place_on_ground
 from kartpilot.perception.obstacles import (
     ObstacleConfig,
     detect_barriers,
     detect_car,
     detect_people,
+    detect_standing_people,
     find_parking_bay,
     horizon_row,
+    upright_things,
 )
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
 from kartpilot.perception.road_marks import RoadMarkConfig, detect_road_marks
@@ -87,15 +89,27 @@ def detect_classical(image: Image, camera: PinholeCamera | None, config: Detecto
                           horizon=min(max(horizon_row(camera) / camera.height_px, 0.0), 1.0))
     out = detect_traffic_lights(image, signals, camera) + detect_speed_signs(image, signals, camera)
     out += detect_road_marks(image, camera, config.road_marks)
-    if config.people:
-        out += detect_people(image, camera, config.obstacles)
-    cars = detect_car(image, camera, config.obstacles)
-    out += cars
+    things = upright_things(image, camera, config.obstacles) if camera is not None and image.ndim == 3 else []
+    people = detect_standing_people(image, camera, config.obstacles, things)
+    if config.people:  # HOG's people, and the upright shapes it did not find
+        hog = detect_people(image, camera, config.obstacles)
+        people = hog + [p for p in people if not any(box_iou(p.box_px, q.box_px) > 0.3 for q in hog)]
+    barriers = detect_barriers(image, camera, config.obstacles)
+    # a barrier in the corridor stands upright too: it is not a car
+    cars = [c for c in detect_car(image, camera, config.obstacles, things)
+            if not any(_covered(c.box_px, b.box_px) for b in barriers)]
     # red on a car (its plate, its lights) is not a barrier
-    barriers = [b for b in detect_barriers(image, camera, config.obstacles)
-                if not any(_inside(b.box_px, c.box_px) for c in cars)]
-    out += barriers + find_parking_bay(barriers, camera, (image.shape[1], image.shape[0]))
+    barriers = [b for b in barriers if not any(_inside(b.box_px, c.box_px) for c in cars)]
+    people = [p for p in people if not any(_covered(p.box_px, b.box_px) for b in barriers)]
+    out += people + cars + barriers + find_parking_bay(barriers, camera, (image.shape[1], image.shape[0]))
     return out
+
+
+def _covered(box: tuple[float, float, float, float], by: tuple[float, float, float, float]) -> bool:
+    """Half or more of ``box`` lies inside ``by``."""
+    w = max(0.0, min(box[2], by[2]) - max(box[0], by[0]))
+    h = max(0.0, min(box[3], by[3]) - max(box[1], by[1]))
+    return w * h >= 0.5 * max((box[2] - box[0]) * (box[3] - box[1]), 1e-9)
 
 
 def _inside(inner: tuple[float, float, float, float], outer: tuple[float, float, float, float]) -> bool:

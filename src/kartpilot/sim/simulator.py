@@ -212,7 +212,7 @@ class Simulator:
         """The scenario's objects as ``camera`` sees them now, exactly: each prop (a light with its phase, a sign
         with its value, a person, the car), stop line, zebra and barrier block in front of the camera and in its
         image, with its box (its 3D box's corners projected, clipped to the image), its distance ahead and to
-        the left of the kart's body frame on the ground, and its state."""
+        the left of the kart's body frame on the ground (a car's to its nearest face), and its state."""
         cam = self.cameras[camera]
         world_cam = self.camera_pose(camera)
         cam_world = np.linalg.inv(world_cam)
@@ -250,6 +250,8 @@ class Simulator:
             if right <= left or bottom <= top:
                 continue
             body = body_world[:3, :3] @ np.r_[foot, 0.0] + body_world[:3, 3]
+            if label == "car":  # the face the kart meets, not the car's middle
+                body[0] = float(np.min(corners[:4] @ body_world[:3, :3].T[:, 0] + body_world[0, 3]))
             out.append(Detection(label, (left, top, right, bottom), 1.0, state, distance_m=float(body[0]),
                                  lateral_m=float(body[1]), source="truth"))
         return out
