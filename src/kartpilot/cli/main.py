@@ -23,7 +23,7 @@ from kartpilot.cli import (
     record_commands,
     study_commands,
 )
-from kartpilot.cli.values import OneLineParser
+from kartpilot.cli.values import OneLineParser, check_paths, output_dests
 from kartpilot.core.errors import KartpilotError
 
 __all__ = ["build_parser", "main"]
@@ -45,9 +45,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _positionals(parser: argparse.ArgumentParser) -> frozenset[str]:
+    names = set()
+    for action in parser._actions:
+        if not action.option_strings:
+            names.add(action.dest)
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                names |= _positionals(sub)
+    return frozenset(names)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     try:
-        args = build_parser().parse_args(argv)
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        try:
+            check_paths(args, output_dests(parser), _positionals(parser))
+        except argparse.ArgumentTypeError as exc:
+            parser.error(str(exc))
         if getattr(args, "check", None) is not None:  # a subcommand's check across its options (a usage error)
             args.check(args)
     except SystemExit as exc:  # --help, --version, or a usage error (already printed on one line)

@@ -16,8 +16,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
-__all__ = ["VIEW_HELP", "OneLineParser", "file_or_new_folder", "new_folder", "number", "output_file", "results_folder",
-           "view_target"]
+__all__ = ["OUTPUT_TYPES", "VIEW_HELP", "OneLineParser", "check_paths", "file_or_new_folder", "new_folder", "number",
+           "output_file", "results_folder", "view_target"]
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -115,3 +115,87 @@ def results_folder(text: str) -> Path:
         raise argparse.ArgumentTypeError(f"{text} holds other files and no study: give a new folder, or a "
                                          "study's own to continue it")
     return new_folder(text) if not path.is_dir() or not any(path.iterdir()) else path
+
+
+OUTPUT_TYPES = (output_file, view_target, new_folder, file_or_new_folder, results_folder)
+"""The argparse types that name something a command writes."""
+
+
+def output_dests(parser: argparse.ArgumentParser) -> dict[str, bool]:
+    """Every option of ``parser`` and its subcommands (its ``dest``), and whether it names something written."""
+    dests: dict[str, bool] = {}
+    for action in parser._actions:
+        dests[action.dest] = dests.get(action.dest, False) or action.type in OUTPUT_TYPES
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                for dest, written in output_dests(sub).items():
+                    dests[dest] = dests.get(dest, False) or written
+    return dests
+
+
+def _option(dest: str, positional: bool) -> str:
+    return dest.upper() if positional else f"--{dest.replace('_', '-')}"
+
+
+def _paths(value: object) -> list[str]:
+    if isinstance(value, (str, Path)):
+        return [str(value)]
+    if isinstance(value, (list, tuple)):
+        return [p for v in value for p in _paths(v)]
+    return []
+
+
+def check_paths(args: argparse.Namespace, dests: dict[str, bool], positionals: frozenset[str] = frozenset()) -> None:
+    """What every command's paths must be, checked once where the command line is read (a usage error names the
+    option): valid UTF-8 (a name OpenCV cannot open otherwise); an input that exists is a regular file or a
+    folder (not a pipe or a device: readers seek, and a pipe with no writer hangs); no output is one of the
+    inputs or a file inside an input folder, and no two outputs are the same path (each would destroy a file).
+    ``dests`` says which options name outputs (:func:`output_dests`); ``positionals`` are named without dashes."""
+    outputs = {dest for dest, written in dests.items() if written}
+    given = {dest: _paths(value) for dest, value in vars(args).items() if dest not in ("handler", "check")}
+    for dest, paths in given.items():
+        for text in paths:
+            try:
+                text.encode("utf-8")
+            except UnicodeEncodeError:
+                raise argparse.ArgumentTypeError(f"{_option(dest, dest in positionals)}: the name {text!r} is not "
+                                                 "valid UTF-8; rename the file") from None
+    inputs = {dest: [Path(p) for p in paths if p and Path(p).exists()] for dest, paths in given.items()
+              if dest not in outputs}
+    for dest, found in inputs.items():
+        for path in found:
+            if not (path.is_file() or path.is_dir()):
+                raise argparse.ArgumentTypeError(f"{_option(dest, dest in positionals)}: {path} is not a regular file "
+                                                 "or a folder (a pipe or a device); save it to a file first")
+    written: dict[Path, str] = {}
+    for dest in sorted(outputs & given.keys()):
+        for text in given[dest]:
+            if not text or text == "live":
+                continue
+            target = Path(text).absolute().resolve()
+            option = _option(dest, dest in positionals)
+            if target in written:
+                raise argparse.ArgumentTypeError(f"{option} and {written[target]} are the same path, {text}: give "
+                                                 "each output its own")
+            written[target] = option
+            for other, found in inputs.items():
+                for p in found:
+                    inside = (p.is_dir() and target.is_file() and target.suffix.lower() in _MEDIA
+                              and p.absolute().resolve() in target.parents)
+                    if p.absolute().resolve() == target or (target.exists() and _same(p, target)) or inside:
+                        raise argparse.ArgumentTypeError(
+                            f"{option} {text} is {'a file in' if inside else 'also'} an input "
+                            f"({_option(other, other in positionals)}{' ' + str(p) if inside else ''}): it would be "
+                            "overwritten; give another path")
+
+
+_MEDIA = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".mp4", ".avi", ".mkv", ".mov"}
+"""What a folder given as an input holds for the readers: an output may not replace one of them there (a rig file
+written again beside its calibration images may)."""
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False

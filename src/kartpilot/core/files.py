@@ -26,9 +26,13 @@ def is_torn_last_line(content: str, line: int, last_line: int) -> bool:
 
 
 def read_text_file(path: str | Path) -> str:
-    """A text file's contents; a file that cannot be read, or is not UTF-8 text, raises DataError naming it."""
+    """A text file's contents, with Windows line ends and a byte-order mark (as other tools write them) read as
+    plain text; a file that cannot be read, is not a regular file (a pipe, a device), or is not UTF-8 text, raises
+    DataError naming it."""
+    if Path(path).exists() and not Path(path).is_file():
+        raise DataError(f"{path} is not a regular file (a pipe or a device): save it to a file first")
     try:
-        return Path(path).read_text(encoding="utf-8")
+        return Path(path).read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
         raise DataError(f"{path} is not a UTF-8 text file (byte {exc.start}: {exc.reason})") from None
     except OSError as exc:

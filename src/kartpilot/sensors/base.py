@@ -12,6 +12,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 from kartpilot.core.camera import StereoRig
 from kartpilot.core.errors import DataError, KartpilotError
@@ -71,7 +72,8 @@ def read_image(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> Image:
     if not path.is_file():
         raise DataError(f"image not found: {path}")
     _check_complete(path)
-    image = cv2.imread(str(path), flags)
+    # decoded from its bytes: OpenCV's own reader fails on a file name that is not valid UTF-8
+    image = cv2.imdecode(np.fromfile(path, np.uint8), flags)
     if image is None or image.size == 0:
         raise DataError(f"cannot read image (corrupt or not an image): {path}")
     return image

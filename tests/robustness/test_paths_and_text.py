@@ -1,0 +1,77 @@
+"""Kinds of bad input checked once where they enter: where outputs go (one of the inputs, a file inside an input
+folder, two outputs on one path), what kind of file (a named pipe, a name that is not UTF-8), and text written by
+other tools (a byte-order mark, Windows line ends) read as plain text by every text reader."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from kartpilot.cli.main import main
+from kartpilot.core.files import read_text_file
+from kartpilot.runtime.config import load_stack_config
+from kartpilot.sensors.base import read_image
+
+
+@pytest.fixture()
+def photos(tmp_path):
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    image = np.full((120, 160, 3), 120, np.uint8)
+    cv2.imwrite(str(folder / "a.png"), image)
+    return folder
+
+
+def _refused(capsys, argv: list[str], says: str) -> None:
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    print(err)
+    assert err.startswith("kartpilot: error:") and says in err and len(err.splitlines()) == 1
+
+
+def test_an_output_that_is_an_input_or_inside_an_input_folder_is_refused_and_the_file_kept(photos, capsys):
+    before = (photos / "a.png").read_bytes()
+    _refused(capsys, ["detect", str(photos / "a.png"), "--out", str(photos / "a.png")], "also an input")
+    _refused(capsys, ["detect", str(photos), "--out", str(photos / "a.png")], "a file in an input")
+    assert (photos / "a.png").read_bytes() == before
+
+
+def test_two_outputs_on_one_path_are_refused(photos, tmp_path, capsys):
+    _refused(capsys, ["detect", str(photos), "--out", str(tmp_path / "o.csv"), "--overlay", str(tmp_path / "o.csv")],
+             "the same path")
+    assert not (tmp_path / "o.csv").exists()
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="named pipes are POSIX")
+def test_a_named_pipe_is_refused_without_hanging(tmp_path, capsys):
+    pipe = tmp_path / "frames"
+    os.mkfifo(pipe)
+    _refused(capsys, ["detect", str(pipe), "--out", str(tmp_path / "o.csv")], "not a regular file")
+    with pytest.raises(Exception, match="not a regular file"):
+        read_text_file(pipe)
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX file names are bytes")
+def test_a_file_name_that_is_not_utf8_is_refused_on_the_command_line_and_read_by_the_reader(photos, capsys):
+    name = os.fsdecode(b"caf\xe9.png")  # Latin-1, as an old camera or a Windows share names it
+    os.rename(photos / "a.png", photos / name)
+    assert read_image(photos / name).shape == (120, 160, 3)  # OpenCV's own reader fails on it
+    _refused(capsys, ["detect", str(photos / name), "--out", str(photos.parent / "o.csv")], "not valid UTF-8")
+
+
+@settings(max_examples=30, deadline=None, derandomize=True, database=None)
+@given(bom=st.booleans(), crlf=st.booleans(), speed=st.floats(0.5, 8.0))
+def test_a_config_written_by_another_tool_reads_as_the_same_config(tmp_path_factory, bom, crlf, speed):
+    text = f"lane_policy:\n  speed_mps: {speed}\n"
+    if crlf:
+        text = text.replace("\n", "\r\n")
+    data = (b"\xef\xbb\xbf" if bom else b"") + text.encode()
+    path = tmp_path_factory.mktemp("cfg") / "kart.yaml"
+    path.write_bytes(data)
+    assert load_stack_config(path, "kart").lane_policy.speed_mps == pytest.approx(speed)
