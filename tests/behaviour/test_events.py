@@ -94,3 +94,32 @@ def test_stopping_speed_and_bad_measurements():
     assert v * 0.4 + v * v / 3.0 == pytest.approx(10.0)
     decision, _ = behaviour_step(BehaviourConfig(), BehaviourState.start(BehaviourConfig()), [], math.nan, 0.05)
     assert math.isfinite(decision.speed_cap_mps)
+
+
+def test_a_person_walking_across_holds_the_kart_until_they_have_crossed_and_walk_away():
+    """Seen before any crossing is (a zebra is found nearer than a person): the person in the kart's corridor
+    stops it; once they have crossed the kart's line and walk away beside the crossing, the kart goes on. One who
+    waits beside the crossing without crossing holds it."""
+    config = BehaviourConfig(limit_kmh=15, front_m=0.0)
+
+    def walker(x, t):
+        lateral = min(-3.0 + 0.8 * max(t - 4.0, 0.0), 3.5)  # from 3 m right to 3.5 m left, from t = 4 s
+        person = Detection("person", (0, 0, 1, 1), 0.9, "beside_crossing" if abs(lateral) > 2.5 else "on_crossing",
+                           distance_m=22 - x, lateral_m=lateral, track_id=7)
+        zebra = [_at("zebra", 20 - x)] if 20 - x < 10 else []
+        return [person, *zebra]
+
+    log = drive(config, walker, seconds=25)
+    stopped = [x for t, x, v, s in log if 9 < t < 11]
+    assert stopped and 20 - stopped[-1] >= 0.2  # stopped before the crossing
+    assert log[-1][1] > 21  # went on after the person had crossed
+    went = next(t for t, x, v, s in log if t > 5 and s == "drive")
+    assert went > 4.0 + 6.5 / 0.8  # not before the person was 1 m past the nearest they came to the line
+
+    def waiter(x, t):
+        person = Detection("person", (0, 0, 1, 1), 0.9, "beside_crossing", distance_m=22 - x, lateral_m=-3.0,
+                           track_id=3)
+        return [person, *([_at("zebra", 20 - x)] if 20 - x < 10 else [])]
+
+    log = drive(config, waiter, seconds=25)
+    assert log[-1][3] == "yield" and 20 - log[-1][1] >= 0.2
