@@ -1,5 +1,6 @@
 """The scenarios' layouts vary with the seed, and their referee counts the faults the event counts."""
 
+import numpy as np
 import pytest
 
 from kartpilot.core.errors import ConfigError
@@ -56,3 +57,69 @@ def test_start_on_green_speed_limit_and_pedestrian_faults():
         return 145.0 + 3.0 * (t - m["on_road_until_s"] - 1.0), 3.0
 
     assert run("pedestrian", 1, yielding)["passed"]
+
+
+def test_overtake_faults():
+    def scored(front_end, offset_end, touching_at=None):
+        plan = scenario("overtake", 4)
+        referee = ScenarioReferee(plan)
+        t = 0.0
+        while t < plan.duration_s:
+            front = 165.0 + (front_end - 165.0) * t / plan.duration_s
+            touching = "car" if touching_at is not None and abs(t - touching_at) < 0.05 else ""
+            referee.step(t, front, 4.0, 0.1, touching, offset_end if t > plan.duration_s - 1 else 3.0)
+            t += 0.1
+        return referee.result(front)
+
+    car = scenario("overtake", 4).marks["car_s"]
+    assert scored(car + 30.0, 0.1)["passed"]
+    assert any("touched the car" in f for f in scored(car + 30.0, 0.1, touching_at=5.0)["faults"])
+    assert "did not pass the car" in scored(car - 3.0, 0.1)["faults"]
+    assert any("did not return to the lane" in f for f in scored(car + 30.0, 3.0)["faults"])
+
+
+def test_the_track_referee_lets_a_kart_cross_a_dashed_line_only_where_allowed():
+    """On lelystad's dashed stretch the kart drives one lane to the left: disqualified unless the referee
+    allows crossing a dashed line; a solid line stays a line."""
+    from dataclasses import replace
+
+    from kartpilot.core.types import ActuatorCommand
+    from kartpilot.sim.referee import RefereeConfig
+    from kartpilot.sim.simulator import SimConfig, Simulator
+    from kartpilot.sim.track import build_track, load_track_spec
+
+    def drive_left_lane(allowed: bool, s_m: float) -> str:
+        config = SimConfig(track="lelystad", vehicle="sdc-kart", cameras=(), max_time_s=1.0,
+                           referee=RefereeConfig(may_cross_dashed=allowed))
+        track = build_track(replace(load_track_spec("lelystad"), start_s_m=s_m))
+        with Simulator(config, track=track) as sim:
+            route = sim.track.route
+            i = route.index_at(s_m)
+            x, y = route.xy_m[i] + 3.0 * route.normal()[i]
+            sim.state = type(sim.state)(x_m=float(x), y_m=float(y), yaw_rad=float(route.heading_rad[i]), vx_mps=2.0)
+            while sim.read() is not None:
+                sim.send(ActuatorCommand(0, 0.0, 0.1, 0.0))
+            return sim.referee.reason if sim.referee.disqualified else ""
+
+    assert drive_left_lane(True, 190.0) == ""
+    assert drive_left_lane(False, 190.0) != ""
+    assert drive_left_lane(True, 20.0) != ""  # a solid line there
+
+
+def test_parking_faults():
+    plan = scenario("parking", 3)
+    m = plan.marks
+
+    def scored(s_back, lateral, speed=0.0, touching=""):
+        referee = ScenarioReferee(plan)
+        kart = np.array([[s_back, lateral - 0.6], [s_back + 1.8, lateral - 0.6], [s_back + 1.8, lateral + 0.6],
+                         [s_back, lateral + 0.6]])
+        referee.step(1.0, s_back + 1.8, speed, 0.1, touching, lateral, kart)
+        return referee.result(s_back + 1.8)
+
+    middle = -(1.5 + m["outer_m"] / 2)
+    assert scored(m["bay_s"] + 1.0, middle)["passed"]
+    assert "did not end wholly inside the bay" in scored(m["bay_end_s"] - 1.0, middle)["faults"]  # front past it
+    assert "did not end wholly inside the bay" in scored(m["bay_s"] + 1.0, -1.2)["faults"]  # still in the lane
+    assert "did not stop in the bay" in scored(m["bay_s"] + 1.0, middle, speed=1.0)["faults"]
+    assert any("touched the barrier" in f for f in scored(m["bay_s"] + 1.0, middle, touching="barrier")["faults"])

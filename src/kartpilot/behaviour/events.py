@@ -3,8 +3,9 @@
 A state machine rather than a behaviour tree: the scenarios are a handful of modes the kart is in one at a time
 (waiting at the start, driving, stopping for a red light or a pedestrian, waiting), each left on one named
 condition; every state and transition can be read, logged and tested on its own. Lane following keeps the
-steering; this layer only says how fast, and where to stop. The supervisor stays above it: a fault still stops
-the kart whatever this says.
+steering, except in a manoeuvre: this layer says how fast, where to stop and, for an overtake, the path
+(:mod:`manoeuvres`) that the path follower steers along. The supervisor stays above it: a fault still stops the
+kart whatever this says.
 
 States:
 
@@ -14,8 +15,16 @@ States:
   whichever is lower.
 - ``stop_red``: a red light and a stop line ahead: braking to stop ``stop_margin_m`` before the line; ``wait_red``
   once stopped; back to ``drive`` on green.
-- ``yield``: a person on or beside a zebra crossing ahead: braking to stop ``stop_margin_m`` before the crossing;
-  waiting until no person has been seen on or beside it for ``clear_s``.
+- ``yield``: a person on or beside a zebra crossing ahead, or on the road in the kart's corridor: braking to stop
+  ``stop_margin_m`` before the crossing (``person_clearance_m`` before the person where no crossing is seen yet);
+  waiting until no such person has been seen for ``clear_s``.
+- ``overtake``: a car in the kart's lane within ``car_range_m`` (with ``overtake`` on): the path around it is
+  planned once, from the car's measured distance, and followed until its end; then ``drive``.
+- ``wait_car``: the same car with ``overtake`` off, or too near to pass: stopping ``car_gap_m`` behind it and
+  waiting until the lane has been clear for ``clear_s``.
+- ``park``: a parking bay (two barriers beside the road, a free length between them) within ``bay_range_m``
+  (with ``park`` on): the path into it is planned once and followed, slowing to stop where it ends; ``parked``
+  once stopped there, for good.
 
 Braking is planned from the stop point's distance, the measured speed and the brake's delay (the RDW brake
 actuator travels before it bites, ``brake_delay_s``): the target speed is the one from which ``decel_mps2`` stops
@@ -25,15 +34,17 @@ the kart at the stop point after the delay, so it starts braking neither early n
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
+from kartpilot.behaviour.manoeuvres import OvertakeConfig, ParkConfig, plan_overtake, plan_park
 from kartpilot.core.errors import ConfigError
 from kartpilot.perception.objects import Detection
+from kartpilot.planning.reference_path import ReferencePath
 
 __all__ = ["BehaviourConfig", "BehaviourDecision", "BehaviourState", "behaviour_step", "stopping_speed"]
 
-State = Literal["wait_start", "drive", "stop_red", "wait_red", "yield"]
+State = Literal["wait_start", "drive", "stop_red", "wait_red", "yield", "overtake", "wait_car", "park", "parked"]
 
 
 @dataclass(frozen=True)
@@ -49,9 +60,20 @@ class BehaviourConfig:
         brake_delay_s: the brake's delay before it bites (the RDW brake actuator travels first).
         light_range_m: a light farther than this does not stop the kart yet.
         stop_line_range_m: a stop line this far ahead belongs to a red light seen with it.
-        crossing_range_m: a person on or beside a crossing within this distance makes the kart yield.
+        crossing_range_m: a person on or beside a crossing, or on the road in the kart's corridor, within this
+            distance makes the kart yield.
+        corridor_m: a person this close to the kart's line (either side) is on its road, crossing or not.
+        person_clearance_m: with no crossing seen, the kart's front stops this far before such a person.
+        crossed_m: a person beside a crossing who is this much farther from the kart's line than the nearest they
+            came has crossed it (they no longer hold the kart).
         clear_s: the crossing counts as clear after this long with no person seen on or beside it.
         stopped_mps: the kart counts as stopped below this speed.
+        overtake: pass a stationary car in the lane (where the road allows it: the scenario, a team's
+            knowledge of the course); off, the kart stops ``car_gap_m`` behind it and waits.
+        car_range_m: a car in the corridor this near starts the overtake (or the stop).
+        car_corridor_m: a car whose middle is this close to the kart's line is in its lane.
+        car_gap_m: where the kart's front stops behind a car it does not pass.
+        park: park in the first bay between barriers seen within ``bay_range_m`` (the event's last scenario).
     """
 
     start_on_green: bool = False
@@ -64,8 +86,19 @@ class BehaviourConfig:
     light_range_m: float = 25.0
     stop_line_range_m: float = 25.0
     crossing_range_m: float = 20.0
+    corridor_m: float = 2.0
+    person_clearance_m: float = 2.0
+    crossed_m: float = 1.0
     clear_s: float = 1.5
     stopped_mps: float = 0.15
+    overtake: bool = False
+    car_range_m: float = 14.0
+    car_corridor_m: float = 1.2
+    car_gap_m: float = 3.0
+    passing: OvertakeConfig = field(default_factory=OvertakeConfig)
+    park: bool = False
+    bay_range_m: float = 12.0
+    parking: ParkConfig = field(default_factory=ParkConfig)
 
     def __post_init__(self) -> None:
         if min(self.limit_kmh, self.decel_mps2, self.light_range_m, self.crossing_range_m) <= 0:
@@ -78,13 +111,16 @@ class BehaviourConfig:
 class BehaviourState:
     """What persists between frames: the state, the posted limit, the stop point (metres driven at which to
     stop; NaN for none: it is kept by the metres driven once the line goes out of view under the kart's nose),
-    the metres driven so far and the time since a person was last seen at a crossing."""
+    the metres driven so far, the time since a person was last seen at a crossing, and for each person tracked
+    the nearest they came to the kart's line (one who crossed it and walks away is done)."""
 
     state: State = "drive"
     limit_kmh: float = math.nan
     stop_at_m: float = math.nan
     odometer_m: float = 0.0
     clear_for_s: float = 0.0
+    nearest_lateral_m: tuple[tuple[int, float], ...] = ()  # per person's track id: the least |lateral| seen
+    manoeuvre_end_m: float = math.nan
 
     @classmethod
     def start(cls, config: BehaviourConfig) -> BehaviourState:
@@ -93,12 +129,14 @@ class BehaviourState:
 
 @dataclass(frozen=True)
 class BehaviourDecision:
-    """The step's decision: the most speed allowed now (m/s; 0: stand), and the state and the reason it is in."""
+    """The step's decision: the most speed allowed now (m/s; 0: stand), the state and the reason it is in, and
+    where a manoeuvre starts, its path."""
 
     speed_cap_mps: float
     state: State
     reason: str
     stop_distance_m: float = math.nan
+    path: ReferencePath | None = None  # a manoeuvre's path, given on the step it starts (the kart's frame there)
 
 
 def stopping_speed(distance_m: float, decel_mps2: float, delay_s: float) -> float:
@@ -132,8 +170,47 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
     red = _nearest(detections, "traffic_light", "red")
     line = _nearest(detections, "stop_line")
     crossing = _nearest(detections, "zebra")
-    waiting = [d for d in detections if d.label == "person" and d.state in ("on_crossing", "beside_crossing")
-               and math.isfinite(d.distance_m) and d.distance_m <= config.crossing_range_m]
+    people = [d for d in detections if d.label == "person" and math.isfinite(d.distance_m)
+              and 0 < d.distance_m <= config.crossing_range_m]
+    nearest = dict(s.nearest_lateral_m)
+    for p in people:
+        if p.track_id > 0:
+            nearest[p.track_id] = min(nearest.get(p.track_id, math.inf), abs(p.lateral_m))
+    s = replace(s, nearest_lateral_m=tuple(sorted(nearest.items())))
+    # a person on the road in the kart's way (whether a crossing is seen yet or not: the camera finds a zebra on
+    # the ground nearer than it finds a person), or on or beside a crossing unless they have crossed the kart's
+    # line and walk away from it
+    waiting = [p for p in people if abs(p.lateral_m) <= config.corridor_m or p.state == "on_crossing"
+               or (p.state == "beside_crossing" and abs(p.lateral_m) - nearest.get(p.track_id, math.inf)
+                   < config.crossed_m)]
+
+    car = min((d for d in detections if d.label == "car" and math.isfinite(d.distance_m) and d.distance_m > 0
+               and abs(d.lateral_m) <= config.car_corridor_m), key=lambda d: d.distance_m, default=None)
+    if s.state == "parked":
+        return BehaviourDecision(0.0, "parked", "parked in the bay"), s
+    if s.state == "park":
+        remaining = s.stop_at_m - odometer
+        if speed_mps <= config.stopped_mps and remaining < 0.5:
+            return BehaviourDecision(0.0, "parked", "parked in the bay"), replace(s, state="parked")
+        cap = min(cruise, config.parking.speed_mps, stopping_speed(remaining, config.decel_mps2, config.brake_delay_s))
+        return BehaviourDecision(cap, "park", "parking in the bay", remaining), s
+    bay = _nearest(detections, "parking_bay")
+    if config.park and s.state == "drive" and bay is not None and bay.distance_m <= config.bay_range_m:
+        try:
+            free = float(bay.state)
+        except ValueError:
+            free = math.nan
+        path = plan_park(bay.distance_m, free, bay.lateral_m, config.parking) if math.isfinite(free) else None
+        if path is not None:
+            s = replace(s, state="park", stop_at_m=odometer + float(path.s_m[-1]))
+            return BehaviourDecision(min(cruise, config.parking.speed_mps), "park",
+                                     f"bay {free:.1f} m long {bay.distance_m:.1f} m ahead: parking",
+                                     float(path.s_m[-1]), path), s
+    if s.state == "overtake":
+        if odometer < s.manoeuvre_end_m:
+            return BehaviourDecision(cruise, "overtake", "overtaking the car"), s
+        s = replace(s, state="drive", manoeuvre_end_m=math.nan)
+        return BehaviourDecision(cruise, "drive", "back in the lane"), s
 
     if s.state == "wait_start":
         if green is not None:
@@ -151,9 +228,11 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
         return BehaviourDecision(cruise, "drive", "green: go on"), replace(s, state="drive", stop_at_m=math.nan)
 
     if waiting and s.state in ("drive", "yield"):
-        edge = crossing.distance_m if crossing is not None else min(p.distance_m for p in waiting) - 2.0
-        if s.state == "drive":
-            s = replace(s, state="yield", stop_at_m=odometer + edge - config.front_m - config.stop_margin_m)
+        edge = crossing.distance_m if crossing is not None else (
+            min(p.distance_m for p in waiting) - config.person_clearance_m + config.stop_margin_m)
+        stop_at = odometer + edge - config.front_m - config.stop_margin_m
+        if s.state == "drive" or stop_at < s.stop_at_m:  # a crossing seen nearer than the person: stop there
+            s = replace(s, state="yield", stop_at_m=stop_at)
         s = replace(s, clear_for_s=0.0)
     elif s.state == "yield":
         s = replace(s, clear_for_s=s.clear_for_s + dt_s)
@@ -161,7 +240,22 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
             return BehaviourDecision(cruise, "drive", "crossing clear: go on"), replace(
                 s, state="drive", stop_at_m=math.nan)
 
-    if s.state in ("stop_red", "wait_red", "yield"):
+    if car is not None and car.distance_m <= config.car_range_m and s.state in ("drive", "wait_car"):
+        path = plan_overtake(car.distance_m, config.passing) if config.overtake and s.state == "drive" else None
+        if path is not None:
+            s = replace(s, state="overtake", manoeuvre_end_m=odometer + float(path.s_m[-1]))
+            return BehaviourDecision(cruise, "overtake", f"car in the lane {car.distance_m:.1f} m ahead: "
+                                     "overtaking", path=path), s
+        stop_at = odometer + car.distance_m - config.front_m - config.car_gap_m
+        s = replace(s, state="wait_car", stop_at_m=min(stop_at, s.stop_at_m) if s.state == "wait_car" else stop_at,
+                    clear_for_s=0.0)
+    elif s.state == "wait_car":
+        s = replace(s, clear_for_s=s.clear_for_s + dt_s)
+        if s.clear_for_s >= config.clear_s:
+            return BehaviourDecision(cruise, "drive", "lane clear: go on"), replace(s, state="drive",
+                                                                                  stop_at_m=math.nan)
+
+    if s.state in ("stop_red", "wait_red", "yield", "wait_car"):
         remaining = s.stop_at_m - odometer
         cap = min(cruise, stopping_speed(remaining, config.decel_mps2, config.brake_delay_s))
         name: State = s.state
@@ -169,6 +263,6 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
             name = "wait_red"
             s = replace(s, state="wait_red")
         reason = {"stop_red": "red light: stopping before the line", "wait_red": "red light: waiting for green",
-                  "yield": "pedestrian at the crossing: waiting"}[name]
+                  "yield": "pedestrian at the crossing: waiting", "wait_car": "car in the lane: waiting"}[name]
         return BehaviourDecision(cap, name, reason, remaining), s
     return BehaviourDecision(cruise, "drive", f"limit {s.limit_kmh:g} km/h"), s

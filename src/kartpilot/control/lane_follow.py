@@ -123,7 +123,7 @@ class LaneDecision:
     steer_rad: float
     throttle: float
     brake: float
-    reason: Literal["centre", "split", "side-left", "side-right", "hold", "halt"]
+    reason: Literal["centre", "split", "side-left", "side-right", "hold", "halt", "path"]
 
 
 def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: LaneObservation | None,

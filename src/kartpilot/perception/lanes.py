@@ -30,7 +30,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from kartpilot.calibration.ground import ground_points
+from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import PerceptionError
+from kartpilot.core.geometry import invert_pose, transform_points
 from kartpilot.core.types import Image
 from kartpilot.perception.paint import LaneCurve, PaintConfig, PaintStrokes, find_paint_curves
 
@@ -47,6 +50,7 @@ __all__ = [
     "draw_lanes",
     "heading_deviation_rad",
     "intersection",
+    "lane_on_ground",
 ]
 
 Source = Literal["detected", "extreme", "none"]
@@ -596,3 +600,24 @@ def _x_at(seg: NDArray[np.float64], y: float) -> float:
 
 def _length(segs: Segments) -> NDArray[np.float64]:
     return np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1]) if len(segs) else np.zeros(0)
+
+
+def lane_on_ground(observation: LaneObservation | None, camera: PinholeCamera, near_m: float = 3.0,
+                   far_m: float = 8.0) -> tuple[float, float] | None:
+    """Where the lane's centre runs on the ground in the kart's body frame, from both boundaries' curves
+    (``paint``): (its lateral place at the body's origin, metres, left positive; its heading, rad, left
+    positive), from the centre's points ``near_m`` and ``far_m`` ahead. None without both curves."""
+    if observation is None or observation.left_curve is None or observation.right_curve is None:
+        return None
+    ahead = np.array([[near_m, 0.0, 0.0], [far_m, 0.0, 0.0]])
+    rows = camera.project(transform_points(invert_pose(camera.pose_body_cam_array), ahead))[:, 1]
+    sx = observation.width_px / camera.width_px  # the observation's pixels may be another size's
+    sy = observation.height_px / camera.height_px
+    centre = [((observation.left_curve.x_at(r * sy) + observation.right_curve.x_at(r * sy)) / 2 / sx, r)
+              for r in rows]
+    points = ground_points(camera, np.array(centre, dtype=np.float64))
+    if not np.all(np.isfinite(points)):
+        return None
+    (x1, y1), (x2, y2) = points[0, :2], points[1, :2]
+    heading = math.atan2(y2 - y1, x2 - x1)
+    return float(y1 - x1 * math.tan(heading)), float(heading)

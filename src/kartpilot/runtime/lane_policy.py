@@ -28,10 +28,12 @@ from kartpilot.control.lane_follow import (
     lane_follow_step,
 )
 from kartpilot.control.longitudinal import SpeedPIConfig, SpeedPIState, speed_pi
+from kartpilot.control.path_follow import PathFollowConfig, PathFollowState, path_follow_step
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import CalibrationError, ConfigError
 from kartpilot.core.geometry import invert_pose, transform_points
-from kartpilot.core.types import ActuatorCommand, FrameSet, Image, VehicleFeedback
+from kartpilot.core.types import ActuatorCommand, FrameSet, Image, VehicleFeedback, VehiclePose
+from kartpilot.odometry.dead_reckoning import dead_reckon
 from kartpilot.perception.detect import DetectorConfig, ObjectDetector
 from kartpilot.perception.lanes import (
     LaneConfig,
@@ -40,9 +42,11 @@ from kartpilot.perception.lanes import (
     detect_lanes,
     detect_side_boundary,
     draw_lanes,
+    lane_on_ground,
 )
 from kartpilot.perception.objects import Detection
 from kartpilot.perception.tape import TapeConfig, TapeObservation, detect_tape_track, draw_tape_track
+from kartpilot.planning.reference_path import ReferencePath
 
 __all__ = [
     "KNOWN_GOOD_SPEED_MODE_KMH",
@@ -95,6 +99,9 @@ class LanePolicyConfig:
             centre camera (``detector``; people off by default, the HOG detector's cost) turn into a speed cap and
             stops before a red light's line or a crossing (``behaviour``). Needs ``speed_mps`` and the measured
             speed.
+        manoeuvre: the path follower that steers a manoeuvre the rules plan (an overtake), on the pose dead
+            reckoned from the measured speed and the steering; ``wheelbase_m`` is the kart's (the sdc-kart's);
+            the lanes steer again once the path is back within ``handover_m`` of the lane's centre.
     """
 
     boundaries: Literal["lines", "tape"] = "lines"
@@ -111,8 +118,13 @@ class LanePolicyConfig:
     events: bool = False
     detector: DetectorConfig = field(default_factory=lambda: DetectorConfig(people=False))
     behaviour: BehaviourConfig = field(default_factory=BehaviourConfig)
+    manoeuvre: PathFollowConfig = field(default_factory=PathFollowConfig)
+    wheelbase_m: float = 1.05
+    handover_m: float = 0.5
 
     def __post_init__(self) -> None:
+        if not self.wheelbase_m > 0:
+            raise ConfigError("lane_policy.wheelbase_m must be positive")
         if not self.speed_mps >= 0:
             raise ConfigError("lane_policy.speed_mps must be 0 (open loop) or positive")
         if self.events and self.speed_mps <= 0:
@@ -190,7 +202,7 @@ class LanePolicy:
             self.config = replace(self.config, follow=replace(self.config.follow, max_steer_rad=max_steer_rad))
         if "center" not in cameras:
             raise CalibrationError("lane following needs a camera named 'center'")
-        centre = cameras["center"]
+        centre = self.centre_camera = cameras["center"]
         top_row = _ground_row(centre, self.config.roi_far_m)
         lanes = replace(self.config.lanes, roi_top=min(max(top_row / centre.height_px, 0.0), 0.9),
                         curves=replace(self.config.lanes.curves, horizon=horizon_fraction(centre)))
@@ -209,15 +221,20 @@ class LanePolicy:
         self.last_decision: LaneDecision | None = None
         self.last_command: ActuatorCommand | None = None
         self.measured_speed_mps: float | None = None
+        self.measured_steer_rad: float | None = None
         self.speed_state = SpeedPIState()
         self.objects = ObjectDetector(self.config.detector, centre) if self.config.events else None
         self.behaviour = BehaviourState.start(self.config.behaviour)
         self.last_behaviour: BehaviourDecision | None = None
         self.last_objects: list[Detection] = []
+        # a manoeuvre under way: its path, the follower's state and the pose dead reckoned since it started
+        self.manoeuvre: tuple[ReferencePath, PathFollowState, VehiclePose] | None = None
+        self.lane_ground: tuple[int, tuple[float, float]] | None = None
 
     def observe_vehicle(self, feedback: VehicleFeedback) -> None:
         """The kart's own measurements before a step; a fresh speed closes the speed loop (``speed_mps``)."""
         self.measured_speed_mps = feedback.speed_mps
+        self.measured_steer_rad = feedback.steer_rad
 
     def __call__(self, frames: FrameSet) -> ActuatorCommand:
         centre_image = frames.images.get("center")
@@ -234,10 +251,52 @@ class LanePolicy:
                                                 away.get("right", 0.0), self.dt_s)
         self.last_observation = observation
         if self.objects is not None:
+            lane = lane_on_ground(observation, self.centre_camera)
+            if lane is not None:  # where the lane runs, for a manoeuvre that starts in a frame that lacks it
+                self.lane_ground = (frames.stamp_ns, lane)
             self.last_objects = self.objects(centre_image) if centre_image is not None else []
             self.last_behaviour, self.behaviour = behaviour_step(
                 self.config.behaviour, self.behaviour, self.last_objects, self.measured_speed_mps or 0.0, self.dt_s)
+            decision = self._manoeuvre(frames.stamp_ns, decision)
         return self._command(frames.stamp_ns, decision)
+
+    def _manoeuvre(self, stamp_ns: int, decision: LaneDecision) -> LaneDecision:
+        """Where the rules planned a manoeuvre, the path follower steers along it instead of the lanes, on the
+        pose dead reckoned from the kart's measured speed and steering (the commanded steering where none is
+        measured). The path, planned along the lane, is laid where the lane runs (its centre and heading on the
+        ground, from the boundaries last seen in the second before it starts); once the path is back within
+        ``handover_m`` of the lane's centre, the lanes steer again."""
+        b = self.last_behaviour
+        if b is None or b.state not in ("overtake", "park", "parked"):
+            self.manoeuvre = None
+            return decision
+        speed = self.measured_speed_mps or 0.0
+        if b.path is not None:
+            seen_ns, lane = self.lane_ground or (0, (0.0, 0.0))
+            if stamp_ns - seen_ns > 1_000_000_000:
+                lane = (0.0, 0.0)  # not seen for a second: the kart's own heading is the lane's
+            pose = VehiclePose(stamp_ns, 0.0, -lane[0], -lane[1], speed, 0.0, "bridged", "dead reckoning")
+            self.manoeuvre = (b.path, PathFollowState(steer_rad=self.state.steer_rad), pose)
+        if self.manoeuvre is None:
+            return decision
+        path, follow, pose = self.manoeuvre
+        if b.path is None:
+            steer = self.measured_steer_rad if self.measured_steer_rad is not None else (
+                self.last_command.steer_rad if self.last_command is not None else 0.0)
+            pose = dead_reckon(pose, speed, steer, self.config.wheelbase_m, self.dt_s, stamp_ns)
+        out, follow = path_follow_step(self.config.manoeuvre, follow, path, pose, self.dt_s, self.config.wheelbase_m,
+                                       self.config.follow.max_steer_rad)
+        self.manoeuvre = (path, follow, pose)
+        self.state = replace(self.state, steer_rad=out.steer_rad)
+        if b.state == "overtake":
+            returning = out.index > int(np.argmax(np.abs(path.y_m)))
+            if out.done or (returning and abs(float(path.y_m[out.index])) < self.config.handover_m):
+                self.manoeuvre = None  # back in the lane: the lanes steer the rest
+                return decision
+            return LaneDecision(out.steer_rad, 1.0, 0.0, "path")  # the speed: the mode's, under the rules' cap
+        # parking: the path's own speed (it slows to its end), under the rules' cap; stopped there, braked
+        fraction = 0.0 if out.done else out.target_speed_mps / max(self.config.speed_mps, 1e-3)
+        return LaneDecision(out.steer_rad, min(fraction, 1.0), 1.0 if out.done else 0.0, "path")
 
     def _mask(self, camera: str, image: Image | None) -> Image | None:
         """The camera's body mask at the image's size (a camera may deliver another size than calibrated)."""

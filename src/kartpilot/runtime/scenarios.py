@@ -3,6 +3,7 @@ the scenario's referee (:mod:`kartpilot.sim.scenarios`)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from typing import Any
 
@@ -13,7 +14,8 @@ from kartpilot.core.types import ActuatorCommand, FrameSet
 from kartpilot.runtime.config import StackConfig, load_stack_config
 from kartpilot.runtime.lane_policy import LanePolicy
 from kartpilot.runtime.loop import run_loop
-from kartpilot.sim.scenarios import ScenarioReferee, scenario, start_pose_s
+from kartpilot.sim.referee import RefereeConfig
+from kartpilot.sim.scenarios import ScenarioReferee, footprints_touch, scenario, start_pose_s
 from kartpilot.sim.simulator import SimConfig, Simulator
 from kartpilot.sim.track import build_track, load_track_spec, project_onto
 
@@ -26,19 +28,25 @@ SCENARIO_SPEED_KMH = 15.0
 def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_rate_hz: float = 15.0
                  ) -> dict[str, Any]:
     """Drive one scenario on one seed; its result in the session result's ``scenarios`` form (``name``,
-    ``seed``, ``passed``, ``faults``). The kart's measured speed (its 0x440 report) is the simulator's."""
+    ``seed``, ``passed``, ``faults``). The kart's measured speed (its 0x440 report) and steering angle are the
+    simulator's."""
     cv2.setNumThreads(1)
     plan = scenario(name, seed)
     stack = stack or load_stack_config(None, "kart")
     policy_config = replace(stack.lane_policy, events=True, speed_mps=SCENARIO_SPEED_KMH / 3.6,
-                            behaviour=replace(stack.lane_policy.behaviour,
+                            behaviour=replace(stack.lane_policy.behaviour, overtake=plan.overtake, park=plan.park,
                                               start_on_green=plan.start_on_green, limit_kmh=plan.limit_kmh))
     spec = load_track_spec("lelystad")
-    track = build_track(replace(spec, props=plan.props))
+    track = build_track(replace(spec, props=plan.props, barrier_blocks=spec.barrier_blocks + plan.barriers,
+                                dashed=spec.dashed + plan.dashed))
     track = replace(track, spec=replace(track.spec, start_s_m=start_pose_s(track, plan)))
     config = SimConfig(track="lelystad", vehicle="sdc-kart", seed=seed, camera_rate_hz=camera_rate_hz,
-                       speed_mode_mps=SCENARIO_SPEED_KMH / 3.6, max_time_s=plan.duration_s)
+                       speed_mode_mps=SCENARIO_SPEED_KMH / 3.6, max_time_s=plan.duration_s,
+                       referee=RefereeConfig(may_cross_dashed=plan.overtake or plan.park))
     referee = ScenarioReferee(plan)
+    props: list[tuple[str, np.ndarray]] = [(p.kind, track.prop_corners(p)[:4, :2]) for p in plan.props
+                                           if p.kind == "car"]
+    props += [("barrier", footprint) for footprint in track.barrier_blocks]
     with Simulator(config, track=track) as sim:
         policy = LanePolicy(sim.cameras, policy_config, camera_rate_hz, sim.vehicle.max_steer_rad)
         front = sim.vehicle.wheelbase_m + sim.vehicle.front_overhang_m
@@ -46,11 +54,16 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
 
         def step(frames: FrameSet) -> ActuatorCommand:
             policy.measured_speed_mps = sim.state.vx_mps
+            policy.measured_steer_rad = sim.state.steer_rad  # the RDW steering ECU's angle (0x440's sibling)
             return policy(frames)
 
         def judge(frames: FrameSet, command: ActuatorCommand) -> None:
-            where["s"] = project_onto(sim.track.route, np.array([sim.state.x_m, sim.state.y_m])).s_m + front
-            referee.step(sim.time_s, where["s"], sim.state.vx_mps, sim.dt_s)
+            here = project_onto(sim.track.route, np.array([sim.state.x_m, sim.state.y_m]))
+            where["s"] = here.s_m + front
+            kart = _footprint(sim)
+            corners = [project_onto(sim.track.route, corner, here.index) for corner in kart]
+            referee.step(sim.time_s, where["s"], sim.state.vx_mps, sim.dt_s, _touching(kart, props), here.offset_m,
+                         np.array([[c.s_m, c.offset_m] for c in corners]))
 
         run_loop(sim, step, sim, on_step=judge)
         result = referee.result(where["s"])
@@ -58,3 +71,20 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
             result["faults"].append(str(sim.referee.reason))
             result["passed"] = False
     return result
+
+
+def _footprint(sim: Simulator) -> np.ndarray:
+    """The kart's footprint's corners in the world (4 x 2, in order)."""
+    x0, x1, y0, y1 = sim.vehicle.footprint_body()
+    c, s = math.cos(sim.state.yaw_rad), math.sin(sim.state.yaw_rad)
+    body = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    return body @ np.array([[c, s], [-s, c]]) + [sim.state.x_m, sim.state.y_m]
+
+
+def _touching(kart: np.ndarray, things: list[tuple[str, np.ndarray]]) -> str:
+    """What the kart's footprint overlaps now ('' for nothing): a car's box (corners 0, 1, 3, 2 in order) or a
+    barrier's footprint (in order)."""
+    for kind, corners in things:
+        if footprints_touch(kart, corners[[0, 1, 3, 2]] if kind == "car" else corners):
+            return kind
+    return ""

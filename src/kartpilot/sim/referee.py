@@ -30,11 +30,14 @@ class RefereeConfig:
         stop_on_disqualification: end the run at the first disqualification (the rules do).
         run_on_m: after the finish the run goes on for this distance before it ends (``inf``: the
             driver ends it, for a kart that stops by itself at the end of its reference path).
+        may_cross_dashed: a dashed boundary (a two-lane road's centre line) may be crossed into the next lane,
+            one lane's width beyond it, as an overtake does; a solid line still may not.
     """
 
     laps: int = 1
     stop_on_disqualification: bool = True
     run_on_m: float = 0.0
+    may_cross_dashed: bool = False
 
 
 @dataclass(frozen=True)
@@ -202,12 +205,17 @@ class Referee:
             side = "left" if p.offset_m > 0 else "right"
             marking = track.spec.left if side == "left" else track.spec.right
             limit = p.half_width_m - (marking.line_width_m / 2 if marking.kind == "line" else 0.0)
+            if self.config.may_cross_dashed and track.dashed_at(side, p.s_m):  # type: ignore[arg-type]
+                limit = 3 * p.half_width_m - marking.line_width_m / 2  # the next lane, to its far edge
+                if abs(p.offset_m) <= limit:
+                    continue
             if abs(p.offset_m) <= limit:
                 continue
             if track.marked(side, p.index):  # type: ignore[arg-type]
                 what = f"touched the {side} line" if marking.kind == "line" else f"left the track on the {side}"
                 self._disqualify(f"{what} at s={p.s_m:.1f} m", p.s_m, tyre)
                 return
-            if abs(centre_offset) > centre_half_width:
+            if abs(centre_offset) > centre_half_width and not (self.config.may_cross_dashed
+                                                               and abs(centre_offset) <= 3 * centre_half_width):
                 self._disqualify(f"left the route at s={p.s_m:.1f} m (no marking there)", p.s_m, centre)
                 return

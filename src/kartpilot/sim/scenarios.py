@@ -11,8 +11,12 @@ simulator's seed, the textures and the camera's noise). Four of the 2024 event's
   line on red, stopped with its front more than 1.5 m or less than 0.2 m before the line, or never stopped.
 - ``pedestrian``: a person beside the zebra crossing walks across as the kart comes; fault: moved within 3 m of the
   crossing while the person was on the road, or never went on.
-
-Overtaking the inflatable car and parking between barriers need planned paths and are not here yet.
+- ``overtake``: the inflatable car stands in the lane on the stretch where the left line is a two-lane road's
+  dashed centre line; the kart may cross that line (not a solid one); faults: touched the car, did not pass it,
+  did not return to its lane.
+- ``parking``: a bay beside the road on the right, between two red-and-white barriers, where the right line is
+  dashed (the bay's entry); the kart parks forward in it; faults: touched a barrier, did not end stopped wholly
+  inside the bay.
 """
 
 from __future__ import annotations
@@ -24,11 +28,11 @@ from typing import Any
 import numpy as np
 
 from kartpilot.core.errors import ConfigError
-from kartpilot.sim.track import Prop, Track
+from kartpilot.sim.track import PROP_SIZES_M, BarrierBlock, Dashed, Prop, Track
 
-__all__ = ["SCENARIOS", "Scenario", "ScenarioReferee", "scenario"]
+__all__ = ["SCENARIOS", "Scenario", "ScenarioReferee", "footprints_touch", "scenario"]
 
-SCENARIOS = ("start-on-green", "speed-limit", "red-light", "pedestrian")
+SCENARIOS = ("start-on-green", "speed-limit", "red-light", "pedestrian", "overtake", "parking")
 
 
 @dataclass(frozen=True)
@@ -41,6 +45,10 @@ class Scenario:
     duration_s: float
     start_on_green: bool = False
     limit_kmh: float = 20.0
+    overtake: bool = False
+    park: bool = False
+    barriers: tuple[BarrierBlock, ...] = ()  # added to the track's own
+    dashed: tuple[Dashed, ...] = ()
     marks: dict[str, float] = field(default_factory=dict)  # where on the route the referee looks (metres)
 
 
@@ -70,6 +78,21 @@ def scenario(name: str, seed: int) -> Scenario:
         return Scenario(name, seed, (person,), start + 5.2 / walk + 12.0,
                         marks={"zebra_s": 146.0, "start_s": 128.0, "on_road_from_s": start + 1.1 / walk,
                                "on_road_until_s": start + 4.1 / walk})
+    if name == "overtake":
+        car_s = float(rng.uniform(190.0, 195.0))  # on lelystad's dashed stretch (176 to 212 m)
+        car = Prop(kind="car", s_m=car_s, offset_m=float(rng.uniform(-0.2, 0.2)))
+        return Scenario(name, seed, (car,), 20.0, overtake=True,
+                        marks={"car_s": car_s, "start_s": 165.0, "back_by_s": car_s + 22.0})
+    if name == "parking":
+        # two barriers across the bay's ends, 1.5 m wide beyond the right line (a kart's bay), the near one's face
+        # toward the kart coming; the right line is dashed along the bay (its entry)
+        bay_s, free = float(rng.uniform(19.0, 22.0)), float(rng.uniform(6.5, 7.5))
+        offset = float(rng.uniform(0.2, 0.4))  # the barriers' inner end beyond the right line
+        barriers = (BarrierBlock(side="right", s_m=bay_s - 0.4, offset_m=offset, length_m=0.4, depth_m=1.5),
+                    BarrierBlock(side="right", s_m=bay_s + free, offset_m=offset, length_m=0.4, depth_m=1.5))
+        dashed = (Dashed(side="right", from_s_m=bay_s - 6.0, to_s_m=bay_s + free + 1.0, dash_m=1.0, gap_m=1.0),)
+        return Scenario(name, seed, (), 22.0, park=True, barriers=barriers, dashed=dashed,
+                        marks={"bay_s": bay_s, "bay_end_s": bay_s + free, "outer_m": offset + 1.5 + 0.3})
     raise ConfigError(f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)})")
 
 
@@ -86,9 +109,21 @@ class ScenarioReferee:
     _worst_kmh: float = 0.0
     _stopped_gap: float = math.nan
     _start_front: float = math.nan
+    _offset_m: float = 0.0
+    _speed_mps: float = 0.0
+    _footprint: np.ndarray | None = None
 
-    def step(self, time_s: float, front_s_m: float, speed_mps: float, dt_s: float) -> None:
+    def step(self, time_s: float, front_s_m: float, speed_mps: float, dt_s: float, touching: str = "",
+             offset_m: float = 0.0, footprint: np.ndarray | None = None) -> None:
+        """``touching``: the prop or barrier the kart's footprint touches now, if any; ``offset_m``: the kart's
+        middle from its lane's centre (left positive); ``footprint``: its corners as (metres along the route,
+        metres left of its centre)."""
         s, marks = self.scenario, self.scenario.marks
+        self._offset_m, self._speed_mps = offset_m, speed_mps
+        if footprint is not None:
+            self._footprint = footprint
+        if touching:
+            self._fault(f"touched the {touching} at {time_s:.1f} s")
         if math.isnan(self._start_front):
             self._start_front = front_s_m
         if s.name == "start-on-green" and time_s < marks["green_at_s"] and front_s_m - self._start_front > 0.2:
@@ -131,6 +166,23 @@ class ScenarioReferee:
             faults.append("did not start on green")
         if s.name == "pedestrian" and front_s_m < marks["zebra_s"] + 3.0:
             faults.append("did not go on after the pedestrian had crossed")
+        if s.name == "overtake":
+            if front_s_m < marks["car_s"] + PROP_SIZES_M["car"][1] / 2 + 2.0:
+                faults.append("did not pass the car")
+            elif front_s_m >= marks["back_by_s"] and abs(self._offset_m) > 0.5:
+                faults.append(f"did not return to the lane ({self._offset_m:.1f} m from its centre)")
+            elif front_s_m < marks["back_by_s"]:
+                faults.append("did not get back to the lane in time")
+        if s.name == "parking":
+            half = 1.5  # lelystad's half width
+            f = self._footprint
+            inside = f is not None and bool(
+                np.all((f[:, 0] >= marks["bay_s"]) & (f[:, 0] <= marks["bay_end_s"])
+                       & (f[:, 1] <= -half) & (f[:, 1] >= -(half + marks["outer_m"]))))
+            if not inside:
+                faults.append("did not end wholly inside the bay")
+            elif self._speed_mps > 0.1:
+                faults.append("did not stop in the bay")
         out: dict[str, Any] = {"name": s.name, "seed": s.seed, "passed": not faults, "faults": faults}
         if s.name == "red-light" and math.isfinite(self._stopped_gap):
             out["stopped_before_line_m"] = round(self._stopped_gap, 3)
@@ -140,3 +192,15 @@ class ScenarioReferee:
 def start_pose_s(track: Track, scenario: Scenario) -> float:
     """Where along the route the scenario starts."""
     return scenario.marks.get("start_s", track.spec.start_s_m)
+
+
+def footprints_touch(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two convex footprints (corners in order, (N, 2), metres) overlap: no edge of either separates
+    them (the separating axis test)."""
+    for poly in (a, b):
+        edges = np.roll(poly, -1, axis=0) - poly
+        for normal in np.column_stack([-edges[:, 1], edges[:, 0]]):
+            pa, pb = a @ normal, b @ normal
+            if pa.max() < pb.min() or pb.max() < pa.min():
+                return False
+    return True

@@ -348,6 +348,11 @@ class Track:
         corners = [foot + a * depth / 2 * along + b * width / 2 * across for a in (-1, 1) for b in (-1, 1)]
         return np.array([[x, y, z] for z in (0.0, height) for x, y in corners])
 
+    def dashed_at(self, side: Side, s_m: float) -> bool:
+        """Whether the boundary on ``side`` is painted dashed at ``s_m`` along the route (a two-lane road's
+        centre line, which a kart may cross to overtake)."""
+        return any(d.side == side and d.from_s_m <= s_m <= d.to_s_m for d in self.spec.dashed)
+
     def marked(self, side: Side, index: int) -> bool:
         """Whether the route's boundary on ``side`` is marked at a sample (not at a crossing or split)."""
         mask = self.route_marked_left if side == "left" else self.route_marked_right
