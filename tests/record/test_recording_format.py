@@ -247,3 +247,43 @@ def test_a_killed_simulated_drive_keeps_its_ground_truth(tmp_path) -> None:
     # every frame kept has its true pose (the truth may run ahead: frames still queued for writing were lost)
     truth_ns = np.asarray(truth.stamps_s) * 1e9
     assert all(np.min(np.abs(truth_ns - stamp)) < 1e3 for stamp, _ in kept)
+
+
+def test_sigterm_ends_a_recorded_drive_as_ctrl_c_does(tmp_path) -> None:
+    """SIGTERM (a service manager's or a container's stop) during ``sim --record``: the command stops through
+    the same clean-up as Ctrl-C, says so on one line, exits 143, and the recording is closed with the ground
+    truth of every frame."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    folder = tmp_path / "stopped"
+    command = [str(Path(sys.executable).with_name("kartpilot")), "sim", "--track", "straight20", "--vehicle",
+               "rc-kart", "--cameras", "left", "--rate", "10", "--record", str(folder), "--no-progress"]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    frames = folder / "cameras" / "left" / "frames.csv"
+    try:
+        deadline = time.monotonic() + 300  # a bound for a broken run, not a measure of speed
+        while time.monotonic() < deadline and process.poll() is None:
+            if frames.is_file() and frames.read_text().count("\n") > 12:
+                break
+            time.sleep(0.05)
+        assert process.poll() is None, "the drive ended before it could be stopped"
+        os.kill(process.pid, signal.SIGTERM)
+        _, err = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    print(err)
+    assert process.returncode == 143 and "terminated" in err
+    reader = RecordingReader(folder)
+    assert reader.closed
+    kept = reader.frames("left")
+    truth = reader.groundtruth()
+    assert truth is not None and len(kept) >= 12
+    truth_ns = np.asarray(truth.stamps_s) * 1e9
+    assert all(np.min(np.abs(truth_ns - stamp)) < 1e3 for stamp, _ in kept)

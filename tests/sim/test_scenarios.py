@@ -29,11 +29,11 @@ def test_every_scenario_varies_with_its_seed():
 
 
 def test_red_light_faults():
-    good = run("red-light", 2, lambda t, m: (29.3, 0.0) if t < m["green_at_s"] else (40.0, 4.0))
+    good = run("red-light", 2, lambda t, m: (29.3, 0.0) if t < m["red_until_s"] else (40.0, 4.0))
     assert good["passed"] and good["stopped_before_line_m"] == pytest.approx(0.7)
-    past = run("red-light", 2, lambda t, m: (30.4, 0.0) if t < m["green_at_s"] else (40.0, 4.0))
+    past = run("red-light", 2, lambda t, m: (30.4, 0.0) if t < m["red_until_s"] else (40.0, 4.0))
     assert not past["passed"] and any("passed the line on red" in f for f in past["faults"])
-    early = run("red-light", 2, lambda t, m: (27.5, 0.0) if t < m["green_at_s"] else (40.0, 4.0))
+    early = run("red-light", 2, lambda t, m: (27.5, 0.0) if t < m["red_until_s"] else (40.0, 4.0))
     assert any("2.50 m before the line" in f for f in early["faults"])
     stays = run("red-light", 2, lambda t, m: (29.3, 0.0))
     assert "did not go on at green" in stays["faults"]
@@ -42,19 +42,22 @@ def test_red_light_faults():
 def test_start_on_green_speed_limit_and_pedestrian_faults():
     early = run("start-on-green", 3, lambda t, m: (6.5 + 3.0 * t, 3.0))
     assert any("left before green" in f for f in early["faults"])
-    waited = run("start-on-green", 3, lambda t, m: (6.5 + 3.0 * max(t - m["green_at_s"], 0.0), 3.0))
+    waited = run("start-on-green", 3, lambda t, m: (6.5 + 3.0 * max(t - m["start_green_at_s"], 0.0), 3.0))
     assert waited["passed"]
     fast = run("speed-limit", 1, lambda t, m: (6.5 + 4.0 * t, 4.0))  # 14.4 km/h past a 10 km/h sign
     assert any("over the limit by up to 4.4 km/h" in f for f in fast["faults"])
     assert run("speed-limit", 1, lambda t, m: (6.5 + 2.6 * t, 2.6))["passed"]
     # reaching the crossing while the pedestrian is on the road, and not stopping
-    rushed = run("pedestrian", 1, lambda t, m: (143.0 + 1.0 * (t - m["on_road_from_s"]), 1.0))
+    person = scenario("pedestrian", 1).props[0]
+    on_road_from = person.walk_start_s + 1.1 / person.walk_speed_mps  # from 2.6 m right to the lane's edge
+    on_road_until = person.walk_start_s + 4.1 / person.walk_speed_mps
+    rushed = run("pedestrian", 1, lambda t, m: (143.0 + 1.0 * (t - on_road_from), 1.0))
     assert any("moved at the crossing" in f for f in rushed["faults"])
 
     def yielding(t, m):
-        if t < m["on_road_until_s"] + 1.0:
+        if t < on_road_until + 1.0:
             return min(136.0 + 3.0 * t, 145.0), 0.0 if 136.0 + 3.0 * t >= 145.0 else 3.0
-        return 145.0 + 3.0 * (t - m["on_road_until_s"] - 1.0), 3.0
+        return 145.0 + 3.0 * (t - on_road_until - 1.0), 3.0
 
     assert run("pedestrian", 1, yielding)["passed"]
 
@@ -67,7 +70,7 @@ def test_overtake_faults():
         while t < plan.duration_s:
             front = 165.0 + (front_end - 165.0) * t / plan.duration_s
             touching = "car" if touching_at is not None and abs(t - touching_at) < 0.05 else ""
-            referee.step(t, front, 4.0, 0.1, touching, offset_end if t > plan.duration_s - 1 else 3.0)
+            referee.step(t, front, 4.0, 0.1, touching, 3.0 if front < plan.marks["car_s"] + 12.0 else offset_end)
             t += 0.1
         return referee.result(front)
 
@@ -123,3 +126,28 @@ def test_parking_faults():
     assert "did not end wholly inside the bay" in scored(m["bay_s"] + 1.0, -1.2)["faults"]  # still in the lane
     assert "did not stop in the bay" in scored(m["bay_s"] + 1.0, middle, speed=1.0)["faults"]
     assert any("touched the barrier" in f for f in scored(m["bay_s"] + 1.0, middle, touching="barrier")["faults"])
+
+
+def test_the_event_course_holds_all_six_on_one_loop():
+    from kartpilot.sim.scenarios import EVENT_LAP_M
+    from kartpilot.sim.track import build_track, load_track_spec
+
+    assert EVENT_LAP_M == pytest.approx(build_track(load_track_spec("lelystad")).route.length_m, abs=0.05)
+    plan = scenario("event", 4)
+    kinds = sorted(p.kind for p in plan.props)
+    assert kinds == ["car", "person", "speed_sign", "speed_sign", "traffic_light"]
+    light = next(p for p in plan.props if p.kind == "traffic_light")
+    m = plan.marks
+    # red at the start, green to start on, red again as the kart comes, green for good
+    assert [light.light_at(t) for t in (0.0, m["start_green_at_s"] + 0.1, m["red_from_s"] + 0.1,
+                                        m["red_until_s"] + 0.1, 1e5)] == ["red", "green", "red", "green", "green"]
+    assert plan.start_on_green and plan.overtake and plan.park and plan.laps == 2 and len(plan.barriers) == 2
+    assert m["bay_s"] > EVENT_LAP_M > plan.park_after_m  # parked in on the second lap, not the first
+    # the referee judges every rule on it: a kart that never moves breaks all six
+    referee = ScenarioReferee(plan)
+    for k in range(100):
+        referee.step(k * 0.1, m["start_s"] + 1.5, 0.0, 0.1)
+    faults = referee.result(m["start_s"] + 1.5)["faults"]
+    for fault in ("did not start on green", "did not go on at green", "did not go on after the pedestrian",
+                  "did not pass the car", "did not end wholly inside the bay"):
+        assert any(f.startswith(fault) for f in faults), fault

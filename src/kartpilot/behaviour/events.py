@@ -73,7 +73,8 @@ class BehaviourConfig:
         car_range_m: a car in the corridor this near starts the overtake (or the stop).
         car_corridor_m: a car whose middle is this close to the kart's line is in its lane.
         car_gap_m: where the kart's front stops behind a car it does not pass.
-        park: park in the first bay between barriers seen within ``bay_range_m`` (the event's last scenario).
+        park: park in the first bay between barriers seen within ``bay_range_m`` (the event's last scenario), once
+            the kart has driven ``park_after_m`` (a team's knowledge of the course: where its bay comes last).
     """
 
     start_on_green: bool = False
@@ -97,6 +98,7 @@ class BehaviourConfig:
     car_gap_m: float = 3.0
     passing: OvertakeConfig = field(default_factory=OvertakeConfig)
     park: bool = False
+    park_after_m: float = 0.0
     bay_range_m: float = 12.0
     parking: ParkConfig = field(default_factory=ParkConfig)
 
@@ -195,7 +197,8 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
         cap = min(cruise, config.parking.speed_mps, stopping_speed(remaining, config.decel_mps2, config.brake_delay_s))
         return BehaviourDecision(cap, "park", "parking in the bay", remaining), s
     bay = _nearest(detections, "parking_bay")
-    if config.park and s.state == "drive" and bay is not None and bay.distance_m <= config.bay_range_m:
+    if (config.park and s.state == "drive" and bay is not None and bay.distance_m <= config.bay_range_m
+            and odometer >= config.park_after_m):
         try:
             free = float(bay.state)
         except ValueError:

@@ -1,7 +1,9 @@
 """``kartpilot``: one command, thin subcommands.
 
 A known error (:class:`KartpilotError`) prints one line and exits 1; so does an operating-system error
-(a full disk, a file that vanished: it names the file). A usage error, checked before any work by
+(a full disk, a file that vanished: it names the file). SIGTERM (what service managers and containers send) ends
+a command as Ctrl-C does, through the same clean-up (a drive stops the kart and closes its recording), and exits
+143. A usage error, checked before any work by
 :mod:`kartpilot.cli.values`, prints one line and exits 2. Anything else is a bug and keeps its traceback.
 """
 
@@ -9,7 +11,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 from kartpilot import __version__
@@ -45,6 +49,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C's KeyboardInterrupt is, so every clean-up that handles one handles both."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise Terminated()
+
+
 def _positionals(parser: argparse.ArgumentParser) -> frozenset[str]:
     names = set()
     for action in parser._actions:
@@ -70,6 +82,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exc.code if isinstance(exc.code, int) else 0
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
+    previous = signal.signal(signal.SIGTERM, _terminate) if threading.current_thread() is threading.main_thread() \
+        else None
     try:
         return int(args.handler(args))
     except KartpilotError as exc:
@@ -78,9 +92,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:
         print(f"kartpilot: error: {exc}", file=sys.stderr)
         return 1
+    except Terminated:
+        print("kartpilot: terminated (SIGTERM)", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print("kartpilot: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ the scenario's referee (:mod:`kartpilot.sim.scenarios`)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
@@ -35,14 +36,15 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
     stack = stack or load_stack_config(None, "kart")
     policy_config = replace(stack.lane_policy, events=True, speed_mps=SCENARIO_SPEED_KMH / 3.6,
                             behaviour=replace(stack.lane_policy.behaviour, overtake=plan.overtake, park=plan.park,
-                                              start_on_green=plan.start_on_green, limit_kmh=plan.limit_kmh))
+                                              park_after_m=plan.park_after_m, start_on_green=plan.start_on_green,
+                                              limit_kmh=plan.limit_kmh))
     spec = load_track_spec("lelystad")
     track = build_track(replace(spec, props=plan.props, barrier_blocks=spec.barrier_blocks + plan.barriers,
                                 dashed=spec.dashed + plan.dashed))
     track = replace(track, spec=replace(track.spec, start_s_m=start_pose_s(track, plan)))
     config = SimConfig(track="lelystad", vehicle="sdc-kart", seed=seed, camera_rate_hz=camera_rate_hz,
                        speed_mode_mps=SCENARIO_SPEED_KMH / 3.6, max_time_s=plan.duration_s,
-                       referee=RefereeConfig(may_cross_dashed=plan.overtake or plan.park))
+                       referee=RefereeConfig(laps=plan.laps, may_cross_dashed=plan.overtake or plan.park))
     referee = ScenarioReferee(plan)
     props: list[tuple[str, np.ndarray]] = [(p.kind, track.prop_corners(p)[:4, :2]) for p in plan.props
                                            if p.kind == "car"]
@@ -50,7 +52,8 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
     with Simulator(config, track=track) as sim:
         policy = LanePolicy(sim.cameras, policy_config, camera_rate_hz, sim.vehicle.max_steer_rad)
         front = sim.vehicle.wheelbase_m + sim.vehicle.front_overhang_m
-        where = {"s": 0.0}
+        length = sim.track.route.length_m
+        where = {"s": math.nan, "lap": 0.0, "last": math.nan, "parked": 0.0}
 
         def step(frames: FrameSet) -> ActuatorCommand:
             policy.measured_speed_mps = sim.state.vx_mps
@@ -59,13 +62,20 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
 
         def judge(frames: FrameSet, command: ActuatorCommand) -> None:
             here = project_onto(sim.track.route, np.array([sim.state.x_m, sim.state.y_m]))
-            where["s"] = here.s_m + front
+            if here.s_m < where["last"] - length / 2:  # a new lap: the route's s starts again
+                where["lap"] += length
+            where["last"] = here.s_m
+            where["s"] = here.s_m + where["lap"] + front  # the front along the route, laps counted
             kart = _footprint(sim)
             corners = [project_onto(sim.track.route, corner, here.index) for corner in kart]
+            along = [where["s"] - front + math.remainder(c.s_m - here.s_m, length) for c in corners]
             referee.step(sim.time_s, where["s"], sim.state.vx_mps, sim.dt_s, _touching(kart, props), here.offset_m,
-                         np.array([[c.s_m, c.offset_m] for c in corners]))
+                         np.array([[a, c.offset_m] for a, c in zip(along, corners, strict=True)]))
+            parked = policy.last_behaviour is not None and policy.last_behaviour.state == "parked"
+            where["parked"] = where["parked"] + sim.dt_s if parked and abs(sim.state.vx_mps) < 0.05 else 0.0
 
-        run_loop(sim, step, sim, on_step=judge)
+        # the drive ends at the scenario's time, or a second after the kart has parked
+        run_loop(_Until(sim, lambda: where["parked"] >= 1.0), step, sim, on_step=judge)
         result = referee.result(where["s"])
         if sim.referee.disqualified:
             result["faults"].append(str(sim.referee.reason))
@@ -88,3 +98,13 @@ def _touching(kart: np.ndarray, things: list[tuple[str, np.ndarray]]) -> str:
         if footprints_touch(kart, corners[[0, 1, 3, 2]] if kind == "car" else corners):
             return kind
     return ""
+
+
+class _Until:
+    """The simulator as a frame source that ends once ``done()`` says so."""
+
+    def __init__(self, sim: Simulator, done: Callable[[], bool]) -> None:
+        self.sim, self.done = sim, done
+
+    def read(self) -> FrameSet | None:
+        return None if self.done() else self.sim.read()

@@ -17,6 +17,7 @@ simulator's seed, the textures and the camera's noise). Four of the 2024 event's
 - ``parking``: a bay beside the road on the right, between two red-and-white barriers, where the right line is
   dashed (the bay's entry); the kart parks forward in it; faults: touched a barrier, did not end stopped wholly
   inside the bay.
+- ``event``: all six in a row on one drive (:func:`_event`), judged by every rule above.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from kartpilot.sim.track import PROP_SIZES_M, BarrierBlock, Dashed, Prop, Track
 
 __all__ = ["SCENARIOS", "Scenario", "ScenarioReferee", "footprints_touch", "scenario"]
 
-SCENARIOS = ("start-on-green", "speed-limit", "red-light", "pedestrian", "overtake", "parking")
+SCENARIOS = ("start-on-green", "speed-limit", "red-light", "pedestrian", "overtake", "parking", "event")
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,8 @@ class Scenario:
     limit_kmh: float = 20.0
     overtake: bool = False
     park: bool = False
+    park_after_m: float = 0.0
+    laps: int = 1  # the track referee's laps (the drive ends at their finish)
     barriers: tuple[BarrierBlock, ...] = ()  # added to the track's own
     dashed: tuple[Dashed, ...] = ()
     marks: dict[str, float] = field(default_factory=dict)  # where on the route the referee looks (metres)
@@ -54,13 +57,14 @@ class Scenario:
 
 def scenario(name: str, seed: int) -> Scenario:
     """The scenario ``name`` as seed ``seed`` lays it out on ``lelystad`` (start at 5 m, the stop line at 30 m,
-    the zebra at 146 m)."""
+    the zebra at 146 m, the dashed stretch 176 to 212 m, a loop of about 277 m)."""
     rng = np.random.default_rng(seed)
     if name == "start-on-green":
         green_at = float(rng.uniform(2.0, 6.0))
         light = Prop(kind="traffic_light", s_m=float(rng.uniform(14.0, 22.0)), offset_m=-2.5,
                      phases=(("red", green_at), ("green", 1e6)))
-        return Scenario(name, seed, (light,), green_at + 8.0, start_on_green=True, marks={"green_at_s": green_at})
+        return Scenario(name, seed, (light,), green_at + 8.0, start_on_green=True,
+                        marks={"start_green_at_s": green_at})
     if name == "speed-limit":
         sign_s = float(rng.uniform(18.0, 26.0))
         sign = Prop(kind="speed_sign", s_m=sign_s, offset_m=-2.3, value_kmh=10)
@@ -69,37 +73,76 @@ def scenario(name: str, seed: int) -> Scenario:
         red_for = float(rng.uniform(12.0, 16.0))
         light = Prop(kind="traffic_light", s_m=float(rng.uniform(34.0, 38.0)), offset_m=-2.5,
                      phases=(("red", red_for), ("green", 1e6)))
-        return Scenario(name, seed, (light,), red_for + 6.0, marks={"line_s": 30.0, "green_at_s": red_for})
+        return Scenario(name, seed, (light,), red_for + 6.0, marks={"line_s": 30.0, "red_until_s": red_for})
     if name == "pedestrian":
         start = float(rng.uniform(4.0, 8.0))
         walk = float(rng.uniform(0.8, 1.3))
         person = Prop(kind="person", s_m=147.5, offset_m=-2.6, walk_to_offset_m=2.6, walk_start_s=start,
                       walk_speed_mps=walk)
-        return Scenario(name, seed, (person,), start + 5.2 / walk + 12.0,
-                        marks={"zebra_s": 146.0, "start_s": 128.0, "on_road_from_s": start + 1.1 / walk,
-                               "on_road_until_s": start + 4.1 / walk})
+        return Scenario(name, seed, (person,), start + 5.2 / walk + 12.0, marks={"zebra_s": 146.0, "start_s": 128.0})
     if name == "overtake":
         car_s = float(rng.uniform(190.0, 195.0))  # on lelystad's dashed stretch (176 to 212 m)
         car = Prop(kind="car", s_m=car_s, offset_m=float(rng.uniform(-0.2, 0.2)))
         return Scenario(name, seed, (car,), 20.0, overtake=True,
                         marks={"car_s": car_s, "start_s": 165.0, "back_by_s": car_s + 22.0})
     if name == "parking":
-        # two barriers across the bay's ends, 1.5 m wide beyond the right line (a kart's bay), the near one's face
-        # toward the kart coming; the right line is dashed along the bay (its entry)
-        bay_s, free = float(rng.uniform(19.0, 22.0)), float(rng.uniform(6.5, 7.5))
-        offset = float(rng.uniform(0.2, 0.4))  # the barriers' inner end beyond the right line
-        barriers = (BarrierBlock(side="right", s_m=bay_s - 0.4, offset_m=offset, length_m=0.4, depth_m=1.5),
-                    BarrierBlock(side="right", s_m=bay_s + free, offset_m=offset, length_m=0.4, depth_m=1.5))
-        dashed = (Dashed(side="right", from_s_m=bay_s - 6.0, to_s_m=bay_s + free + 1.0, dash_m=1.0, gap_m=1.0),)
-        return Scenario(name, seed, (), 22.0, park=True, barriers=barriers, dashed=dashed,
-                        marks={"bay_s": bay_s, "bay_end_s": bay_s + free, "outer_m": offset + 1.5 + 0.3})
+        barriers, dashed, marks = _bay(rng, 0.0)
+        return Scenario(name, seed, (), 22.0, park=True, barriers=barriers, dashed=dashed, marks=marks)
+    if name == "event":
+        return _event(rng, seed)
     raise ConfigError(f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)})")
+
+
+def _bay(rng: np.random.Generator, lap_m: float) -> tuple[tuple[BarrierBlock, ...], tuple[Dashed, ...],
+                                                          dict[str, float]]:
+    """A parking bay beyond the right line between two barriers across its ends, 1.5 m wide (a kart's bay), the
+    near one's face toward the kart coming; the right line dashed along it (its entry). ``lap_m``: added to the
+    referee's marks (the bay is judged on a later lap)."""
+    bay_s, free = float(rng.uniform(19.0, 22.0)), float(rng.uniform(6.5, 7.5))
+    offset = float(rng.uniform(0.2, 0.4))  # the barriers' inner end beyond the right line
+    barriers = (BarrierBlock(side="right", s_m=bay_s - 0.4, offset_m=offset, length_m=0.4, depth_m=1.5),
+                BarrierBlock(side="right", s_m=bay_s + free, offset_m=offset, length_m=0.4, depth_m=1.5))
+    dashed = (Dashed(side="right", from_s_m=bay_s - 6.0, to_s_m=bay_s + free + 1.0, dash_m=1.0, gap_m=1.0),)
+    return barriers, dashed, {"bay_s": bay_s + lap_m, "bay_end_s": bay_s + free + lap_m, "outer_m": offset + 1.8}
+
+
+EVENT_LAP_M = 277.08
+"""lelystad's loop, metres: the event course parks on its second lap."""
+
+
+def _event(rng: np.random.Generator, seed: int) -> Scenario:
+    """All six in a row on one drive, as the event's final runs them: start on green at the light 6 m before the
+    stop line (beside the parking bay), which turns red again as the kart comes (stop before the line, go on
+    green); a 10 km/h sign after
+    the S-bend and a 20 km/h one after the hairpin; a pedestrian crossing the zebra back and forth (standing a
+    while at each side); the car on the dashed stretch; the parking bay on the first straight, parked in on the
+    second lap (the kart is told to park only after ``park_after_m``)."""
+    green_at = float(rng.uniform(2.0, 5.0))
+    red_for = float(rng.uniform(10.0, 14.0))
+    light = Prop(kind="traffic_light", s_m=float(rng.uniform(34.0, 38.0)), offset_m=-2.5,
+                 phases=(("red", green_at), ("green", 2.0), ("red", red_for), ("green", 1e6)))
+    sign_s, sign2_s = float(rng.uniform(60.0, 66.0)), float(rng.uniform(118.0, 124.0))
+    signs = (Prop(kind="speed_sign", s_m=sign_s, offset_m=-2.3, value_kmh=10),
+             Prop(kind="speed_sign", s_m=sign2_s, offset_m=-2.3, value_kmh=20))
+    walk = float(rng.uniform(0.8, 1.3))
+    person = Prop(kind="person", s_m=147.5, offset_m=-2.6, walk_to_offset_m=2.6,
+                  walk_start_s=float(rng.uniform(0.0, 20.0)), walk_speed_mps=walk, walk_pause_s=20.0)
+    car_s = float(rng.uniform(190.0, 195.0))
+    car = Prop(kind="car", s_m=car_s, offset_m=float(rng.uniform(-0.2, 0.2)))
+    barriers, dashed, bay = _bay(rng, EVENT_LAP_M)
+    marks = {"start_s": 22.0, "start_green_at_s": green_at, "line_s": 30.0, "red_from_s": green_at + 2.0,
+             "red_until_s": green_at + 2.0 + red_for, "sign_s": sign_s, "limit_kmh": 10.0, "limit_until_s": sign2_s,
+             "zebra_s": 146.0, "car_s": car_s, "back_by_s": car_s + 22.0, **bay}
+    return Scenario("event", seed, (light, *signs, person, car), 240.0, start_on_green=True, overtake=True,
+                    park=True, park_after_m=EVENT_LAP_M - 20.0, laps=2, barriers=barriers, dashed=dashed,
+                    marks=marks)
 
 
 @dataclass
 class ScenarioReferee:
     """Watches each step (the time, where the kart's front is along the route, its speed) and lists the faults
-    the event would count."""
+    the event would count: each rule where the scenario's marks say its object is (so the ``event`` course, which
+    holds them all, is judged by all)."""
 
     scenario: Scenario
     tolerance_kmh: float = 1.0
@@ -112,37 +155,42 @@ class ScenarioReferee:
     _offset_m: float = 0.0
     _speed_mps: float = 0.0
     _footprint: np.ndarray | None = None
+    _back_offset_m: float = math.nan
 
     def step(self, time_s: float, front_s_m: float, speed_mps: float, dt_s: float, touching: str = "",
              offset_m: float = 0.0, footprint: np.ndarray | None = None) -> None:
-        """``touching``: the prop or barrier the kart's footprint touches now, if any; ``offset_m``: the kart's
-        middle from its lane's centre (left positive); ``footprint``: its corners as (metres along the route,
-        metres left of its centre)."""
-        s, marks = self.scenario, self.scenario.marks
+        """``front_s_m``: the kart's front along the route from its start, laps counted; ``touching``: the prop
+        or barrier the kart's footprint touches now, if any; ``offset_m``: the kart's middle from its lane's
+        centre (left positive); ``footprint``: its corners as (metres along the route as ``front_s_m``, metres
+        left of its centre)."""
+        marks = self.scenario.marks
         self._offset_m, self._speed_mps = offset_m, speed_mps
         if footprint is not None:
             self._footprint = footprint
-        if touching:
-            self._fault(f"touched the {touching} at {time_s:.1f} s")
         if math.isnan(self._start_front):
             self._start_front = front_s_m
-        if s.name == "start-on-green" and time_s < marks["green_at_s"] and front_s_m - self._start_front > 0.2:
+        if touching:
+            self._fault(f"touched the {touching} at {time_s:.1f} s")
+        if "start_green_at_s" in marks and time_s < marks["start_green_at_s"] and (
+                front_s_m - self._start_front > 0.2):
             self._fault(f"left before green ({front_s_m - self._start_front:.1f} m at {time_s:.1f} s)")
-        if s.name == "speed-limit" and front_s_m > marks["sign_s"] + 1.5:
+        if "sign_s" in marks and marks["sign_s"] + 1.5 < front_s_m < marks.get("limit_until_s", math.inf):
             over = speed_mps * 3.6 - marks["limit_kmh"]
             if over > self.tolerance_kmh:
                 self._over_s += dt_s
                 self._worst_kmh = max(self._worst_kmh, over)
-        if s.name == "red-light":
+        if "line_s" in marks and marks.get("red_from_s", 0.0) <= time_s < marks["red_until_s"]:
             line = marks["line_s"]
-            if time_s < marks["green_at_s"]:
-                if front_s_m > line:
-                    self._fault(f"passed the line on red at {time_s:.1f} s")
-                if speed_mps < 0.05 and front_s_m > line - 3.0:
-                    self._stopped_gap = line - front_s_m
-        if s.name == "pedestrian":
+            if front_s_m > line:
+                self._fault(f"passed the line on red at {time_s:.1f} s")
+            if speed_mps < 0.05 and front_s_m > line - 3.0:
+                self._stopped_gap = line - front_s_m
+        if "back_by_s" in marks and math.isnan(self._back_offset_m) and front_s_m >= marks["back_by_s"]:
+            self._back_offset_m = offset_m
+        if "zebra_s" in marks:
             near = marks["zebra_s"] - 3.0 <= front_s_m <= marks["zebra_s"]
-            if marks["on_road_from_s"] <= time_s <= marks["on_road_until_s"] and near and speed_mps > 0.1:
+            walking = any(abs(p.offset_at(time_s)) <= 1.6 for p in self.scenario.props if p.kind == "person")
+            if walking and near and speed_mps > 0.1:
                 self._fault(f"moved at the crossing while the pedestrian was on the road ({time_s:.1f} s)")
 
     def _fault(self, text: str) -> None:
@@ -153,27 +201,28 @@ class ScenarioReferee:
     def result(self, front_s_m: float) -> dict[str, Any]:
         s, marks = self.scenario, self.scenario.marks
         faults = list(self.faults)
-        if s.name == "speed-limit" and self._over_s > self.tolerance_s:
+        if "sign_s" in marks and self._over_s > self.tolerance_s:
             faults.append(f"over the limit by up to {self._worst_kmh:.1f} km/h for {self._over_s:.1f} s")
-        if s.name == "red-light":
+        if "line_s" in marks:
             if math.isnan(self._stopped_gap):
                 faults.append("did not stop at the red light")
             elif not 0.2 <= self._stopped_gap <= 1.5:
                 faults.append(f"stopped {self._stopped_gap:.2f} m before the line (0.2 to 1.5 m wanted)")
             if front_s_m < marks["line_s"] + 2.0:
                 faults.append("did not go on at green")
-        if s.name == "start-on-green" and front_s_m - self._start_front < 2.0:
+        if "start_green_at_s" in marks and front_s_m - self._start_front < 2.0:
             faults.append("did not start on green")
-        if s.name == "pedestrian" and front_s_m < marks["zebra_s"] + 3.0:
+        if "zebra_s" in marks and front_s_m < marks["zebra_s"] + 3.0:
             faults.append("did not go on after the pedestrian had crossed")
-        if s.name == "overtake":
+        if "car_s" in marks:
             if front_s_m < marks["car_s"] + PROP_SIZES_M["car"][1] / 2 + 2.0:
                 faults.append("did not pass the car")
-            elif front_s_m >= marks["back_by_s"] and abs(self._offset_m) > 0.5:
-                faults.append(f"did not return to the lane ({self._offset_m:.1f} m from its centre)")
-            elif front_s_m < marks["back_by_s"]:
+            elif math.isnan(self._back_offset_m):
                 faults.append("did not get back to the lane in time")
-        if s.name == "parking":
+            elif abs(self._back_offset_m) > 0.5:
+                faults.append(f"did not return to the lane ({self._back_offset_m:.1f} m from its centre "
+                              f"{marks['back_by_s'] - marks['car_s']:.0f} m past the car)")
+        if "bay_s" in marks:
             half = 1.5  # lelystad's half width
             f = self._footprint
             inside = f is not None and bool(
@@ -184,7 +233,7 @@ class ScenarioReferee:
             elif self._speed_mps > 0.1:
                 faults.append("did not stop in the bay")
         out: dict[str, Any] = {"name": s.name, "seed": s.seed, "passed": not faults, "faults": faults}
-        if s.name == "red-light" and math.isfinite(self._stopped_gap):
+        if "line_s" in marks and math.isfinite(self._stopped_gap):
             out["stopped_before_line_m"] = round(self._stopped_gap, 3)
         return out
 

@@ -186,8 +186,9 @@ class Prop:
 
     Kinds: ``traffic_light`` (a signal head on a tripod; ``phases`` are (colour, seconds) in turn from the start
     of the run, the last one held), ``speed_sign`` (a round sign of ``value_kmh`` on a pole), ``person`` (standing;
-    from ``walk_start_s`` seconds on, walking across the road at ``walk_speed_mps`` to ``walk_to_offset_m``) and
-    ``car`` (the event's inflatable car, stationary)."""
+    from ``walk_start_s`` seconds on, walking across the road at ``walk_speed_mps`` to ``walk_to_offset_m``; with
+    ``walk_pause_s``, back and forth for good, standing that long at each side) and ``car`` (the event's inflatable
+    car, stationary)."""
 
     kind: Literal["traffic_light", "speed_sign", "person", "car"] = "car"
     s_m: float = 0.0
@@ -197,8 +198,11 @@ class Prop:
     walk_to_offset_m: float = 0.0
     walk_start_s: float = 0.0
     walk_speed_mps: float = 0.0
+    walk_pause_s: float = 0.0
 
     def __post_init__(self) -> None:
+        if self.walk_pause_s < 0:
+            raise ConfigError("track prop: walk_pause_s must not be negative")
         if self.walk_speed_mps < 0 or not self.phases or any(d <= 0 for _, d in self.phases):
             raise ConfigError("track prop: walk_speed_mps must not be negative and each phase must last a while")
         if not 0 < self.value_kmh <= 130:
@@ -217,9 +221,17 @@ class Prop:
         """A person's lateral offset at a time of the run (walking once started, then standing at the end)."""
         if self.walk_speed_mps <= 0 or time_s <= self.walk_start_s:
             return self.offset_m
-        travelled = (time_s - self.walk_start_s) * self.walk_speed_mps
+        elapsed = time_s - self.walk_start_s
         span = self.walk_to_offset_m - self.offset_m
-        return self.walk_to_offset_m if travelled >= abs(span) else self.offset_m + math.copysign(travelled, span)
+        crossing_s = abs(span) / self.walk_speed_mps
+        start, end = self.offset_m, self.walk_to_offset_m
+        if self.walk_pause_s > 0:  # back and forth: cross, stand, cross back, stand
+            cycle = crossing_s + self.walk_pause_s
+            if (elapsed // cycle) % 2 == 1:
+                start, end = end, start
+            elapsed %= cycle
+        travelled = elapsed * self.walk_speed_mps
+        return end if travelled >= abs(span) else start + math.copysign(travelled, end - start)
 
 
 PROP_SIZES_M = {"traffic_light": (0.3, 0.25, 2.1), "speed_sign": (0.6, 0.05, 2.2), "person": (0.5, 0.3, 1.75),
