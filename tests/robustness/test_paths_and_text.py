@@ -75,3 +75,29 @@ def test_a_config_written_by_another_tool_reads_as_the_same_config(tmp_path_fact
     path = tmp_path_factory.mktemp("cfg") / "kart.yaml"
     path.write_bytes(data)
     assert load_stack_config(path, "kart").lane_policy.speed_mps == pytest.approx(speed)
+
+
+BILLION_LAUGHS = "".join(
+    [f"{name}: &{name} [{', '.join(['*' + prev if prev else 'lol'] * 10)}]\n"
+     for prev, name in zip(["", "a", "b", "c", "d", "e", "f", "g"], "abcdefgh", strict=True)])
+
+
+@pytest.mark.parametrize("text", [BILLION_LAUGHS, "x: " + "[" * 3000 + "]" * 3000 + "\n"])
+def test_a_yaml_that_expands_or_nests_without_end_is_refused_with_one_line(tmp_path, capsys, text):
+    path = tmp_path / "kart.yaml"
+    path.write_text(text)
+    with pytest.raises(Exception, match="expand to more than|nested too deeply") as caught:
+        load_stack_config(path, "kart")
+    assert "kart.yaml" in str(caught.value)
+    # through the command line: one line, nothing written
+    assert main(["sim", "--config", str(path), "--result", str(tmp_path / "r.json"), "--no-progress"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("kartpilot: error:") and len(err.splitlines()) == 1
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_aliases_that_stay_small_still_read():
+    from kartpilot.core.files import parse_yaml
+
+    assert parse_yaml("base: &b {speed_mps: 2.0}\nfast: *b\n", "x.yaml") == {"base": {"speed_mps": 2.0},
+                                                                            "fast": {"speed_mps": 2.0}}

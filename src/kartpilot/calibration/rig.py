@@ -53,7 +53,7 @@ import yaml
 from kartpilot.core.camera import CaptureSettings, PinholeCamera, body_mask_from_data
 from kartpilot.core.config import config_to_dict, merge_config
 from kartpilot.core.errors import CalibrationError, ConfigError
-from kartpilot.core.files import read_text_file, write_text_atomic
+from kartpilot.core.files import parse_yaml, read_text_file, write_text_atomic
 from kartpilot.core.geometry import mount_pose
 from kartpilot.core.vehicle import SteeringCalibration
 
@@ -148,7 +148,7 @@ def load_rig(path: str | Path) -> Rig:
     if not path.is_file():
         raise CalibrationError(f"{path}: no such rig file")
     try:
-        data = yaml.safe_load(read_text_file(path))
+        data = parse_yaml(read_text_file(path), path)
     except yaml.YAMLError as exc:
         raise CalibrationError(f"{path}: not valid YAML ({exc})") from exc
     if not isinstance(data, dict) or not isinstance(data.get("cameras"), dict) or not data["cameras"]:

@@ -30,7 +30,7 @@ from typing import Any, TypeVar
 import yaml
 
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.files import read_text_file
+from kartpilot.core.files import parse_yaml, read_text_file
 
 __all__ = ["config_to_dict", "load_yaml_mapping", "merge_config"]
 
@@ -45,7 +45,7 @@ def load_yaml_mapping(path: str | Path) -> dict[str, Any]:
     if not path.is_file():
         raise ConfigError(f"config file not found: {path}")
     try:
-        data = yaml.safe_load(read_text_file(path))
+        data = parse_yaml(read_text_file(path), path)
     except yaml.YAMLError as exc:
         raise ConfigError(f"config file {path} is not valid YAML: {exc}") from exc
     if data is None:

@@ -12,10 +12,16 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, BinaryIO
 
+import yaml
+
 from kartpilot.core.errors import DataError
 
-__all__ = ["is_torn_last_line", "read_text_file", "write_atomic", "write_bytes_atomic", "write_csv_atomic",
-           "write_json_atomic", "write_text_atomic"]
+YAML_MAX_VALUES = 100_000
+"""The most values a YAML file may stand for once its aliases are expanded (a config is a few hundred; "a billion
+laughs", nine anchors of ten aliases each, stands for a billion)."""
+
+__all__ = ["is_torn_last_line", "parse_yaml", "read_text_file", "write_atomic", "write_bytes_atomic",
+           "write_csv_atomic", "write_json_atomic", "write_text_atomic"]
 
 
 def is_torn_last_line(content: str, line: int, last_line: int) -> bool:
@@ -37,6 +43,53 @@ def read_text_file(path: str | Path) -> str:
         raise DataError(f"{path} is not a UTF-8 text file (byte {exc.start}: {exc.reason})") from None
     except OSError as exc:
         raise DataError(f"cannot read {path}: {exc.strerror or exc}") from None
+
+
+def parse_yaml(text: str, source: str | Path) -> Any:
+    """YAML text as Python values, as ``yaml.safe_load`` reads it, except that a document whose aliases expand to
+    more than :data:`YAML_MAX_VALUES` values, or that nests too deeply to read, raises DataError naming
+    ``source``; a syntax error raises ``yaml.YAMLError`` as before."""
+    loader = yaml.SafeLoader(text)
+    try:
+        try:
+            node = loader.get_single_node()
+        except RecursionError:
+            raise DataError(f"{source}: nested too deeply to read") from None
+        if node is None:
+            return None
+        if _expanded_size(node) > YAML_MAX_VALUES:
+            raise DataError(f"{source}: its aliases (*name) expand to more than {YAML_MAX_VALUES} values; write "
+                            "the values out instead")
+        try:
+            return loader.construct_document(node)
+        except RecursionError:
+            raise DataError(f"{source}: nested too deeply to read") from None
+    finally:
+        loader.dispose()
+
+
+def _expanded_size(root: yaml.Node) -> int:
+    """How many values a YAML node stands for with every alias expanded: each node's size counted once and
+    reused where an alias repeats it, so a document that expands to billions is measured in its own length."""
+    sizes: dict[int, int] = {}
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        if id(node) in sizes:
+            continue
+        children: list[yaml.Node] = []
+        if isinstance(node, yaml.SequenceNode):
+            children = list(node.value)
+        elif isinstance(node, yaml.MappingNode):
+            children = [n for pair in node.value for n in pair]
+        if done or not children:
+            sizes[id(node)] = 1 + sum(sizes.get(id(c), 0) for c in children)
+            if sizes[id(node)] > YAML_MAX_VALUES:
+                return sizes[id(node)]
+            continue
+        stack.append((node, True))
+        stack.extend((c, False) for c in children if id(c) not in sizes)
+    return sizes[id(root)]
 
 
 def write_atomic(path: str | Path, write: Callable[[BinaryIO], object]) -> Path:

@@ -24,7 +24,7 @@ import yaml
 from scipy.ndimage import gaussian_filter1d
 
 from kartpilot.core.errors import ConfigError, PlanningError
-from kartpilot.core.files import read_text_file, write_csv_atomic, write_text_atomic
+from kartpilot.core.files import parse_yaml, read_text_file, write_csv_atomic, write_text_atomic
 from kartpilot.core.geometry import Array
 
 __all__ = [
@@ -242,7 +242,7 @@ def load_reference_path(source: str | Path) -> ReferencePath:
                 header = tuple(next(reader, ()))
                 rows = [row for row in reader if row]
         elif source.suffix.lower() in (".yaml", ".yml"):
-            data = yaml.safe_load(read_text_file(source))
+            data = parse_yaml(read_text_file(source), source)
             if not isinstance(data, dict):
                 raise PlanningError(f"{source}: expected a mapping with 'columns' and 'waypoints'")
             header = tuple(data.get("columns", ()))

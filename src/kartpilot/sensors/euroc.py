@@ -18,7 +18,7 @@ import yaml
 from kartpilot.calibration.rectify import StereoRectification, rectify_stereo
 from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.errors import CalibrationError, DataError
-from kartpilot.core.files import read_text_file
+from kartpilot.core.files import parse_yaml, read_text_file
 from kartpilot.core.geometry import invert_pose
 from kartpilot.core.types import StereoFrame
 from kartpilot.sensors.base import StereoSource, read_gray
@@ -31,7 +31,7 @@ def _load_opencv_yaml(path: Path) -> dict[str, Any]:
         raise CalibrationError(f"camera calibration not found: {path}")
     text = "\n".join(line for line in read_text_file(path).splitlines() if not line.startswith("%YAML"))
     try:
-        data = yaml.safe_load(text)
+        data = parse_yaml(text, path)
     except yaml.YAMLError as exc:
         raise CalibrationError(f"{path} is not valid YAML: {exc}") from exc
     if not isinstance(data, dict):
