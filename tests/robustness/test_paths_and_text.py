@@ -86,7 +86,7 @@ BILLION_LAUGHS = "".join(
 def test_a_yaml_that_expands_or_nests_without_end_is_refused_with_one_line(tmp_path, capsys, text):
     path = tmp_path / "kart.yaml"
     path.write_text(text)
-    with pytest.raises(Exception, match="expand to more than|nested too deeply") as caught:
+    with pytest.raises(Exception, match=r"expand to more than|nested too deeply") as caught:
         load_stack_config(path, "kart")
     assert "kart.yaml" in str(caught.value)
     # through the command line: one line, nothing written

@@ -132,7 +132,7 @@ def test_the_event_course_holds_all_six_on_one_loop():
     from kartpilot.sim.scenarios import EVENT_LAP_M
     from kartpilot.sim.track import build_track, load_track_spec
 
-    assert EVENT_LAP_M == pytest.approx(build_track(load_track_spec("lelystad")).route.length_m, abs=0.05)
+    assert pytest.approx(build_track(load_track_spec("lelystad")).route.length_m, abs=0.05) == EVENT_LAP_M
     plan = scenario("event", 4)
     kinds = sorted(p.kind for p in plan.props)
     assert kinds == ["car", "person", "speed_sign", "speed_sign", "traffic_light"]

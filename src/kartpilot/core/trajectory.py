@@ -40,7 +40,7 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class Trajectory:
-    """Poses ``T_world_cam`` (N, 4, 4) at times ``stamps_s`` (N,), seconds."""
+    """Poses ``T_world_cam`` (N, 4, 4) at times ``stamps_s`` (N,), seconds, strictly increasing."""
 
     stamps_s: Array
     poses: Array
@@ -52,6 +52,13 @@ class Trajectory:
             raise DataError(
                 f"{self.stamps_s.shape[0]} timestamps for {self.poses.shape[0]} poses"
             )
+        if not np.all(np.isfinite(self.stamps_s)):
+            raise DataError(f"timestamp of pose {int(np.argmin(np.isfinite(self.stamps_s)))} is not a number")
+        back = np.flatnonzero(np.diff(self.stamps_s) <= 0)
+        if len(back):  # every reader of poses with times builds one: the order of time is checked here, once
+            k = int(back[0]) + 1
+            raise DataError(f"timestamps go backwards or repeat at pose {k}: {self.stamps_s[k]:.9g} s after "
+                            f"{self.stamps_s[k - 1]:.9g} s")
 
     @classmethod
     def from_poses(cls, poses: Sequence[Array] | Array, stamps_s: Sequence[float] | Array | None = None) -> Trajectory:
@@ -132,7 +139,16 @@ def read_kitti_poses(path: str | Path, stamps_s: Array | None = None) -> Traject
     poses[:, :3, :4] = rows.reshape(-1, 3, 4)
     if stamps_s is not None and len(stamps_s) != len(rows):
         raise DataError(f"{path}: {len(rows)} poses but {len(stamps_s)} timestamps")
-    return Trajectory.from_poses(poses, stamps_s)
+    rotations = poses[:, :3, :3]
+    error = np.abs(np.einsum("nji,njk->nik", rotations, rotations) - np.eye(3)).max(axis=(1, 2))
+    bad = np.flatnonzero((error > 1e-3) | (np.linalg.det(rotations) < 0))
+    if len(bad):
+        raise DataError(f"{path}: pose {int(bad[0])} (line {int(bad[0]) + 1}) is not a rotation and a translation "
+                        f"(its 3x3 part is {error[bad[0]]:.3g} off orthonormal, or a mirror)")
+    try:
+        return Trajectory.from_poses(poses, stamps_s)
+    except DataError as exc:
+        raise DataError(f"{path}: {exc}") from None
 
 
 def write_kitti_poses(path: str | Path, trajectory: Trajectory) -> None:
@@ -142,8 +158,16 @@ def write_kitti_poses(path: str | Path, trajectory: Trajectory) -> None:
 
 def read_tum(path: str | Path) -> Trajectory:
     rows = _read_rows(Path(path), 8)
+    norms = np.linalg.norm(rows[:, 4:8], axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > 0.1)
+    if len(bad):
+        raise DataError(f"{path}: pose {int(bad[0])} has a quaternion of length {norms[bad[0]]:.3g}, not a unit one "
+                        "(a TUM line is: time tx ty tz qx qy qz qw)")
     poses = np.stack([pose_from_quaternion(row[4:8], row[1:4]) for row in rows])
-    return Trajectory(rows[:, 0].copy(), poses)
+    try:
+        return Trajectory(rows[:, 0].copy(), poses)
+    except DataError as exc:
+        raise DataError(f"{path}: {exc}") from None
 
 
 def write_tum(path: str | Path, trajectory: Trajectory) -> None:

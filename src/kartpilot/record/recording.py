@@ -374,7 +374,7 @@ class RecordingReader:
         csv_path = self.folder / "cameras" / camera / "frames.csv"
         if not csv_path.is_file():
             raise RecordingError(f"missing frame list {csv_path}")
-        rows = []
+        rows: list[tuple[int, Path, int]] = []
         content = read_text_file(csv_path)
         listed = list(csv.DictReader(io.StringIO(content)))
         for number, row in enumerate(listed, start=2):
@@ -388,6 +388,9 @@ class RecordingReader:
                 raise RecordingError(f"{csv_path}:{number}: not a frame (stamp_ns, file): {exc}") from None
             if number == len(listed) + 1 and not self.closed and not path.is_file():
                 continue  # the last row of a recording cut off while it was written, its image not there
+            if rows and stamp <= rows[-1][0]:
+                raise RecordingError(f"{csv_path}:{number}: stamp_ns {stamp} does not come after the line before's "
+                                     f"({rows[-1][0]}): the frames' times go backwards or repeat")
             # a listed frame whose image is gone stays listed: reading it fails, and the reader counts it as
             # unreadable (VO bridges it) instead of the frame silently vanishing
             rows.append((stamp, path, capture))
@@ -406,7 +409,7 @@ class RecordingReader:
         path = self.folder / "commands.csv"
         if not path.is_file():
             return []
-        result = []
+        result: list[ActuatorCommand] = []
         content = read_text_file(path)
         rows = list(csv.DictReader(io.StringIO(content)))
         for number, row in enumerate(rows, start=2):
@@ -421,6 +424,9 @@ class RecordingReader:
                     continue
                 raise RecordingError(f"{path}:{number}: not a command (stamp_ns, steer_rad, throttle, brake): "
                                      f"{exc}") from None
+            if result and stamp_ns < result[-1].stamp_ns:
+                raise RecordingError(f"{path}:{number}: stamp_ns {stamp_ns} comes before the line before's "
+                                     f"({result[-1].stamp_ns}): the commands' times go backwards")
             result.append(ActuatorCommand(stamp_ns, *values))
         return result
 
