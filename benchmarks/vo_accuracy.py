@@ -68,10 +68,13 @@ def _row(sequence: Sequence, run: VORun, truth: Trajectory | None) -> dict[str, 
     if truth is not None:
         metrics = evaluate_trajectory(truth, run.trajectory)
         row.update(true_distance_m=metrics.path_length_m, end_drift_percent=metrics.end_drift_percent,
-                   ate_rmse_m=metrics.ate_rmse_m,
-                   rpe_percent={f"{r.delta_m:g}m": r.translation_percent for r in metrics.rpe})
+                   ate_rmse_m=metrics.ate_rmse_m, end_rotation_deg=metrics.end_rotation_deg,
+                   end_rotation_deg_per_m=metrics.end_rotation_deg_per_m,
+                   rpe_percent={f"{r.delta_m:g}m": r.translation_percent for r in metrics.rpe},
+                   rpe_rotation_deg_per_m={f"{r.delta_m:g}m": r.rotation_deg_per_m for r in metrics.rpe})
     print(f"{sequence.name:34s} {sequence.mode:6s} {'tuned on' if sequence.tuned_on else 'held out':9s} "
-          + (f"drift {row['end_drift_percent']:6.2f} %  ATE {row['ate_rmse_m']:.3f} m  " if truth is not None else "")
+          + (f"drift {row['end_drift_percent']:6.2f} %  rotation {row['end_rotation_deg']:5.2f} deg  "
+             f"ATE {row['ate_rmse_m']:.3f} m  " if truth is not None else "")
           + f"{row['distance_m']:.1f} m, {run.bridged_frames} bridged, {run.frames_per_second:.1f} frames/s")
     return row
 

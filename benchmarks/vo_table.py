@@ -20,6 +20,12 @@ def _number(value: Any, digits: int, unit: str = "") -> str:
     return "-" if value is None else f"{value:.{digits}f}{unit}"
 
 
+def _rotation(row: dict[str, Any]) -> str:
+    if row.get("end_rotation_deg") is None:
+        return "-"
+    return f"{row['end_rotation_deg']:.2f}° ({row['end_rotation_deg_per_m']:.3f}°/m)"
+
+
 def render(results: dict[str, Any]) -> str:
     """The table, with the date, the machine and what each column means."""
     machine = results["machine"]
@@ -27,11 +33,13 @@ def render(results: dict[str, Any]) -> str:
         f"Measured on {results['date']} on a {machine['cpus']}-core {machine['processor']} machine (no GPU), "
         f"Python {machine['python']}, OpenCV {machine['opencv']}, {results['configuration']} configuration, "
         "by `benchmarks/vo_accuracy.py`. *Tuned on*: the defaults were set on this sequence; every other row "
-        "is held out. Drift is the end point's error over the distance driven; ATE after an SE(3) alignment; "
+        "is held out. Drift is the end point's error over the distance driven; end rotation the angle between "
+        "the estimated and true final orientations (and per metre driven); ATE after an SE(3) alignment; "
         "RPE over 1 m.",
         "",
-        "| sequence | kind | VO | | frames | distance | end drift | ATE | RPE 1 m | bridged | frames/s | note |",
-        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|",
+        "| sequence | kind | VO | | frames | distance | end drift | end rotation | ATE | RPE 1 m | bridged "
+        "| frames/s | note |",
+        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for row in results["rows"]:
         note = row["note"]
@@ -43,7 +51,8 @@ def render(results: dict[str, Any]) -> str:
         lines.append(
             f"| {row['name']} | {row['kind']} | {row['mode']} | {'tuned on' if row['tuned_on'] else 'held out'} "
             f"| {row['frames']} | {_number(row['distance_m'], 1, ' m')} "
-            f"| {_number(row.get('end_drift_percent'), 2, ' %')} | {_number(row.get('ate_rmse_m'), 3, ' m')} "
+            f"| {_number(row.get('end_drift_percent'), 2, ' %')} | {_rotation(row)} "
+            f"| {_number(row.get('ate_rmse_m'), 3, ' m')} "
             f"| {_number(rpe, 2, ' %')} | {row['bridged_frames']} | {_number(row['frames_per_second'], 0)} "
             f"| {note} |")
     return "\n".join(lines) + "\n"

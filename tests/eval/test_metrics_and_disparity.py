@@ -32,6 +32,19 @@ def test_scale_error_shows_in_drift_and_rpe() -> None:
     assert metrics.ate_rmse_m > 0
 
 
+def test_a_heading_that_creeps_shows_in_the_end_rotation() -> None:
+    """The estimate turns 0.01 degrees a frame about the vertical (a camera's y axis) where the truth goes
+    straight: 0.59 degrees at the end of 29.5 m."""
+    truth = _straight(60, 0.5)
+    step = np.radians(0.01)
+    poses = [pose_from_rotvec(np.array([0.0, i * step, 0.0]), np.array([0.0, 0.0, i * 0.5])) for i in range(60)]
+    metrics = evaluate_trajectory(truth, Trajectory.from_poses(poses, np.arange(60) * 0.1))
+    print(metrics.table())
+    assert metrics.end_rotation_deg == pytest.approx(0.59, abs=1e-6)
+    assert metrics.end_rotation_deg_per_m == pytest.approx(0.59 / 29.5, rel=1e-6)
+    assert evaluate_trajectory(truth, truth).end_rotation_deg == pytest.approx(0.0, abs=1e-6)
+
+
 def test_bad_pixel_rate_counts_missing_as_bad() -> None:
     truth = np.full((10, 10), 20.0, np.float32)
     truth[0] = np.nan  # unknown row

@@ -8,7 +8,9 @@
   truth (Geiger et al., KITTI, CVPR 2012, use 100 to 800 m on long sequences;
   short sequences need shorter segments).
 - End-point drift: distance between the estimated and true final positions, in %
-  of the ground-truth path length, with both trajectories starting at the same pose.
+  of the ground-truth path length, with both trajectories starting at the same pose;
+  and its rotation: the angle between the estimated and true final orientations (degrees,
+  and degrees per metre of the path), the heading error that bends a trajectory in a turn.
 """
 
 from __future__ import annotations
@@ -45,6 +47,11 @@ class TrajectoryMetrics:
     end_drift_m: float
     end_drift_percent: float
     rpe: tuple[RpeResult, ...]
+    end_rotation_deg: float = float("nan")
+
+    @property
+    def end_rotation_deg_per_m(self) -> float:
+        return self.end_rotation_deg / self.path_length_m if self.path_length_m > 0 else float("nan")
 
     def as_dict(self) -> dict[str, object]:
         return asdict(self)
@@ -57,6 +64,8 @@ class TrajectoryMetrics:
             f"{'ATE RMSE (m)':<28}{self.ate_rmse_m:>12.3f}",
             f"{'end-point drift (m)':<28}{self.end_drift_m:>12.3f}",
             f"{'end-point drift (%)':<28}{self.end_drift_percent:>12.3f}",
+            f"{'end rotation (deg)':<28}{self.end_rotation_deg:>12.3f}",
+            f"{'end rotation (deg/m)':<28}{self.end_rotation_deg_per_m:>12.4f}",
         ]
         for rpe in self.rpe:
             label = f"RPE {rpe.delta_m:g} m"
@@ -101,6 +110,8 @@ def evaluate_trajectory(reference: Trajectory, estimate: Trajectory,
     est.align_origin(ref)
     path_length = float(ref.path_length)
     end_drift = float(np.linalg.norm(est.positions_xyz[-1] - ref.positions_xyz[-1]))
+    turn = ref.poses_se3[-1][:3, :3].T @ est.poses_se3[-1][:3, :3]
+    end_rotation = float(np.degrees(np.arccos(np.clip((np.trace(turn) - 1.0) / 2.0, -1.0, 1.0))))
     aligned = copy.deepcopy(est)
     try:
         aligned.align(ref, correct_scale=False)
@@ -117,7 +128,7 @@ def evaluate_trajectory(reference: Trajectory, estimate: Trajectory,
         ate_rmse_m=float(ape.get_statistic(metrics.StatisticsType.rmse)),
         end_drift_m=end_drift,
         end_drift_percent=100.0 * end_drift / path_length if path_length > 0 else float("nan"),
-        rpe=tuple(rpes))
+        rpe=tuple(rpes), end_rotation_deg=end_rotation)
 
 
 def _rpe(ref: PoseTrajectory3D, est: PoseTrajectory3D, delta_m: float) -> RpeResult:

@@ -172,7 +172,8 @@ def trajectory_row(run: VORun, truth: Trajectory | None) -> dict[str, Any]:
         rpe = metrics.rpe[0]
         row.update(true_distance_m=metrics.path_length_m, drift_percent=metrics.end_drift_percent,
                    ate_m=metrics.ate_rmse_m, rpe_translation_percent=rpe.translation_percent,
-                   rpe_rotation_deg_per_m=rpe.rotation_deg_per_m)
+                   rpe_rotation_deg_per_m=rpe.rotation_deg_per_m, end_rotation_deg=metrics.end_rotation_deg,
+                   end_rotation_deg_per_m=metrics.end_rotation_deg_per_m)
     return row
 
 
@@ -229,7 +230,8 @@ def two_view_job(cell: Cell, context: JobContext) -> dict[str, Any]:
     return {"frames": len(images), "mean_matches": _mean(matches), "mean_inliers": _mean(inliers),
             "failed_pairs": len(images) - 1 - len(rotation_errors),
             "rotation_error_deg": _mean(rotation_errors), "direction_error_deg": _mean(direction_errors),
-            "drift_percent": metrics.end_drift_percent, "ms_per_frame": 1000.0 * _mean(seconds)}
+            "drift_percent": metrics.end_drift_percent, "end_rotation_deg": metrics.end_rotation_deg,
+            "ms_per_frame": 1000.0 * _mean(seconds)}
 
 
 def lane_drive(stack: StackConfig, config: SimConfig) -> dict[str, Any]:
