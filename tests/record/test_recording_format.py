@@ -287,3 +287,29 @@ def test_sigterm_ends_a_recorded_drive_as_ctrl_c_does(tmp_path) -> None:
     assert truth is not None and len(kept) >= 12
     truth_ns = np.asarray(truth.stamps_s) * 1e9
     assert all(np.min(np.abs(truth_ns - stamp)) < 1e3 for stamp, _ in kept)
+
+
+def test_a_file_size_limit_ends_a_recorded_drive_with_one_line_and_a_readable_recording(tmp_path) -> None:
+    """A full disk, as a file size limit (RLIMIT_FSIZE) makes it: the first frame cannot be written. The drive
+    stops (the kart is commanded to stop), says why on one line, and leaves a recording that opens, marked as not
+    closed properly with the failure's reason."""
+    import resource
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    folder = tmp_path / "full"
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (100_000, 100_000))
+
+    command = [str(Path(sys.executable).with_name("kartpilot")), "sim", "--track", "straight20", "--vehicle",
+               "rc-kart", "--cameras", "left", "--rate", "10", "--record", str(folder), "--no-progress"]
+    done = subprocess.run(command, capture_output=True, text=True, preexec_fn=limit, timeout=300)
+    err = done.stderr.strip()
+    print(err)
+    assert done.returncode == 1
+    assert len(err.splitlines()) == 1 and err.startswith("kartpilot: error:") and "File too large" in err
+    reader = RecordingReader(folder)
+    assert not reader.closed and "File too large" in reader.manifest["write_error"]
+    assert reader.frames("left") == [] and reader.commands()  # what was written is there

@@ -69,6 +69,8 @@ def recordings_info(args: argparse.Namespace) -> int:
         print(json.dumps(info, indent=2))
         return 0
     state = "closed properly" if info["closed"] else "NOT closed properly (cut off; everything flushed is kept)"
+    if info.get("write_error"):
+        state = f"NOT closed properly: its writing failed ({info['write_error']}); everything written is kept"
     print(f"{info['folder']}: {info['duration_s']:.2f} s, {state}")
     for name, camera in info["cameras"].items():
         skew = next((f", skew to {k[8:-3]} {v['median']:.2f} ms median / {v['max']:.2f} ms max"

@@ -46,7 +46,7 @@ def recording_info(reader: RecordingReader) -> dict[str, Any]:
             entry["skew_to_" + first + "_ms"] = {"median": round(median, 3), "max": round(worst, 3)}
         cameras[name] = entry
     info: dict[str, Any] = {
-        "folder": str(reader.folder), "closed": reader.closed,
+        "folder": str(reader.folder), "closed": reader.closed, "write_error": reader.manifest.get("write_error"),
         "duration_s": round((end - start) * 1e-9, 3), "cameras": cameras,
         "stereo_pair": list(reader.stereo_pair) if reader.stereo_pair else None,
         "has_groundtruth": (reader.folder / "groundtruth.tum").is_file(),

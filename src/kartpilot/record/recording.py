@@ -154,7 +154,9 @@ class RecordingWriter:
         manifest = {
             "format": FORMAT_NAME,
             "version": FORMAT_VERSION,
-            "closed": closed,
+            # a recording whose writing failed (a full disk) is not closed properly, whatever was flushed
+            "closed": closed and self._error is None,
+            "write_error": None if self._error is None else str(self._error),
             "cameras": {name: camera_to_dict(cam) for name, cam in self.cameras.items()},
             "stereo_pair": list(self.stereo_pair) if self.stereo_pair else None,
             "frame_counts": self.frame_counts,
@@ -222,8 +224,14 @@ class RecordingWriter:
         suffix, params = IMAGE_FORMATS[self.image_format]
         name = f"{stamp_ns}{suffix}"
         path = self.folder / "cameras" / camera / name
-        if not cv2.imwrite(str(path), image, params):
-            raise RecordingError(f"cannot write {path}")
+        ok, encoded = cv2.imencode(suffix, image, params)
+        if not ok:
+            raise RecordingError(f"cannot encode the frame for {path}")
+        try:  # written by Python, so a full disk or a file size limit says what it is (EFBIG, ENOSPC)
+            path.write_bytes(encoded.tobytes())
+        except OSError as exc:
+            path.unlink(missing_ok=True)
+            raise RecordingError(f"cannot write {path}: {exc.strerror or exc}") from None
         self._write_line(f"camera:{camera}", f"{self.frame_counts[camera]},{stamp_ns},{name},{capture_ns}\n")
         self.frame_counts[camera] += 1
 

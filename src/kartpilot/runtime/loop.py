@@ -22,6 +22,7 @@ from typing import Protocol
 
 import numpy as np
 
+from kartpilot.core.errors import KartpilotError
 from kartpilot.core.types import ActuatorCommand, CommandSink, FrameSet, FrameSink, FrameSource
 
 __all__ = ["STAGE_STATS", "LoopStats", "Outputs", "Policy", "Recorder", "run_loop"]
@@ -127,10 +128,14 @@ def _stop_all(exc: BaseException, step: int, stop: ActuatorCommand, sinks: Seque
     """Command a stop to every sink after the loop ended on ``exc`` (a user's Ctrl-C is not an error)."""
     if isinstance(exc, KeyboardInterrupt):
         log.info("interrupted at step %d: commanding a stop", step)
+    elif isinstance(exc, KartpilotError):  # a known failure: the command says it in its one line
+        log.info("the loop failed at step %d (%s): commanding a stop", step, exc)
     else:
         log.error("the loop failed at step %d: commanding a stop", step)
     for sink in sinks:
         try:
             sink.send(stop)
+        except KartpilotError as failed:  # a known failure (the recording's disk is full): said once, at the end
+            log.info("could not send the stop command to %r: %s", sink, failed)
         except Exception:
             log.exception("could not send the stop command to %r", sink)
