@@ -75,3 +75,20 @@ def test_arming_is_refused_while_a_watchdog_reports_a_fault():
     supervisor = Supervisor()
     supervisor.step(0, ["camera center: black"], _op(request="autonomous"), DRIVE)
     assert supervisor.state == "disarmed" and supervisor.refused == 1
+
+
+def test_an_overrun_is_a_fault_only_where_the_clock_is_real():
+    """Three steps in a row slower than twice the period stop a live drive; the simulator's clock waits for the
+    pipeline, so the same durations there are no fault (a busy machine is not a slow kart)."""
+    from kartpilot.core.types import FrameSet
+    from kartpilot.runtime.drive import WatchdogConfig, Watchdogs
+
+    frames = FrameSet(index=0, stamp_ns=0, images={})
+    config = WatchdogConfig(overrun_factor=2.0, overrun_steps=3)
+    live = Watchdogs([], 0.05, config)
+    simulated = Watchdogs([], 0.05, config, real_time=False)
+    durations = [0.2, 0.2, 0.05, 0.2, 0.2, 0.2]  # the third is on time: the count starts again
+    live_faults = [live.check(frames, "", d) for d in durations]
+    assert [bool(f) for f in live_faults] == [False, False, False, False, False, True]
+    assert "overran its 50 ms period 3 times" in live_faults[-1][0]
+    assert all(simulated.check(frames, "", d) == [] for d in durations)

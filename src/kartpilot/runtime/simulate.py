@@ -518,7 +518,8 @@ def run_supervised_drive(config: SimConfig, pipeline: str, stack: StackConfig | 
         sink = _CanSink.open(sim, stack, at, log_frame) if bus == "virtual" else _DirectSink(sim)
         actuator = sink.actuator if isinstance(sink, _CanSink) else None
         supervisor = Supervisor(stack.supervisor)
-        watchdogs = Watchdogs(list(sim.cameras) if config.render_images else [], sim.dt_s, stack.watchdogs, actuator)
+        watchdogs = Watchdogs(list(sim.cameras) if config.render_images else [], sim.dt_s, stack.watchdogs, actuator,
+                              real_time=False)  # the simulated clock waits for the pipeline
         drive = SupervisedDrive(policy, supervisor, watchdogs, ScriptedOperator(at.get("gamepad-unplug")), actuator)
         source = _UntilSettled(InjectedSource(sim, list(injections)), sim, drive, path_policy)
 
