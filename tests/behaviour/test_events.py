@@ -123,3 +123,22 @@ def test_a_person_walking_across_holds_the_kart_until_they_have_crossed_and_walk
 
     log = drive(config, waiter, seconds=25)
     assert log[-1][3] == "yield" and 20 - log[-1][1] >= 0.2
+
+
+def test_a_light_lost_from_view_mid_stop_still_stops_the_kart_at_the_line():
+    """The detector loses the red light and the line after they were seen (a glare, a missed frame, the light
+    out of the image): the stop point, kept by the metres driven, still stops the kart before the line, and it
+    waits there (nothing says green) rather than driving on."""
+    config = BehaviourConfig(limit_kmh=15, front_m=0.0)
+    line_m = 20.0
+
+    def scene(x, t):
+        if line_m - x > 14.0:  # seen from 20 to 14 m, then nothing at all
+            return [_at("traffic_light", line_m - x + 0.5, "red"), _at("stop_line", line_m - x)]
+        return []
+
+    log = drive(config, scene, speed=15 / 3.6 * 0.9, seconds=20)
+    gap = line_m - log[-1][1]
+    print(f"\nstopped {gap:.2f} m before the line, in {log[-1][3]}")
+    assert 0.2 <= gap <= 1.5 and log[-1][2] < 1e-6
+    assert log[-1][3] == "wait_red"

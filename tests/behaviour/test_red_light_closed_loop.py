@@ -35,3 +35,29 @@ def test_the_kart_stops_before_the_line_at_red_and_goes_on_green():
         assert fronts[-1] > line + 3.0  # gone on green
         assert "wait_red" in states and states[-1] == "drive"
         assert not sim.referee.disqualified, sim.referee.reason
+
+
+@pytest.mark.slow
+def test_a_camera_freezing_mid_scenario_ends_in_a_safe_stop_with_its_reason(tmp_path):
+    """The red-light scenario driven through the supervisor on the RDW kart's CAN protocol (its ECUs
+    simulated): the centre camera freezes 3 s in, while the rules are stopping for the light. The supervisor
+    stops the kart whatever the rules want, says why, and the recording keeps the rules' decisions up to then."""
+    from kartpilot.record.recording import RecordingReader
+    from kartpilot.runtime.config import StackConfig
+    from kartpilot.runtime.faults import parse_injection
+    from kartpilot.runtime.session import SessionOutputs
+    from kartpilot.runtime.simulate import run_supervised_drive
+
+    light = Prop(kind="traffic_light", s_m=36.0, offset_m=-2.5, phases=(("red", 30.0), ("green", 1e6)))
+    config = SimConfig(track="lelystad", vehicle="sdc-kart", seed=4, cameras=("center",), camera_rate_hz=15.0,
+                       speed_mode_mps=15 / 3.6, props=(light,))
+    stack = StackConfig(lane_policy=replace(LANE_PRESETS["kart"], speed_mps=15 / 3.6, events=True))
+    run = run_supervised_drive(config, "lanes", stack, bus="virtual", duration_s=5.0,
+                               injections=[parse_injection("camera-freeze@3.0")],
+                               outputs=SessionOutputs(record_dir=tmp_path / "rec"))
+    payload = run.payload
+    print(payload["transitions"][-1], payload["fault_to_stop_s"])
+    assert payload["final_state"] == "fault" and "frozen frame" in payload["transitions"][-1]["reason"]
+    assert payload["fault_to_stop_s"] is not None and payload["fault_to_stop_s"] <= 0.2
+    states = [row["state"] for row in RecordingReader(tmp_path / "rec").outputs("behaviour")]
+    assert states and states[-1] in ("drive", "stop_red")  # the rules ran until the fault
