@@ -138,7 +138,10 @@ class BehaviourDecision:
     state: State
     reason: str
     stop_distance_m: float = math.nan
-    path: ReferencePath | None = None  # a manoeuvre's path, given on the step it starts (the kart's frame there)
+    path: ReferencePath | None = None  # a manoeuvre's path, given on the step it starts (the lane's frame there)
+
+
+_TRACKED_PEOPLE = 32
 
 
 def stopping_speed(distance_m: float, decel_mps2: float, delay_s: float) -> float:
@@ -178,7 +181,8 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
     for p in people:
         if p.track_id > 0:
             nearest[p.track_id] = min(nearest.get(p.track_id, math.inf), abs(p.lateral_m))
-    s = replace(s, nearest_lateral_m=tuple(sorted(nearest.items())))
+    # the newest tracks only (ids grow): a long drive's people do not pile up
+    s = replace(s, nearest_lateral_m=tuple(sorted(nearest.items()))[-_TRACKED_PEOPLE:])
     # a person on the road in the kart's way (whether a crossing is seen yet or not: the camera finds a zebra on
     # the ground nearer than it finds a person), or on or beside a crossing unless they have crossed the kart's
     # line and walk away from it

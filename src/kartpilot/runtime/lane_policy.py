@@ -99,7 +99,7 @@ class LanePolicyConfig:
             centre camera (``detector``; people off by default, the HOG detector's cost) turn into a speed cap and
             stops before a red light's line or a crossing (``behaviour``). Needs ``speed_mps`` and the measured
             speed.
-        manoeuvre: the path follower that steers a manoeuvre the rules plan (an overtake), on the pose dead
+        manoeuvre: the path follower that steers a manoeuvre the rules plan (an overtake, parking), on the pose dead
             reckoned from the measured speed and the steering; ``wheelbase_m`` is the kart's (the sdc-kart's);
             the lanes steer again once the path is back within ``handover_m`` of the lane's centre.
     """
