@@ -165,6 +165,10 @@ class Renderer:
             if active:
                 node.set_mat(_panda_matrix(core, np.asarray(poses_world_cam[name], float)))
         self._engine.render_frame()
+        # Panda3D interns every transform and render state it sees; ShowBase collects the unused ones each frame,
+        # and so must we (a moving camera's new poses would otherwise pile up: about 4 KB a frame)
+        core.TransformState.garbage_collect()
+        core.RenderState.garbage_collect()
         data = self._texture.get_ram_image_as("BGR")
         if not data:
             raise RenderError("the renderer returned no image")
