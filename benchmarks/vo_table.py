@@ -27,19 +27,22 @@ def _rotation(row: dict[str, Any]) -> str:
 
 
 def render(results: dict[str, Any]) -> str:
-    """The table, with the date, the machine and what each column means."""
+    """The table, with the date, the machine and what each column means (the end rotation's column where the
+    results measured it)."""
     machine = results["machine"]
+    rotation = any("end_rotation_deg" in row for row in results["rows"])
     lines = [
         f"Measured on {results['date']} on a {machine['cpus']}-core {machine['processor']} machine (no GPU), "
         f"Python {machine['python']}, OpenCV {machine['opencv']}, {results['configuration']} configuration, "
         "by `benchmarks/vo_accuracy.py`. *Tuned on*: the defaults were set on this sequence; every other row "
-        "is held out. Drift is the end point's error over the distance driven; end rotation the angle between "
-        "the estimated and true final orientations (and per metre driven); ATE after an SE(3) alignment; "
-        "RPE over 1 m.",
+        "is held out. Drift is the end point's error over the distance driven; "
+        + ("end rotation the angle between the estimated and true final orientations (and per metre driven); "
+           if rotation else "")
+        + "ATE after an SE(3) alignment; RPE over 1 m.",
         "",
-        "| sequence | kind | VO | | frames | distance | end drift | end rotation | ATE | RPE 1 m | bridged "
-        "| frames/s | note |",
-        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+        "| sequence | kind | VO | | frames | distance | end drift | " + ("end rotation | " if rotation else "")
+        + "ATE | RPE 1 m | bridged | frames/s | note |",
+        "|---|---|---|---|---:|---:|---:|" + ("---:|" if rotation else "") + "---:|---:|---:|---:|---|",
     ]
     for row in results["rows"]:
         note = row["note"]
@@ -51,8 +54,8 @@ def render(results: dict[str, Any]) -> str:
         lines.append(
             f"| {row['name']} | {row['kind']} | {row['mode']} | {'tuned on' if row['tuned_on'] else 'held out'} "
             f"| {row['frames']} | {_number(row['distance_m'], 1, ' m')} "
-            f"| {_number(row.get('end_drift_percent'), 2, ' %')} | {_rotation(row)} "
-            f"| {_number(row.get('ate_rmse_m'), 3, ' m')} "
+            f"| {_number(row.get('end_drift_percent'), 2, ' %')} " + (f"| {_rotation(row)} " if rotation else "")
+            + f"| {_number(row.get('ate_rmse_m'), 3, ' m')} "
             f"| {_number(rpe, 2, ' %')} | {row['bridged_frames']} | {_number(row['frames_per_second'], 0)} "
             f"| {note} |")
     return "\n".join(lines) + "\n"
