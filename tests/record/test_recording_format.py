@@ -1,5 +1,12 @@
 import json
 import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -214,64 +221,56 @@ def test_a_donkey_tub_imports_as_a_recording_and_exports_to_images_and_csv(tmp_p
     assert "not empty" in capsys.readouterr().err
 
 
+def _recorded_sim(folder: Path, **popen: Any) -> subprocess.Popen:
+    """``kartpilot sim --record folder`` as another process (the small kart on straight20, 10 Hz)."""
+    command = [str(Path(sys.executable).with_name("kartpilot")), "sim", "--track", "straight20", "--vehicle",
+               "rc-kart", "--cameras", "left", "--rate", "10", "--record", str(folder), "--no-progress"]
+    return subprocess.Popen(command, stdout=subprocess.DEVNULL, **popen)
+
+
+def _after_frames(process: subprocess.Popen, folder: Path, count: int) -> None:
+    """Wait until the recording lists ``count`` frames; on the recording's contents, not on the clock."""
+    frames = folder / "cameras" / "left" / "frames.csv"
+    deadline = time.monotonic() + 300  # a bound for a broken run, not a measure of speed
+    while time.monotonic() < deadline and process.poll() is None:
+        if frames.is_file() and frames.read_text().count("\n") > count:
+            break
+        time.sleep(0.05)
+    assert process.poll() is None, "the drive ended before it could be stopped"
+
+
+def _truth_for_every_frame(reader: RecordingReader, at_least: int) -> None:
+    kept = reader.frames("left")
+    truth = reader.groundtruth()
+    assert truth is not None and len(kept) >= at_least
+    truth_ns = np.asarray(truth.stamps_s) * 1e9
+    assert all(np.min(np.abs(truth_ns - stamp)) < 1e3 for stamp, _ in kept)
+
+
 def test_a_killed_simulated_drive_keeps_its_ground_truth(tmp_path) -> None:
     """``kill -9`` during ``sim --record``: the recording opens, not closed, with the ground truth of the frames
     it kept (the truth was written only on close). Waits on the recording's contents, not on the clock."""
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-    from pathlib import Path
-
     folder = tmp_path / "killed"
-    command = [str(Path(sys.executable).with_name("kartpilot")), "sim", "--track", "straight20", "--vehicle",
-               "rc-kart", "--cameras", "left", "--rate", "10", "--record", str(folder), "--no-progress"]
-    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    frames = folder / "cameras" / "left" / "frames.csv"
+    process = _recorded_sim(folder, stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 300  # a bound for a broken run, not a measure of speed
-        while time.monotonic() < deadline and process.poll() is None:
-            if frames.is_file() and frames.read_text().count("\n") > 12:
-                break
-            time.sleep(0.05)
-        assert process.poll() is None, "the drive ended before it could be killed"
+        _after_frames(process, folder, 12)
         os.kill(process.pid, signal.SIGKILL)
     finally:
         process.wait()
     reader = RecordingReader(folder)
     assert not reader.closed
-    kept = reader.frames("left")
-    truth = reader.groundtruth()
-    assert truth is not None and len(kept) >= 12
     # every frame kept has its true pose (the truth may run ahead: frames still queued for writing were lost)
-    truth_ns = np.asarray(truth.stamps_s) * 1e9
-    assert all(np.min(np.abs(truth_ns - stamp)) < 1e3 for stamp, _ in kept)
+    _truth_for_every_frame(reader, 12)
 
 
 def test_sigterm_ends_a_recorded_drive_as_ctrl_c_does(tmp_path) -> None:
     """SIGTERM (a service manager's or a container's stop) during ``sim --record``: the command stops through
     the same clean-up as Ctrl-C, says so on one line, exits 143, and the recording is closed with the ground
     truth of every frame."""
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-    from pathlib import Path
-
     folder = tmp_path / "stopped"
-    command = [str(Path(sys.executable).with_name("kartpilot")), "sim", "--track", "straight20", "--vehicle",
-               "rc-kart", "--cameras", "left", "--rate", "10", "--record", str(folder), "--no-progress"]
-    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    frames = folder / "cameras" / "left" / "frames.csv"
+    process = _recorded_sim(folder, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 300  # a bound for a broken run, not a measure of speed
-        while time.monotonic() < deadline and process.poll() is None:
-            if frames.is_file() and frames.read_text().count("\n") > 12:
-                break
-            time.sleep(0.05)
-        assert process.poll() is None, "the drive ended before it could be stopped"
+        _after_frames(process, folder, 12)
         os.kill(process.pid, signal.SIGTERM)
         _, err = process.communicate(timeout=120)
     finally:
@@ -282,11 +281,7 @@ def test_sigterm_ends_a_recorded_drive_as_ctrl_c_does(tmp_path) -> None:
     assert process.returncode == 143 and "terminated" in err
     reader = RecordingReader(folder)
     assert reader.closed
-    kept = reader.frames("left")
-    truth = reader.groundtruth()
-    assert truth is not None and len(kept) >= 12
-    truth_ns = np.asarray(truth.stamps_s) * 1e9
-    assert all(np.min(np.abs(truth_ns - stamp)) < 1e3 for stamp, _ in kept)
+    _truth_for_every_frame(reader, 12)
 
 
 def test_a_file_size_limit_ends_a_recorded_drive_with_one_line_and_a_readable_recording(tmp_path) -> None:
@@ -294,9 +289,6 @@ def test_a_file_size_limit_ends_a_recorded_drive_with_one_line_and_a_readable_re
     stops (the kart is commanded to stop), says why on one line, and leaves a recording that opens, marked as not
     closed properly with the failure's reason."""
     import resource
-    import subprocess
-    import sys
-    from pathlib import Path
 
     folder = tmp_path / "full"
 
