@@ -58,6 +58,9 @@ class ObstacleConfig:
         min_person_width_m, max_person_width_m: an upright thing this wide on the ground may be a person.
         shape_height_tolerance: how far an upright thing's height may be off a person's to be one (a share; tighter
             than HOG's, as the shape says nothing else).
+        shape_max_distance_m: a person is found by shape no farther than this: beyond it a pixel of the foot's
+            row is more than a metre on the ground, and a far car's or barrier's column looks as tall as a person
+            (the kart acts on people within 15 m).
         barrier_min_px: a barrier's least size (fraction of the image's height).
     """
 
@@ -78,6 +81,7 @@ class ObstacleConfig:
     min_person_width_m: float = 0.2
     max_person_width_m: float = 1.0
     shape_height_tolerance: float = 0.25
+    shape_max_distance_m: float = 18.0
 
     def __post_init__(self) -> None:
         if not 0 < self.height_tolerance < 1 or min(self.person_height_m, self.max_lateral_m,
@@ -266,7 +270,8 @@ def detect_standing_people(image: Image, camera: PinholeCamera | None, config: O
     out = []
     for t in things:
         lateral = (t.left_m + t.right_m) / 2
-        if not (0 < t.distance_m <= config.max_distance_m and abs(lateral) <= config.max_lateral_m
+        if not (0 < t.distance_m <= min(config.max_distance_m, config.shape_max_distance_m)
+                and abs(lateral) <= config.max_lateral_m
                 and config.min_person_width_m <= t.width_m <= config.max_person_width_m):
             continue
         fit = abs(t.height_m / config.person_height_m - 1.0)
