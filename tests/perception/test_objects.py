@@ -49,6 +49,14 @@ def test_a_red_barrier_on_the_ground_is_a_barrier_not_a_light():
         colour = (30, 30, 210) if k % 2 == 0 else (240, 240, 240)
         cv2.rectangle(image, (520 + 14 * k, 150), (533 + 14 * k, 215), colour, -1)
     assert detect_traffic_lights(image, camera=CAMERA) == []
+    # a barrier's stripes within a red rim make one red shape with many small white holes, not a sign's one
+    # white disc
+    panel = scene()
+    cv2.rectangle(panel, (600, 120), (650, 180), (240, 240, 240), -1)
+    cv2.rectangle(panel, (600, 120), (650, 180), (30, 30, 210), 2)
+    for x in range(606, 650, 8):
+        cv2.line(panel, (x, 120), (x, 180), (30, 30, 210), 2)
+    assert detect_speed_signs(panel, camera=CAMERA) == []
     barriers = detect_barriers(image, CAMERA)
     assert barriers and all(b.label == "barrier" for b in barriers)
     assert 3.0 < barriers[0].distance_m < 15.0
@@ -217,3 +225,16 @@ def test_the_classical_detectors_report_nothing_on_empty_asphalt():
     found = ObjectDetector(DetectorConfig(), CAMERA)(scene())
     assert found == []
     assert not any(math.isnan(d.confidence) for d in found)
+
+
+def test_a_people_detector_box_counts_only_over_an_upright_thing_reaching_its_head():
+    from kartpilot.perception.detect import _stands_under
+    from kartpilot.perception.obstacles import Upright
+
+    box = (100.0, 60.0, 160.0, 200.0)  # a person's box, 140 px tall
+    person = Upright((115.0, 70.0, 145.0, 200.0), 10.0, 0.3, -0.3, 1.7, False)
+    barrier = Upright((110.0, 145.0, 170.0, 187.0), 13.0, 0.5, -0.5, 1.0, False)  # under its legs only
+    tree = Upright((90.0, 0.0, 170.0, 200.0), 10.0, 0.6, -0.6, 3.0, True)  # reaches higher than the head
+    beside = Upright((10.0, 60.0, 105.0, 200.0), 10.0, 3.0, 2.0, 1.7, False)  # under its edge only
+    assert _stands_under(box, [person]) and _stands_under(box, [tree])
+    assert not _stands_under(box, [barrier]) and not _stands_under(box, [beside]) and not _stands_under(box, [])

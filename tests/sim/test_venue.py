@@ -91,6 +91,8 @@ def test_scenario_props_are_rendered_as_they_are_and_their_truth_comes_with_each
             frame = sim.read()
             seen = detect_traffic_lights(frame.images["center"], camera=sim.cameras["center"])
             states.append((truth["traffic_light"].state, [d.state for d in seen]))
+            for light in seen:  # placed from its lamp's size: within 10 % (12.5 m ahead)
+                assert light.distance_m == pytest.approx(truth["traffic_light"].distance_m, rel=0.1)
             # the car's distance is to the face the kart meets, half its length before its middle
             assert truth["car"].distance_m == pytest.approx(36.0 - 18.0 - PROP_SIZES_M["car"][1] / 2, abs=0.3)
             assert truth["stop_line"].distance_m == pytest.approx(30.0 - 18.0, abs=0.3)

@@ -24,6 +24,7 @@ from kartpilot.core.types import Image
 from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, box_iou, place_on_ground
 from kartpilot.perception.obstacles import (
     ObstacleConfig,
+    Upright,
     detect_barriers,
     detect_car,
     detect_people,
@@ -93,6 +94,8 @@ def detect_classical(image: Image, camera: PinholeCamera | None, config: Detecto
     people = detect_standing_people(image, camera, config.obstacles, things)
     if config.people:  # HOG's people, and the upright shapes it did not find
         hog = detect_people(image, camera, config.obstacles)
+        if camera is not None and image.ndim == 3:
+            hog = [p for p in hog if _stands_under(p.box_px, things)]
         people = hog + [p for p in people if not any(box_iou(p.box_px, q.box_px) > 0.3 for q in hog)]
     barriers = detect_barriers(image, camera, config.obstacles)
     # a barrier in the corridor stands upright too: it is not a car
@@ -103,6 +106,17 @@ def detect_classical(image: Image, camera: PinholeCamera | None, config: Detecto
     people = [p for p in people if not any(_covered(p.box_px, b.box_px) for b in barriers)]
     out += people + cars + barriers + find_parking_bay(barriers, camera, (image.shape[1], image.shape[0]))
     return out
+
+
+def _stands_under(box: tuple[float, float, float, float], things: list[Upright]) -> bool:
+    """Whether an upright thing stands under a person's box: under its middle half and reaching up to within a
+    quarter of the box's height of its top. A person is taller than the camera, so :func:`upright_things` sees
+    one; a box HOG puts round a lower thing (a barrier's stripes) or on bare ground has no such thing under its
+    head. The thing may reach higher than the head (a person before a tree)."""
+    left, top, right, bottom = box
+    quarter_w, quarter_h = (right - left) / 4, (bottom - top) / 4
+    return any(t.box_px[0] < right - quarter_w and t.box_px[2] > left + quarter_w
+               and t.box_px[1] <= top + quarter_h for t in things)
 
 
 def _covered(box: tuple[float, float, float, float], by: tuple[float, float, float, float]) -> bool:

@@ -34,7 +34,7 @@ from kartpilot.core.types import Image
 from kartpilot.perception.objects import Detection, place_on_ground
 from kartpilot.perception.road_marks import camera_for_image
 
-__all__ = ["ObstacleConfig", "detect_barriers", "detect_car", "detect_people", "detect_standing_people",
+__all__ = ["ObstacleConfig", "Upright", "detect_barriers", "detect_car", "detect_people", "detect_standing_people",
            "find_parking_bay", "horizon_row", "upright_things"]
 
 
@@ -143,7 +143,7 @@ def _asphalt_model(lab: Image, h: int, w: int, top: int = 0) -> tuple[np.ndarray
     return median, np.maximum(1.4826 * mad, 2.0)
 
 
-class _Upright(NamedTuple):
+class Upright(NamedTuple):
     """An upright thing standing on the ground (full-image pixels; metres on the ground)."""
 
     box_px: tuple[float, float, float, float]
@@ -158,7 +158,7 @@ class _Upright(NamedTuple):
         return abs(self.left_m - self.right_m)
 
 
-def upright_things(image: Image, camera: PinholeCamera, config: ObstacleConfig = ObstacleConfig()) -> list[_Upright]:
+def upright_things(image: Image, camera: PinholeCamera, config: ObstacleConfig = ObstacleConfig()) -> list[Upright]:
     """Things standing upright on the ground, found as columns (the "stixels" of road-scene vision): at half the
     image's size, a pixel is part of a thing when its colour is far from its row's (the road below the horizon,
     the sky and trees above it) and it is not grass; a column holds a thing when such pixels run down unbroken
@@ -200,7 +200,7 @@ def upright_things(image: Image, camera: PinholeCamera, config: ObstacleConfig =
         if not np.all(np.isfinite(ahead)) or ahead[2, 0] <= 0:
             continue
         depth = float(ahead[2, 0]) - float(cam.pose_body_cam_array[0, 3])
-        out.append(_Upright((start * sx, head * sy, stop * sx, foot * sy), float(ahead[2, 0]), float(ahead[0, 1]),
+        out.append(Upright((start * sx, head * sy, stop * sx, foot * sy), float(ahead[2, 0]), float(ahead[0, 1]),
                             float(ahead[1, 1]), (foot - head) * depth / cam.fy_px, head <= 0.5))
     return out
 
@@ -226,7 +226,7 @@ def _segments(standing: np.ndarray, top: np.ndarray, bottom: np.ndarray, min_px:
 
 
 def detect_car(image: Image, camera: PinholeCamera | None, config: ObstacleConfig = ObstacleConfig(),
-               things: list[_Upright] | None = None) -> list[Detection]:
+               things: list[Upright] | None = None) -> list[Detection]:
     """An upright thing in the kart's corridor, as wide on the ground as a car (:func:`upright_things`); needs
     the camera's mount."""
     if camera is None or image.ndim != 3:
@@ -260,7 +260,7 @@ def _red_share(image: Image, box: tuple[float, float, float, float]) -> float:
 
 
 def detect_standing_people(image: Image, camera: PinholeCamera | None, config: ObstacleConfig = ObstacleConfig(),
-                           things: list[_Upright] | None = None) -> list[Detection]:
+                           things: list[Upright] | None = None) -> list[Detection]:
     """People as upright things of a person's width and height on the ground (:func:`upright_things`): cheap,
     and it sees people HOG misses (small, side-on, simply drawn), but it knows only a shape's size, so it is held
     to the kart's side of the spectators' fence (``max_lateral_m``) and to a person's height."""

@@ -52,6 +52,8 @@ class SignalConfig:
             and where Dutch signals stand); ``any``.
         min_sign_px: a sign's least diameter in pixels, as a fraction of the height (smaller: too far to read).
         ring_saturation: a sign's red ring's least HSV saturation (a faded or overexposed ring is pale).
+        min_hole_share: the ring's hole (the white disc) holds at least this share of the sign's area (a sign's
+            disc about 0.64; half of it allows a far sign's ring thickened by blur).
         sign_white_saturation: the disc's white is less saturated than this (HSV, 0-255) and within 75 % of the
             disc's bright level (the 90th percentile); ``sign_white_share`` of the disc must be white.
         values_kmh: the speed limits the reader knows (the event's signs: 10, 15 and 20).
@@ -74,6 +76,7 @@ class SignalConfig:
     sign_diameter_m: float = 0.6
     min_sign_px: float = 0.035
     ring_saturation: int = 50
+    min_hole_share: float = 0.3
     sign_white_saturation: int = 70
     sign_white_share: float = 0.45
     values_kmh: tuple[int, ...] = (10, 15, 20, 30, 50)
@@ -84,6 +87,8 @@ class SignalConfig:
     def __post_init__(self) -> None:
         if not 0.0 < self.min_lamp_px < self.max_lamp_px <= 1.0:
             raise ConfigError("signals: need 0 < min_lamp_px < max_lamp_px <= 1")
+        if not 0.0 <= self.min_hole_share < 1.0:
+            raise ConfigError("signals: min_hole_share must be in [0, 1)")
         if min(self.lamp_diameter_m, self.sign_diameter_m, self.max_distance_m) <= 0 or not self.values_kmh:
             raise ConfigError("signals: lamp_diameter_m, sign_diameter_m and max_distance_m must be positive and "
                               "values_kmh not empty")
@@ -139,9 +144,11 @@ def detect_traffic_lights(image: Image, config: SignalConfig = SignalConfig(), c
         count, _, stats, centroids = cv2.connectedComponentsWithStats(mask[: int(horizon)], connectivity=8)
         for k in range(1, count):
             _, _, bw, bh, area = (int(v) for v in stats[k])
-            d = max(bw, bh)
-            if not lo <= d <= hi or not 0.6 <= bw / max(bh, 1) <= 1.6 or area < 0.45 * bw * bh:
+            if not lo <= max(bw, bh) <= hi or not 0.6 <= bw / max(bh, 1) <= 1.6 or area < 0.45 * bw * bh:
                 continue
+            # the lamp's diameter: a thresholded disc's box is about a pixel wider than the disc (a partly covered
+            # pixel at each edge passes, since a lamp's colour mixed with its dark housing keeps its saturation)
+            d = max(bw, bh) - 1.0
             cx, cy = centroids[k]
             # the lamp stands at least min_lamp_height_m up: at the distance its size gives, that many rows above
             # the horizon (a green fence or a red jacket near the horizon is lower)
@@ -210,6 +217,11 @@ def detect_speed_signs(image: Image, config: SignalConfig = SignalConfig(), came
             continue
         (ex, ey), (ma, mb), _ = cv2.fitEllipse(contour)
         if min(ma, mb) / max(ma, mb, 1e-6) < 0.6:
+            continue
+        # a ring round one disc: its hole holds most of its area (a sign's white disc is about 0.8 of its
+        # diameter, 0.64 of its area); a striped barrier's red, closed into one shape, has many small holes
+        hole = max(cv2.contourArea(contours[j]) for j in range(len(contours)) if hierarchy[0][j][3] == k)
+        if hole < config.min_hole_share * cv2.contourArea(contour):
             continue
         if config.sign_side == "right" and ex < (w - 1) / 2:
             continue
