@@ -25,7 +25,7 @@ from vo_table import put_between_markers
 
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "scenarios.md"
 DEVELOPMENT_SEEDS = {"overtake": (1, 2)}  # the seeds each scenario was developed on, where not seed 1 alone
-SEEDS = (1, 2, 3, 4, 5, 6)
+SEEDS = (1, 2, 3, 4, 5, 6, 7)  # five held out for every scenario, overtake too
 
 
 def one(drive: tuple[str, int]) -> dict[str, Any]:
