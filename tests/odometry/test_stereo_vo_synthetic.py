@@ -24,9 +24,17 @@ def test_vo_follows_the_synthetic_drive(source: SyntheticStereoSource) -> None:
     assert metrics.ate_rmse_m < 0.03
 
 
-@pytest.mark.parametrize("overrides", [{"temporal_matching": "klt"}, {"joint_depth_refinement": True},
+FRAME_TO_FRAME = {"keyframes": False}
+
+
+@pytest.mark.parametrize("overrides", [{"temporal_matching": "descriptor", **FRAME_TO_FRAME},
+                                       {"temporal_matching": "klt", **FRAME_TO_FRAME},
+                                       {"joint_depth_refinement": True, "temporal_matching": "descriptor",
+                                        **FRAME_TO_FRAME},
+                                       {"attitude_prior_deg": 0.0}, {"keyframe_retrack": False},
                                        {"features": {"detector": "akaze"}}, {"stereo_matching": "dense"},
-                                       {"window_ba": {"enabled": True}},
+                                       {"window_ba": {"enabled": True}, "temporal_matching": "descriptor",
+                                        **FRAME_TO_FRAME},
                                        {"stereo_matching": "dense", "block_match": {"method": "bm"}}])
 def test_alternative_configurations_also_track(source: SyntheticStereoSource, overrides: dict) -> None:
     from kartpilot.core.config import merge_config

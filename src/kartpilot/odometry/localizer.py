@@ -28,6 +28,8 @@ from kartpilot.core.geometry import Array, Pose2D, between_2d, compose_2d, vo_gr
 from kartpilot.core.types import FrameSet, Image, VehiclePose
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig, VODiagnostics
 from kartpilot.odometry.visual_map import RelocConfig, VisualMap, relocalize
+from kartpilot.odometry.vo import grey_images
+from kartpilot.perception.features import create_detector, detect_features
 from kartpilot.sensors.health import HealthConfig, frame_problem
 
 __all__ = ["LocalizerConfig", "PoseTracker", "StereoVOLocalizer"]
@@ -136,10 +138,13 @@ class StereoVOLocalizer(PoseTracker):
         """``wrap_vo`` is the seam fault injection wraps the VO at (``vo-failure``)."""
         self.config = config or LocalizerConfig()
         super().__init__(self.config.max_bridge_s, self.config.speed_time_constant_s)
+        self.map = visual_map if self.config.reloc.enabled else None
         vo = StereoVO(rig, vo_config, (self.config.left_camera, self.config.right_camera))
+        # VO finds features on its keyframes only; relocalisation finds its own on the other frames
+        self._features = vo.config.features
+        self._detector, self._binary = create_detector(self._features)
         self.vo = wrap_vo(vo) if wrap_vo is not None else vo
         self.rig = rig
-        self.map = visual_map if self.config.reloc.enabled else None
         self.body_cam = np.asarray(pose_body_cam, float)
         self._raw: Pose2D | None = None  # VO's own ground pose at the last VO frame
         self._raw_stamp_ns = 0
@@ -185,13 +190,13 @@ class StereoVOLocalizer(PoseTracker):
         if estimate.status != "bridged":
             self._last_ok_ns = frames.stamp_ns
             if self.map is not None:
-                pose = self._relocalize(pose)
+                pose = self._relocalize(pose, frames)
         self._pose_at_raw = pose
         status = "bridged" if estimate.status == "bridged" else "ok"
         result = self._with_motion(frames.stamp_ns, pose, step, dt, status, estimate.reason)
         return self._check_lost(result) if status == "bridged" else self._remember(result)
 
-    def _relocalize(self, pose: Pose2D) -> Pose2D:
+    def _relocalize(self, pose: Pose2D, frames: FrameSet) -> Pose2D:
         assert self.map is not None
         t0 = time.perf_counter()
         reloc = self.config.reloc
@@ -200,11 +205,14 @@ class StereoVOLocalizer(PoseTracker):
         distance = np.hypot(ground[window, 0] - pose[0], ground[window, 1] - pose[1])
         order = window.start + np.argsort(distance)
         self._keyframe = int(order[0])
-        latest = self.vo.last_features()
+        vo_features = self.vo.last_features()
+        latest = vo_features[0] if vo_features is not None else detect_features(
+            grey_images(frames, (self.config.left_camera, self.config.right_camera))[0], self._detector,
+            self._binary, self._features)
         for keyframe in order[: min(2, len(order))]:
-            if latest is None or abs(math.remainder(ground[keyframe, 2] - pose[2], math.tau)) > math.pi / 4:
+            if abs(math.remainder(ground[keyframe, 2] - pose[2], math.tau)) > math.pi / 4:
                 continue
-            found = relocalize(self.map, int(keyframe), latest[0], self.rig.camera.matrix, reloc)
+            found = relocalize(self.map, int(keyframe), latest, self.rig.camera.matrix, reloc)
             if found is None:
                 continue
             measured = vo_ground_pose(found[0], self.body_cam)

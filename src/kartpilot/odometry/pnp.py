@@ -25,11 +25,13 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array, pose_from_rt
 
 __all__ = [
+    "AttitudePrior",
     "MotionEstimate",
     "PnpConfig",
     "estimate_motion_from_prior",
     "estimate_motion_pnp",
     "refine_translation",
+    "refine_with_attitude_prior",
     "reprojection_errors",
 ]
 
@@ -82,6 +84,64 @@ class MotionEstimate:
     reprojection_rmse_px: float
     ok: bool
     reason: str = ""
+
+
+@dataclass(frozen=True)
+class AttitudePrior:
+    """A ground vehicle's roll and pitch stay near its mount's: the current camera's up direction, in its own
+    frame, is expected near ``up_mount`` (the body's up seen from the camera on its mount), within
+    ``sigma_rad``. ``up_prev`` is the previous camera's up as the estimate so far has it. Yaw is free."""
+
+    up_prev: Array
+    up_mount: Array
+    sigma_rad: float
+
+
+def _skew(v: Array) -> Array:
+    """(..., 3) vectors as (..., 3, 3) cross-product matrices."""
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1), np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+def refine_with_attitude_prior(pose_cur_prev: Array, points_prev_m: Array, pixels_cur: Array, camera_matrix: Array,
+                               prior: AttitudePrior, pixel_sigma_px: float = 1.0, iterations: int = 5) -> Array:
+    """Gauss-Newton on the whole motion with the reprojection errors (``pixel_sigma_px`` each) and the attitude
+    prior: ``R up_prev - up_mount`` over ``prior.sigma_rad``, a residual in the camera's roll and pitch only.
+
+    It is a prior, not a clamp: where the points say the camera tilted (a ramp, a kerb) and they are many, they
+    win; where few points leave the roll poorly measured (a bend's far side), the prior holds it, and the
+    roll that frame-to-frame VO otherwise builds up by a fraction of a degree a frame does not grow."""
+    pose = np.asarray(pose_cur_prev, dtype=np.float64).copy()
+    points = np.asarray(points_prev_m, dtype=np.float64)
+    pixels = np.asarray(pixels_cur, dtype=np.float64)
+    fx, fy, cx, cy = camera_matrix[0, 0], camera_matrix[1, 1], camera_matrix[0, 2], camera_matrix[1, 2]
+    up_prev, up_mount = np.asarray(prior.up_prev, np.float64), np.asarray(prior.up_mount, np.float64)
+    for _ in range(iterations):
+        moved = points @ pose[:3, :3].T + pose[:3, 3]
+        z = moved[:, 2]
+        if np.any(z <= 1e-6):
+            return np.asarray(pose_cur_prev, dtype=np.float64)
+        residual = np.concatenate([(fx * moved[:, 0] / z + cx - pixels[:, 0]) / pixel_sigma_px,
+                                   (fy * moved[:, 1] / z + cy - pixels[:, 1]) / pixel_sigma_px])
+        zeros = np.zeros_like(z)
+        d_trans = np.concatenate([np.stack([fx / z, zeros, -fx * moved[:, 0] / z**2], axis=1),
+                                  np.stack([zeros, fy / z, -fy * moved[:, 1] / z**2], axis=1)]) / pixel_sigma_px
+        # a small rotation w applied on the left moves each point by w x X = -[X]x w
+        d_rot = -np.einsum("nij,njk->nik", d_trans.reshape(2, -1, 3).transpose(1, 0, 2),
+                           _skew(moved)).transpose(1, 0, 2).reshape(-1, 3)
+        up = pose[:3, :3] @ up_prev
+        prior_residual = (up - up_mount) / prior.sigma_rad
+        prior_rot = -_skew(up) / prior.sigma_rad
+        jacobian = np.vstack([np.hstack([d_rot, d_trans]), np.hstack([prior_rot, np.zeros((3, 3))])])
+        step = np.linalg.lstsq(jacobian, -np.concatenate([residual, prior_residual]), rcond=None)[0]
+        update = np.eye(4)
+        update[:3, :3] = cv2.Rodrigues(step[:3])[0]
+        pose = update @ pose
+        pose[:3, 3] += step[3:]
+        if np.linalg.norm(step) < 1e-10:
+            break
+    return pose
 
 
 def _failure(reason: str) -> MotionEstimate:

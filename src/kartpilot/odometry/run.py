@@ -15,7 +15,7 @@ from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import FrameSet
 from kartpilot.odometry.mono_localizer import MonoLocalizer
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
-from kartpilot.odometry.visual_map import MapBuilder, MapConfig, VisualMap
+from kartpilot.odometry.visual_map import MapBuilder, MapConfig, VisualMap, vo_for_map
 from kartpilot.odometry.vo import VisualOdometry, VOStep
 from kartpilot.sensors.base import StereoSource
 
@@ -119,8 +119,8 @@ def bridge_unreadable(read: Trajectory, read_indices: Sequence[int], all_indices
 def run_teach(source: StereoSource, pose_body_cam: Array, config: StereoVOConfig | None = None,
               map_config: MapConfig | None = None) -> tuple[VORun, VisualMap]:
     """VO over a taught drive, keeping keyframes for a visual map as it goes."""
-    vo = StereoVO(source.rig, config)
     builder = MapBuilder(map_config)
+    vo = StereoVO(source.rig, vo_for_map(config, builder.config.keyframe_spacing_m))
 
     def keep(estimate: VOStep) -> None:
         latest = vo.last_features()

@@ -34,8 +34,17 @@ from kartpilot.core.camera import StereoRig
 from kartpilot.core.errors import ConfigError, PerceptionError
 from kartpilot.core.geometry import Array, invert_pose, pose_from_rotvec, rotvec_from_pose
 from kartpilot.core.types import FrameSet, Image, StereoFrame
+from kartpilot.odometry.mono_vo import level_mount
 from kartpilot.odometry.motion_check import MotionLimits, StepVelocity, check_motion
-from kartpilot.odometry.pnp import MotionEstimate, PnpConfig, estimate_motion_from_prior, estimate_motion_pnp
+from kartpilot.odometry.pnp import (
+    AttitudePrior,
+    MotionEstimate,
+    PnpConfig,
+    estimate_motion_from_prior,
+    estimate_motion_pnp,
+    refine_translation,
+    refine_with_attitude_prior,
+)
 from kartpilot.odometry.stereo_refine import refine_pose_and_depths
 from kartpilot.odometry.vo import grey_images
 from kartpilot.odometry.window_ba import WindowBAConfig, WindowObservations, bundle_adjust_window
@@ -71,7 +80,7 @@ class StereoVOConfig:
         joint_depth_refinement: after PnP, refine the pose jointly with each inlier's inverse
             depth, observed through its disparity (see ``stereo_refine``).
         window_ba: after PnP, refine the last frames' poses and the points tracked through them together
-            (see ``window_ba``; descriptor temporal matching only).
+            (see ``window_ba``; frame-to-frame descriptor matching only: ``keyframes: false``).
         min_stereo_margin: keep a PnP inlier only if its stereo match's ZNCC beats every other disparity
             along its row by this much (``stereo_match_margin``); repeated structure such as a row of cones
             otherwise gives points metres off that pass every other filter. 0 turns the check off.
@@ -79,6 +88,18 @@ class StereoVOConfig:
             (``motion_check.check_motion``), is estimated again from the constant-velocity prediction
             (``pnp.estimate_motion_from_prior``); when that fails too, the frame is bridged.
         max_bridged_frames: consecutive bridged frames after which the estimate is reported lost.
+        keyframes: track each frame against the last keyframe's 3D points (KLT from frame to frame, the pose
+            from the keyframe's points by PnP), not against the previous frame's: an error is made once per
+            keyframe, not once per frame, and stereo runs on keyframes only. ``temporal_matching: klt`` only.
+        keyframe_min_share: a new keyframe when fewer than this share of the keyframe's points are still
+            inliers (the view has changed: a bend turns them out of sight) ...
+        keyframe_min_inliers: ... or fewer than this many, or the kart is ``keyframe_max_distance_m`` from it.
+        keyframe_retrack: after KLT carried the points from frame to frame, track them once more straight from
+            the keyframe's image, starting there: the chain's sub-pixel errors then do not add up.
+        attitude_prior_deg: a ground vehicle's roll and pitch stay near its mount's: after PnP, the motion is
+            refined again with the camera's up direction held near the mount's within this many degrees
+            (``pnp.refine_with_attitude_prior``; a camera without a mount is taken as level). A prior, not a
+            clamp: a ramp's pitch, seen by many points, still shows. 0 turns it off (a drone, a hand-held rig).
     """
 
     features: FeatureConfig = field(default_factory=FeatureConfig)
@@ -88,17 +109,36 @@ class StereoVOConfig:
     pnp: PnpConfig = field(default_factory=PnpConfig)
     block_match: BlockMatchConfig = field(default_factory=BlockMatchConfig)
     stereo_matching: Literal["band", "klt", "dense"] = "band"
-    temporal_matching: Literal["descriptor", "klt"] = "descriptor"
+    temporal_matching: Literal["descriptor", "klt"] = "klt"
     subpixel: bool = True
     joint_depth_refinement: bool = False
     window_ba: WindowBAConfig = field(default_factory=WindowBAConfig)
     min_stereo_margin: float = 0.0
     motion_limits: MotionLimits = field(default_factory=MotionLimits)
     max_bridged_frames: int = 10
+    keyframes: bool = True
+    keyframe_min_share: float = 0.5
+    keyframe_min_inliers: int = 30
+    keyframe_max_distance_m: float = 3.0
+    keyframe_retrack: bool = True
+    attitude_prior_deg: float = 1.0
 
     def __post_init__(self) -> None:
+        if self.keyframes and self.temporal_matching != "klt":
+            raise ConfigError("stereo_vo.keyframes needs temporal_matching: klt (set keyframes: false for "
+                              "descriptor matching from frame to frame)")
+        if self.joint_depth_refinement and self.keyframes:
+            raise ConfigError("stereo_vo.joint_depth_refinement works from frame to frame: set keyframes: false")
+        if self.window_ba.enabled and (self.keyframes or self.temporal_matching != "descriptor"):
+            raise ConfigError("stereo_vo.window_ba needs temporal_matching: descriptor and keyframes: false")
+        if not 0.0 < self.keyframe_min_share < 1.0 or self.keyframe_min_inliers < 6 \
+                or not self.keyframe_max_distance_m > 0:
+            raise ConfigError("stereo_vo: keyframe_min_share must be in (0, 1), keyframe_min_inliers at least 6 "
+                              "and keyframe_max_distance_m positive")
         if not 0.0 <= self.min_stereo_margin < 2.0:
             raise ConfigError(f"stereo_vo.min_stereo_margin must be in [0, 2), got {self.min_stereo_margin}")
+        if not 0.0 <= self.attitude_prior_deg <= 90.0:
+            raise ConfigError(f"stereo_vo.attitude_prior_deg must be in [0, 90], got {self.attitude_prior_deg}")
 
 
 VO_STAGES = ("left_features", "stereo_matches", "epipolar_ok", "depth_ok", "temporal_matches", "inliers")
@@ -166,6 +206,23 @@ class _Keyframe:
 
 
 @dataclass
+class _Anchor:
+    """The keyframe tracked against: its pose, its 3D points (its camera frame) and where KLT has them in the
+    latest image."""
+
+    pose_world_kf: Array
+    points_m: Array  # (N, 3)
+    pixels_px: NDArray[np.float32]  # (N, 2) in the latest image
+    image: Image  # the latest left image
+    stamp_ns: int  # the latest frame's
+    pose_prev_kf: Array  # the latest frame's camera from the keyframe's
+    first_count: int  # inliers when it was made (its points with depth)
+    kf_image: Image  # the keyframe's left image
+    kf_stamp_ns: int
+    kf_pixels_px: NDArray[np.float32]  # (N, 2) the points' pixels in it
+
+
+@dataclass
 class _WindowFrame:
     """A frame of the bundle adjustment's window: its pose, and per left feature its track and disparity."""
 
@@ -208,6 +265,10 @@ class StereoVO:
         self._bridged_in_row = 0
         self._window: list[_WindowFrame] = []
         self._next_track = 0
+        self._anchor: _Anchor | None = None
+        self._latest_ns = -1
+        # the body's up seen from the camera on its mount; the world frame is the first camera, on its mount
+        self._up_mount = level_mount(rig.camera)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
 
     def close(self) -> None:
         """Stop the detection thread."""
@@ -219,8 +280,9 @@ class StereoVO:
 
     def last_features(self) -> tuple[Features, Array] | None:
         """The latest frame's left features and their 3D points in its camera frame (NaN rows where
-        stereo gave no depth), or None before the first frame. For building and matching maps."""
-        if self._previous is None:
+        stereo gave no depth), or None before the first frame, and with ``keyframes`` where the latest frame was
+        not a keyframe (features are then found on keyframes only). For building and matching maps."""
+        if self._previous is None or (self.config.keyframes and self._previous.stamp_ns != self._latest_ns):
             return None
         return self._previous.features, self._previous.points_m
 
@@ -244,6 +306,9 @@ class StereoVO:
                 f"the rig expects {expected}"
             )
         timer = _Timer()
+        self._latest_ns = frame.stamp_ns
+        if self.config.keyframes:
+            return self._process_keyframed(frame, timer)
         features, points_m, counts = self._stereo_points(frame, timer)
         current = _Keyframe(frame.left, frame.right, features, points_m, frame.stamp_ns)
         previous, self._previous = self._previous, current
@@ -265,12 +330,12 @@ class StereoVO:
                 return margins >= self.config.min_stereo_margin
         motion = estimate_motion_pnp(prev_points, cur_pixels, self.rig.camera.matrix, self.config.pnp,
                                      disparities, vet)
-        step, reason = self._checked(motion, previous, frame)
+        step, reason = self._checked(motion, previous.stamp_ns, frame.stamp_ns)
         from_prior = False
         if reason and self._recent is not None:
             retry = estimate_motion_from_prior(prev_points, cur_pixels, self.rig.camera.matrix, self.config.pnp,
                                                self._predicted(dt_s), disparities)
-            retry_step, retry_reason = self._checked(retry, previous, frame)
+            retry_step, retry_reason = self._checked(retry, previous.stamp_ns, frame.stamp_ns)
             if not retry_reason:
                 logger.info("frame %d: motion from the prediction (%s)", frame.index, reason)
                 motion, step, reason, from_prior = retry, retry_step, retry_reason, True
@@ -280,7 +345,11 @@ class StereoVO:
                                              disparities[inl], cur_pixels[inl].astype(np.float64),
                                              self.rig.camera.matrix, self.rig.baseline_m)
             motion = replace(motion, pose_cur_prev=refined)
-            step, reason = self._checked(motion, previous, frame)
+            step, reason = self._checked(motion, previous.stamp_ns, frame.stamp_ns)
+        if motion.ok and self.config.attitude_prior_deg > 0:
+            motion = replace(motion, pose_cur_prev=self._with_attitude_prior(motion, prev_points, cur_pixels,
+                                                                             disparities))
+            step, reason = self._checked(motion, previous.stamp_ns, frame.stamp_ns)
         timer.lap("pnp")
         diagnostics = replace(
             counts, temporal_matches=len(prev_points), inliers=len(motion.inliers), motion_from_prior=from_prior,
@@ -303,13 +372,127 @@ class StereoVO:
         lost = self._bridged_in_row > self.config.max_bridged_frames
         return VOEstimate(frame.index, frame.stamp_ns, self.pose_world_cam, status, reason, lost, diagnostics)
 
-    def _checked(self, motion: MotionEstimate, previous: _Keyframe, frame: StereoFrame
-                 ) -> tuple[StepVelocity | None, str]:
+    def _new_anchor(self, frame: StereoFrame, timer: _Timer) -> VODiagnostics:
+        """Make the frame the keyframe: its stereo points, at the current pose."""
+        features, points_m, counts = self._stereo_points(frame, timer)
+        self._previous = _Keyframe(frame.left, frame.right, features, points_m, frame.stamp_ns)
+        with_depth = np.isfinite(points_m[:, 2])
+        pixels = features.points_px[with_depth].astype(np.float32)
+        self._anchor = _Anchor(self._pose_world_cam.copy(), points_m[with_depth], pixels, frame.left, frame.stamp_ns,
+                               np.eye(4), int(with_depth.sum()), frame.left, frame.stamp_ns, pixels)
+        return counts
+
+    def _process_keyframed(self, frame: StereoFrame, timer: _Timer) -> VOEstimate:
+        """One frame against the keyframe (``keyframes``): KLT carries the keyframe's points from the previous
+        image into this one; PnP (RANSAC, the motion check, the prediction where RANSAC's motion is implausible)
+        gives this camera's pose from the keyframe's; a new keyframe where too few of its points remain."""
+        anchor = self._anchor
+        if anchor is None:
+            counts = self._new_anchor(frame, timer)
+            return VOEstimate(frame.index, frame.stamp_ns, self.pose_world_cam, "init", "", False,
+                              replace(counts, timing_ms=timer.timing))
+        config = self.config
+        dt_s = max((frame.stamp_ns - anchor.stamp_ns) * 1e-9, 1e-3)
+        # the keyframe's points where the predicted motion puts them: the search starts there
+        guess = anchor.pixels_px
+        if self._recent is not None:
+            moved = anchor.points_m @ (self._predicted(dt_s) @ anchor.pose_prev_kf)[:3, :3].T \
+                + (self._predicted(dt_s) @ anchor.pose_prev_kf)[:3, 3]
+            if np.all(moved[:, 2] > 0.1):
+                guess = (moved[:, :2] / moved[:, 2:3] * [self.rig.camera.fx_px, self.rig.camera.fy_px]
+                         + [self.rig.camera.cx_px, self.rig.camera.cy_px]).astype(np.float32)
+        pixels, tracked = track_klt(anchor.image, frame.left, anchor.pixels_px, config.klt, initial_px=guess)
+        if self.config.keyframe_retrack:
+            # and from the keyframe's own image, starting where the chain put them: the chain's small errors
+            # do not add up from frame to frame
+            direct, direct_ok = track_klt(anchor.kf_image, frame.left, anchor.kf_pixels_px, _stereo_klt(config.klt),
+                                          initial_px=pixels)
+            pixels = np.where(direct_ok[:, None], direct, pixels)
+            tracked |= direct_ok
+        timer.lap("temporal_match")
+        points, pixels = anchor.points_m[tracked], pixels[tracked]
+        kf_pixels = anchor.kf_pixels_px[tracked]
+        K = self.rig.camera.matrix
+        disparities = self.rig.camera.fx_px * self.rig.baseline_m / points[:, 2]
+        motion = estimate_motion_pnp(points, pixels, K, config.pnp, disparities)
+        step, reason = self._checked_from(motion, anchor, frame.stamp_ns)
+        from_prior = False
+        if reason and self._recent is not None:
+            retry = estimate_motion_from_prior(points, pixels, K, config.pnp,
+                                               self._predicted(dt_s) @ anchor.pose_prev_kf, disparities)
+            retry_step, retry_reason = self._checked_from(retry, anchor, frame.stamp_ns)
+            if not retry_reason:
+                logger.info("frame %d: motion from the prediction (%s)", frame.index, reason)
+                motion, step, reason, from_prior = retry, retry_step, retry_reason, True
+        if motion.ok and not reason and config.attitude_prior_deg > 0:
+            up_kf = anchor.pose_world_kf[:3, :3].T @ self._up_mount
+            prior = AttitudePrior(up_kf, self._up_mount, float(np.radians(config.attitude_prior_deg)))
+            refined = refine_with_attitude_prior(motion.pose_cur_prev, points[motion.inliers],
+                                                 pixels[motion.inliers], K, prior)
+            motion = replace(motion, pose_cur_prev=refined)
+            step, reason = self._checked_from(motion, anchor, frame.stamp_ns)
+        timer.lap("pnp")
+        diagnostics = VODiagnostics(
+            temporal_matches=len(points), inliers=len(motion.inliers), motion_from_prior=from_prior,
+            reprojection_rmse_px=motion.reprojection_rmse_px,
+            inlier_pixels=pixels[motion.inliers], inlier_depths_m=points[motion.inliers, 2])
+        if motion.ok and not reason:
+            pose_cur_prev = motion.pose_cur_prev @ invert_pose(anchor.pose_prev_kf)
+            self._velocity_cur_prev, self._velocity_dt_s = pose_cur_prev, dt_s
+            self._recent = step
+            self._bridged_in_row = 0
+            self._pose_world_cam = anchor.pose_world_kf @ invert_pose(motion.pose_cur_prev)
+            keep = motion.inliers
+            self._anchor = replace(anchor, points_m=points[keep], pixels_px=pixels[keep], image=frame.left,
+                                   stamp_ns=frame.stamp_ns, pose_prev_kf=motion.pose_cur_prev,
+                                   kf_pixels_px=kf_pixels[keep])
+            status: VOStatus = "ok"
+            far = float(np.linalg.norm(motion.pose_cur_prev[:3, 3])) > config.keyframe_max_distance_m
+            if far or len(keep) < max(config.keyframe_min_inliers, config.keyframe_min_share * anchor.first_count):
+                counts = self._new_anchor(frame, timer)
+                diagnostics = replace(counts, temporal_matches=diagnostics.temporal_matches,
+                                      inliers=diagnostics.inliers, motion_from_prior=from_prior,
+                                      reprojection_rmse_px=diagnostics.reprojection_rmse_px,
+                                      inlier_pixels=diagnostics.inlier_pixels,
+                                      inlier_depths_m=diagnostics.inlier_depths_m)
+        else:
+            status = "bridged"
+            self._bridged_in_row += 1
+            logger.info("frame %d bridged with constant velocity: %s", frame.index, reason)
+            self._pose_world_cam = self._pose_world_cam @ invert_pose(self._predicted(dt_s))
+            counts = self._new_anchor(frame, timer)  # start again from this frame's own points
+            diagnostics = replace(counts, temporal_matches=diagnostics.temporal_matches)
+        lost = self._bridged_in_row > config.max_bridged_frames
+        return VOEstimate(frame.index, frame.stamp_ns, self.pose_world_cam, status, reason, lost,
+                          replace(diagnostics, timing_ms=timer.timing))
+
+    def _checked_from(self, motion: MotionEstimate, anchor: _Anchor, stamp_ns: int
+                      ) -> tuple[StepVelocity | None, str]:
+        """:meth:`_checked` for a motion from the keyframe: its mean velocity since the keyframe is checked (each
+        frame's pose is measured from the keyframe, so two frames' small errors do not add up to a jolt)."""
+        return self._checked(motion, anchor.kf_stamp_ns, stamp_ns)
+
+    def _with_attitude_prior(self, motion: MotionEstimate, points: Array, pixels: Array, disparities: Array
+                             ) -> Array:
+        """The motion refined with the attitude prior on its inliers, then its translation from the near ones
+        again (as PnP's refinement ends: far points' depths are biased long)."""
+        inl = motion.inliers
+        up_prev = self._pose_world_cam[:3, :3].T @ self._up_mount
+        prior = AttitudePrior(up_prev, self._up_mount, float(np.radians(self.config.attitude_prior_deg)))
+        K = self.rig.camera.matrix
+        pose = refine_with_attitude_prior(motion.pose_cur_prev, points[inl], pixels[inl], K, prior)
+        pnp = self.config.pnp
+        near = inl[disparities[inl] >= pnp.translation_min_disparity_px]
+        if pnp.translation_min_disparity_px > 0 and len(near) >= pnp.translation_min_points:
+            pose = refine_translation(pose, points[near], pixels[near], K)
+        return pose
+
+    def _checked(self, motion: MotionEstimate, start_ns: int, end_ns: int) -> tuple[StepVelocity | None, str]:
         """``motion``'s step, and why it is no step the vehicle can have made (the estimate's own failure, or the
         motion check's; empty when it is)."""
         if not motion.ok:
             return None, motion.reason
-        step = StepVelocity.of_step(motion.pose_cur_prev, previous.stamp_ns, frame.stamp_ns)
+        step = StepVelocity.of_step(motion.pose_cur_prev, start_ns, end_ns)
         return step, check_motion(step, self.config.motion_limits, self._recent)
 
     def _predicted(self, dt_s: float) -> Array:

@@ -13,7 +13,7 @@ on the reference itself (the visual teach-and-repeat of Furgale and Barfoot, 201
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -21,10 +21,12 @@ import numpy as np
 from kartpilot.core.errors import ConfigError, PlanningError
 from kartpilot.core.geometry import Array, invert_pose
 from kartpilot.odometry.pnp import PnpConfig, estimate_motion_pnp
+from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.perception.features import Features
 from kartpilot.perception.matching import MatchConfig, match_descriptors
 
-__all__ = ["MapBuilder", "MapConfig", "RelocConfig", "VisualMap", "load_visual_map", "map_path_for", "relocalize"]
+__all__ = ["MapBuilder", "MapConfig", "RelocConfig", "VisualMap", "load_visual_map", "map_path_for", "relocalize",
+           "vo_for_map"]
 
 
 @dataclass(frozen=True)
@@ -175,3 +177,12 @@ def relocalize(visual_map: VisualMap, keyframe: int, features: Features, camera_
     if not motion.ok or len(motion.inliers) < config.min_inliers:
         return None
     return visual_map.poses_world_cam[keyframe] @ invert_pose(motion.pose_cur_prev), len(motion.inliers)
+
+
+def vo_for_map(config: StereoVOConfig | None, spacing_m: float) -> StereoVOConfig:
+    """Stereo VO's settings for building or using a map with keyframes every ``spacing_m``: VO finds features
+    on its own keyframes only (``keyframes``), so it makes one at least that often."""
+    config = config or StereoVOConfig()
+    if not config.keyframes or not math.isfinite(spacing_m) or spacing_m <= 0:
+        return config
+    return replace(config, keyframe_max_distance_m=min(config.keyframe_max_distance_m, spacing_m))
