@@ -2,8 +2,8 @@
 
 Each drive is one scenario (``kartpilot sim --scenario NAME --seed N``): the lane pipeline with the event's rules
 on the sdc-kart's rendered cameras at 15 Hz, scored by the scenario's referee. Seed 1 is the one the rules were
-developed on; seeds 2 to 6 (the props' places, the light's timing, the pedestrian's walk, textures and noise) are
-held out. Drives run in separate processes, two at a time.
+developed on (overtake: seeds 1 and 2); seeds 2 to 7 (the props' places, the light's timing, the pedestrian's walk,
+textures and noise) are held out, five or more for every scenario. Drives run in separate processes, two at a time.
 
     python benchmarks/scenarios.py --out docs/results/scenarios.json
     python benchmarks/scenarios.py --render docs/results/scenarios.json   # into docs/scenarios.md
