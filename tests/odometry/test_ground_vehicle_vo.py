@@ -1,6 +1,8 @@
 """Stereo VO as a ground vehicle's (issue 37): the roll and pitch prior, keyframe selection, and the motion
 model's prediction."""
 
+import itertools
+
 import cv2
 import numpy as np
 import pytest
@@ -80,7 +82,7 @@ def test_a_new_keyframe_once_the_kart_is_far_enough_from_the_last(source: Synthe
     keyframes, estimates = _keyframes(source, StereoVOConfig(keyframe_max_distance_m=1.0))
     assert keyframes[0] == 0 and all(e.status != "bridged" for e in estimates)
     truth = source.ground_truth().poses[:, :3, 3]
-    gaps = [float(np.linalg.norm(truth[b] - truth[a])) for a, b in zip(keyframes, keyframes[1:], strict=False)]
+    gaps = [float(np.linalg.norm(truth[b] - truth[a])) for a, b in itertools.pairwise(keyframes)]
     print("keyframes", keyframes, "gaps", np.round(gaps, 2))
     # 0.2 m a frame: a keyframe on the first frame beyond 1 m, not on every frame
     assert all(0.95 <= g <= 1.25 for g in gaps)

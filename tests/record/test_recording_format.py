@@ -1,6 +1,7 @@
 import json
 import math
 import os
+import random
 import signal
 import subprocess
 import sys
@@ -247,20 +248,29 @@ def _truth_for_every_frame(reader: RecordingReader, at_least: int) -> None:
     assert all(np.min(np.abs(truth_ns - stamp)) < 1e3 for stamp, _ in kept)
 
 
-def test_a_killed_simulated_drive_keeps_its_ground_truth(tmp_path) -> None:
-    """``kill -9`` during ``sim --record``: the recording opens, not closed, with the ground truth of the frames
-    it kept (the truth was written only on close). Waits on the recording's contents, not on the clock."""
-    folder = tmp_path / "killed"
-    process = _recorded_sim(folder, stderr=subprocess.DEVNULL)
-    try:
-        _after_frames(process, folder, 12)
-        os.kill(process.pid, signal.SIGKILL)
-    finally:
-        process.wait()
-    reader = RecordingReader(folder)
-    assert not reader.closed
-    # every frame kept has its true pose (the truth may run ahead: frames still queued for writing were lost)
-    _truth_for_every_frame(reader, 12)
+def test_sigkill_at_ten_random_moments_leaves_recordings_that_open_with_their_ground_truth(tmp_path) -> None:
+    """``kill -9`` during ``sim --record``, ten times, each at a random moment (after a random number of frames
+    and a random part of a frame's period, so a write may be cut anywhere): every recording opens, not closed,
+    with the ground truth of every frame it kept (the truth used to be written only on close). Two drives run at
+    a time. Waits on the recordings' contents, not on the clock."""
+    rng = random.Random(36)
+    moments = [(tmp_path / f"killed-{k}", rng.randint(2, 25), rng.uniform(0.0, 0.1)) for k in range(10)]
+    for runs in (moments[k:k + 2] for k in range(0, len(moments), 2)):
+        processes = [_recorded_sim(folder, stderr=subprocess.DEVNULL) for folder, _, _ in runs]
+        try:
+            for process, (folder, frames, delay) in zip(processes, runs, strict=True):
+                _after_frames(process, folder, frames)
+                time.sleep(delay)
+                os.kill(process.pid, signal.SIGKILL)
+        finally:
+            for process in processes:
+                process.kill()
+                process.wait()
+        for folder, frames, _ in runs:
+            reader = RecordingReader(folder)
+            assert not reader.closed
+            # every frame kept has its true pose (the truth may run ahead: frames still queued were lost)
+            _truth_for_every_frame(reader, frames)
 
 
 def test_sigterm_ends_a_recorded_drive_as_ctrl_c_does(tmp_path) -> None:
