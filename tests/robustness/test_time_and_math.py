@@ -77,3 +77,26 @@ def test_a_recording_whose_frames_go_back_in_time_is_refused_naming_the_line(tmp
     frames.write_text("\n".join(lines) + "\n")
     with pytest.raises(KartpilotError, match=r"frames\.csv:4: stamp_ns 2000 .*go backwards or repeat"):
         RecordingReader(tmp_path / "rec").frames("left")
+
+
+@SETTINGS
+@given(st.lists(st.integers(0, 10**6), min_size=2, max_size=12))
+def test_a_euroc_frame_list_takes_only_stamps_that_go_forward(tmp_path_factory, stamps):
+    """EuRoC's ``cam0/data.csv``: a repeat or a step back is refused with its line, not sorted into order (which
+    would pair the wrong images)."""
+    from kartpilot.sensors.euroc import _read_stamps
+
+    folder = tmp_path_factory.mktemp("cam0")
+    (folder / "data").mkdir()
+    for k, _ in enumerate(stamps):
+        (folder / "data" / f"{k}.png").write_bytes(b"")
+    path = folder / "data.csv"
+    path.write_text("#timestamp [ns],filename\r\n" + "".join(f"{t},{k}.png\r\n" for k, t in enumerate(stamps)))
+    if all(b > a for a, b in itertools.pairwise(stamps)):
+        assert list(_read_stamps(path)) == stamps
+    else:
+        with pytest.raises(DataError, match=r"data\.csv, line \d+: stamp \d+ (repeats|goes back)"):
+            _read_stamps(path)
+    path.write_text("#timestamp [ns],filename\n1.5e9,0.png\n")
+    with pytest.raises(DataError, match="not whole nanoseconds"):
+        _read_stamps(path)

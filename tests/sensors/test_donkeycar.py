@@ -37,3 +37,11 @@ def test_deleted_records_are_skipped_and_broken_ones_are_named(tmp_path):
         DonkeyTub(tmp_path / "bad")
     with pytest.raises(DataError, match="no manifest"):
         DonkeyTub(tmp_path / "nothing")
+
+
+@pytest.mark.parametrize(("stamps", "word"), [((1000, 1050, 1050), "repeats"), ((1000, 1050, 990), "goes back")])
+def test_a_tub_whose_time_does_not_follow_its_records_is_refused(tmp_path, stamps, word):
+    lines = [json.dumps({"_index": i, "_timestamp_ms": t, "cam/image_array": f"{i}.jpg"}) for i, t in enumerate(stamps)]
+    write_tub(tmp_path / "tub", lines)
+    with pytest.raises(DataError, match=f"record 2's time stamp .* {word}"):
+        DonkeyTub(tmp_path / "tub")

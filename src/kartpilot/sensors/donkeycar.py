@@ -8,6 +8,7 @@ and the catalogs' bookkeeping (``paths``, ``deleted_indexes``). Each catalog lin
 
 from __future__ import annotations
 
+import itertools
 import json
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -74,6 +75,11 @@ class DonkeyTub:
         if not records:
             raise DataError(f"the tub {self.folder} has no records")
         self.records = sorted(records, key=lambda r: r.index)
+        for before, after in itertools.pairwise(self.records):
+            if after.stamp_ms <= before.stamp_ms:  # the records' order is their index's; time must follow it
+                raise DataError(f"the tub {self.folder}: record {after.index}'s time stamp ({after.stamp_ms} ms) "
+                                f"{'repeats' if after.stamp_ms == before.stamp_ms else 'goes back from'} record "
+                                f"{before.index}'s ({before.stamp_ms} ms)")
 
     def __len__(self) -> int:
         return len(self.records)

@@ -56,16 +56,28 @@ def read_euroc_camera(path: Path) -> tuple[PinholeCamera, np.ndarray]:
 
 
 def _read_stamps(csv_path: Path) -> dict[int, Path]:
+    """The frame list ``stamp_ns,file``: stamps are integers and strictly increasing (a repeat or a step back
+    is a broken list, refused with its line: sorting it would pair the wrong images)."""
     if not csv_path.is_file():
         raise DataError(f"frame list not found: {csv_path}")
     frames: dict[int, Path] = {}
-    for line in read_text_file(csv_path).splitlines():
+    last: int | None = None
+    for number, line in enumerate(read_text_file(csv_path).splitlines(), start=1):
         if not line.strip() or line.startswith("#"):
             continue
-        stamp, _, name = line.partition(",")
+        text, _, name = line.partition(",")
+        try:
+            stamp = int(text.strip())
+        except ValueError:
+            raise DataError(f"{csv_path}, line {number}: the stamp {text.strip()!r} is not whole nanoseconds"
+                            ) from None
+        if last is not None and stamp <= last:
+            raise DataError(f"{csv_path}, line {number}: stamp {stamp} {'repeats' if stamp == last else 'goes back'}"
+                            f" (the previous one is {last}); the frames must be in time order")
+        last = stamp
         path = csv_path.parent / "data" / name.strip()
         if path.is_file():
-            frames[int(stamp)] = path
+            frames[stamp] = path
     return frames
 
 
