@@ -160,15 +160,51 @@ def _per_view_rms(views: Sequence[BoardView], camera_matrix: Array, distortion: 
     return errors
 
 
+MIN_TILT_SPREAD_DEG = 5.0
+"""Board views whose planes all lie within this angle of each other do not fix the focal length (Zhang, "A
+flexible new technique for camera calibration", PAMI 2000: planes parallel to each other add no constraint on
+the intrinsics beyond the first)."""
+
+
+def _copies(views: Sequence[BoardView]) -> list[tuple[str, str]]:
+    """(copy, original) for each view whose corners lie within half a pixel of an earlier view's."""
+    out = []
+    for k, view in enumerate(views):
+        for earlier in views[:k]:
+            if len(view.ids) == len(earlier.ids) and np.array_equal(view.ids, earlier.ids) and float(
+                    np.median(np.linalg.norm(view.pixels - earlier.pixels, axis=1))) < 0.5:
+                out.append((view.name, earlier.name))
+                break
+    return out
+
+
+def _tilt_spread_deg(rvecs: Sequence[Array]) -> float:
+    """The largest angle between two views' board normals."""
+    normals = np.array([cv2.Rodrigues(np.asarray(r, np.float64))[0][:, 2] for r in rvecs])
+    cosines = np.clip(np.abs(normals @ normals.T), -1.0, 1.0)
+    return float(np.degrees(np.arccos(cosines.min())))
+
+
 def calibrate_mono(views: Sequence[BoardView], size_wh: tuple[int, int], min_views: int = 3) -> MonoCalibration:
     """Intrinsics and distortion (k1, k2, p1, p2, k3) from board views."""
     if len(views) < min_views:
         raise CalibrationError(f"only {len(views)} images show the whole board; calibration needs {min_views}")
+    copies = _copies(views)
+    if len(views) - len(copies) < min_views:
+        named = ", ".join(f"{a} of {b}" for a, b in copies[:4]) + (", ..." if len(copies) > 4 else "")
+        raise CalibrationError(f"{len(copies)} of the {len(views)} board views are copies of another ({named}): "
+                               f"the same view twice measures nothing new; calibration needs {min_views} "
+                               "different ones")
     rms, K, distortion, rvecs, tvecs = cv2.calibrateCamera(
         [v.points_m.astype(np.float32) for v in views], [v.pixels.astype(np.float32) for v in views], size_wh,
         None, None)
     if not math.isfinite(rms):
         raise CalibrationError("the calibration did not converge")
+    tilt = _tilt_spread_deg(rvecs)
+    if tilt < MIN_TILT_SPREAD_DEG:
+        raise CalibrationError(f"the board is held at one angle in every view (its tilt varies by {tilt:.1f} deg): "
+                               "the focal length cannot be told from the distance then, however small the "
+                               "reprojection error; tilt it by 20 to 45 degrees in some views")
     camera = PinholeCamera.from_matrix(K, size_wh, tuple(float(d) for d in distortion.ravel()[:5]))
     return MonoCalibration(camera, float(rms), _per_view_rms(views, K, distortion, rvecs, tvecs))
 
