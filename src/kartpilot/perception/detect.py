@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from kartpilot.core.camera import PinholeCamera
-from kartpilot.core.errors import ConfigError
+from kartpilot.core.errors import ConfigError, PerceptionError
 from kartpilot.core.types import Image
 from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, box_iou, place_on_ground
 from kartpilot.perception.obstacles import (
@@ -36,6 +36,7 @@ from kartpilot.perception.obstacles import (
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
 from kartpilot.perception.road_marks import RoadMarkConfig, detect_road_marks
 from kartpilot.perception.signals import SignalConfig, detect_speed_signs, detect_traffic_lights, place_by_size
+from kartpilot.sensors.base import MIN_IMAGE_PX
 
 __all__ = ["DetectorConfig", "ObjectDetector", "crossing_states", "detect_classical"]
 
@@ -84,6 +85,9 @@ class DetectorConfig:
 def detect_classical(image: Image, camera: PinholeCamera | None, config: DetectorConfig = DetectorConfig()
                      ) -> list[Detection]:
     """Every classical detector on one image, placed on the ground where the camera's mount is known."""
+    if image.ndim not in (2, 3) or min(image.shape[:2]) < MIN_IMAGE_PX:
+        raise PerceptionError(f"an image of {image.shape} is too small to look for objects in (at least "
+                              f"{MIN_IMAGE_PX} px a side)")
     signals = config.signals
     if camera is not None:  # the horizon and the camera's height from its mount, not the defaults' kart
         signals = replace(signals, camera_height_m=float(camera.pose_body_cam_array[2, 3]),

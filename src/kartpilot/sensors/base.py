@@ -64,10 +64,15 @@ def read_gray(path: str | Path) -> Image:
     return read_image(path, cv2.IMREAD_GRAYSCALE)
 
 
+MIN_IMAGE_PX = 32
+"""The smallest side an image may have (a Donkey Car's camera gives 160x120): below it no pipeline has a region of
+interest to look at, and OpenCV's resizing and HOG fail inside (one crashed the process)."""
+
+
 def read_image(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> Image:
-    """Read an image (BGR by default; OpenCV's ``flags``); a missing, corrupt, cut-off or empty file raises
-    DataError. A JPEG or PNG cut off in its writing (a full disk, a copy stopped half-way) still decodes in
-    OpenCV, with its lower part grey, so its end marker is checked first."""
+    """Read an image (BGR by default; OpenCV's ``flags``); a missing, corrupt, cut-off, empty or tiny (under
+    :data:`MIN_IMAGE_PX` a side) file raises DataError. A JPEG or PNG cut off in its writing (a full disk, a copy
+    stopped half-way) still decodes in OpenCV, with its lower part grey, so its end marker is checked first."""
     path = Path(path)
     if not path.is_file():
         raise DataError(f"image not found: {path}")
@@ -76,6 +81,9 @@ def read_image(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> Image:
     image = cv2.imdecode(np.fromfile(path, np.uint8), flags)
     if image is None or image.size == 0:
         raise DataError(f"cannot read image (corrupt or not an image): {path}")
+    if min(image.shape[:2]) < MIN_IMAGE_PX:
+        raise DataError(f"the image {path} is {image.shape[1]}x{image.shape[0]} px: too small for a camera's view "
+                        f"(at least {MIN_IMAGE_PX} px a side)")
     return image
 
 
