@@ -70,6 +70,17 @@ def test_segments_that_do_not_close_are_rejected():
         build_track(spec)
 
 
+def test_a_centre_line_of_repeated_points_is_refused_not_a_traceback():
+    """A track of zero length (every control point the same) ended in scipy's 'Invalid inputs'."""
+    for points in (((0.0, 0.0),) * 4, ((0.0, 0.0), (10.0, 0.0), (10.0, 0.0), (10.0, 10.0))):
+        with pytest.raises(ConfigError, match=r"points_m\[\d\] repeats the point before it"):
+            build_track(TrackSpec(centerline=CenterlineSpec(closed=False, points_m=points)))
+    square = ((0.0, 0.0), (20.0, 0.0), (20.0, 20.0), (0.0, 20.0))
+    again = build_track(TrackSpec(centerline=CenterlineSpec(closed=True, points_m=(*square, square[0]))))
+    assert again.route.length_m == pytest.approx(
+        build_track(TrackSpec(centerline=CenterlineSpec(closed=True, points_m=square))).route.length_m)
+
+
 def test_a_typo_in_a_track_file_names_the_key():
     with pytest.raises(ConfigError, match=r"track\.left\.cone_gap"):
         merge_config(TrackSpec(), {"left": {"cone_gap": 2.0}}, "track")

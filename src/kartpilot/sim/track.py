@@ -577,6 +577,14 @@ def _centerline_points(spec: CenterlineSpec) -> Array:
         pts = np.asarray(spec.points_m, float)
         if len(pts) < 4:
             raise ConfigError("track.centerline.points_m needs at least 4 control points")
+        if not np.all(np.isfinite(pts)) or pts.ndim != 2 or pts.shape[1] != 2:
+            raise ConfigError("track.centerline.points_m must be finite (x, y) pairs")
+        if spec.closed and len(pts) > 4 and np.linalg.norm(pts[-1] - pts[0]) < 1e-6:
+            pts = pts[:-1]  # a loop written with its first point again at the end: the same loop
+        repeats = np.flatnonzero(np.linalg.norm(np.diff(pts, axis=0), axis=1) < 1e-6)
+        if len(repeats):  # a spline through a point twice has no direction there (a track of zero length)
+            raise ConfigError(f"track.centerline.points_m[{int(repeats[0]) + 1}] repeats the point before it; "
+                              "control points must differ from their neighbours")
         if spec.closed:
             pts = np.vstack([pts, pts[:1]])
         tck, _ = splprep(pts.T, s=0.0, per=1 if spec.closed else 0, k=3)
