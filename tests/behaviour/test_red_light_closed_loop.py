@@ -61,3 +61,32 @@ def test_a_camera_freezing_mid_scenario_ends_in_a_safe_stop_with_its_reason(tmp_
     assert payload["fault_to_stop_s"] is not None and payload["fault_to_stop_s"] <= 0.2
     states = [row["state"] for row in RecordingReader(tmp_path / "rec").outputs("behaviour")]
     assert states and states[-1] in ("drive", "stop_red")  # the rules ran until the fault
+
+
+@pytest.mark.slow
+def test_a_recorded_scenario_replays_to_the_same_decisions(tmp_path, capsys):
+    """``kartpilot sim --scenario ... --record`` keeps what the pipeline was told the kart measured (the ``kart``
+    topic) and its settings; ``kartpilot replay`` on it makes the same decisions, step by step."""
+    import csv
+
+    from kartpilot.cli.main import main
+    from kartpilot.runtime.scenarios import run_scenario
+
+    run_scenario("red-light", 2, record_dir=tmp_path / "drive", max_time_s=6.0)
+    assert main(["replay", str(tmp_path / "drive"), "--pipeline", "lanes", "--out", str(tmp_path / "again")]) == 0
+    assert "settings: the recording's own" in capsys.readouterr().out
+
+    def rows(folder, name):
+        with (folder / "outputs" / f"{name}.csv").open(newline="") as f:
+            # the stop point to the millimetre: the recorded speed is text of limited precision
+            return [(r["stamp_ns"], r["state"], r["reason"], None if r["stop_distance_m"] == "nan"
+                     else round(float(r["stop_distance_m"]), 3)) for r in csv.DictReader(f)]
+
+    drive, again = rows(tmp_path / "drive", "behaviour"), rows(tmp_path / "again", "behaviour")
+    assert len(drive) == len(again) >= 80 and drive == again
+    assert len({state for _, state, _, _ in drive}) >= 2  # the rules did decide something on the way
+    with (tmp_path / "drive" / "commands.csv").open() as a, (tmp_path / "again" / "commands.csv").open() as b:
+        commands = [(list(csv.DictReader(a))), list(csv.DictReader(b))]
+    assert len(commands[0]) == len(commands[1]) == len(drive)
+    for x, y in zip(*commands, strict=True):
+        assert all(abs(float(x[k]) - float(y[k])) < 1e-4 for k in ("steer_rad", "throttle", "brake")), (x, y)

@@ -240,7 +240,9 @@ def _print_result(result: RunResult, run: SimRun) -> None:
 def _scenario(args: argparse.Namespace) -> int:
     """One of the event's scenarios on one seed, closed loop, scored by its referee."""
     stack = load_stack_config(args.config, args.preset or "kart")
-    result = run_scenario(args.scenario, args.seed if args.seed is not None else 1, stack)
+    result = run_scenario(args.scenario, args.seed if args.seed is not None else 1, stack, record_dir=args.record)
+    if args.record:
+        print(f"recorded to {args.record} (kartpilot replay {args.record} --pipeline lanes gives the same decisions)")
     verdict = "passed" if result["passed"] else "failed: " + "; ".join(result["faults"])
     print(f"scenario {result['name']}, seed {result['seed']}: {verdict}")
     if args.result:

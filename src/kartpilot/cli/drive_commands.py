@@ -13,6 +13,7 @@ import numpy as np
 from kartpilot.calibration.rig import load_rig
 from kartpilot.cli.values import VIEW_HELP, new_folder, number, output_file, view_target
 from kartpilot.control.path_follow import steer_bias_of_drive
+from kartpilot.core.config import merge_config
 from kartpilot.core.errors import ConfigError, KartpilotError, RecordingError
 from kartpilot.core.geometry import ground_poses
 from kartpilot.core.vehicle import VehicleParams, get_vehicle
@@ -229,9 +230,25 @@ def _recorded_preset(folder: str) -> str:
         return "kart"  # a track file no longer where it was
 
 
+def _recorded_settings(folder: str, pipeline: str) -> dict[str, Any]:
+    """The lane pipeline's settings a recording was made with, where it names them (a scenario's drive, a
+    replay's own recording): a replay then makes the same decisions without a config file."""
+    if pipeline != "lanes":
+        return {}
+    try:
+        settings = (RecordingReader(folder).manifest.get("metadata") or {}).get("config") or {}
+    except KartpilotError:
+        return {}  # the replay itself says what is wrong with the recording
+    return {"lane_policy": settings["lane_policy"]} if isinstance(settings.get("lane_policy"), dict) else {}
+
+
 def replay(args: argparse.Namespace) -> int:
     """A recording through a pipeline; its commands and outputs written as a new recording."""
     stack = load_stack_config(args.config, args.preset or _recorded_preset(args.recording))
+    recorded = {} if args.config or args.preset else _recorded_settings(args.recording, args.pipeline)
+    if recorded:
+        stack = merge_config(stack, recorded)
+        print("settings: the recording's own (its manifest's lane_policy; --config to replay with others)")
     path = load_reference_path(args.reference) if args.reference else None
     visual_map = _visual_map(args) if path is not None and args.pipeline == "stereo-vo" else None
     places = load_places(args.places) if args.places and args.pipeline == "mono-vo" else None

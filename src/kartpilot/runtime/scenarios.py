@@ -6,13 +6,17 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
-from kartpilot.core.types import ActuatorCommand, FrameSet
+from kartpilot.core.config import config_to_dict
+from kartpilot.core.types import ActuatorCommand, FrameSet, VehicleFeedback
+from kartpilot.record.recording import RecordingWriter
 from kartpilot.runtime.config import StackConfig, load_stack_config
+from kartpilot.runtime.drive import feedback_columns
 from kartpilot.runtime.lane_policy import LanePolicy
 from kartpilot.runtime.loop import run_loop
 from kartpilot.sim.referee import RefereeConfig
@@ -26,11 +30,14 @@ SCENARIO_SPEED_KMH = 15.0
 """The speed mode the scenarios run at (the event's limits are 10 to 20 km/h)."""
 
 
-def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_rate_hz: float = 15.0
-                 ) -> dict[str, Any]:
+def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_rate_hz: float = 15.0,
+                 record_dir: str | Path | None = None, max_time_s: float | None = None) -> dict[str, Any]:
     """Drive one scenario on one seed; its result in the session result's ``scenarios`` form (``name``,
     ``seed``, ``passed``, ``faults``). The kart's measured speed (its 0x440 report) and steering angle are the
-    simulator's."""
+    simulator's. With ``record_dir``, the drive is recorded as every drive is (frames, commands, the ``lanes``
+    and ``behaviour`` topics, and the ``kart`` topic of what the pipeline was told the kart measured), with the
+    lane pipeline's settings in its manifest, so ``kartpilot replay`` gives the same decisions. ``max_time_s``
+    ends the drive earlier than the scenario's own time (a test's short drive: then judged as far as it went)."""
     cv2.setNumThreads(1)
     plan = scenario(name, seed)
     stack = stack or load_stack_config(None, "kart")
@@ -43,7 +50,8 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
                                 dashed=spec.dashed + plan.dashed))
     track = replace(track, spec=replace(track.spec, start_s_m=start_pose_s(track, plan)))
     config = SimConfig(track="lelystad", vehicle="sdc-kart", seed=seed, camera_rate_hz=camera_rate_hz,
-                       speed_mode_mps=SCENARIO_SPEED_KMH / 3.6, max_time_s=plan.duration_s,
+                       speed_mode_mps=SCENARIO_SPEED_KMH / 3.6,
+                       max_time_s=plan.duration_s if max_time_s is None else min(max_time_s, plan.duration_s),
                        referee=RefereeConfig(laps=plan.laps, may_cross_dashed=plan.overtake or plan.park))
     referee = ScenarioReferee(plan)
     props: list[tuple[str, np.ndarray]] = [(p.kind, track.prop_corners(p)[:4, :2]) for p in plan.props
@@ -55,10 +63,11 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
         length = sim.track.route.length_m
         where = {"s": math.nan, "lap": 0.0, "last": math.nan, "parked": 0.0}
 
+        told = _Told(policy)
+
         def step(frames: FrameSet) -> ActuatorCommand:
-            policy.measured_speed_mps = sim.state.vx_mps
-            policy.measured_steer_rad = sim.state.steer_rad  # the RDW steering ECU's angle (0x440's sibling)
-            return policy(frames)
+            # the kart's measured speed, and the RDW steering ECU's angle (0x440's sibling)
+            return told(frames, VehicleFeedback(frames.stamp_ns, sim.state.vx_mps, sim.state.steer_rad))
 
         def judge(frames: FrameSet, command: ActuatorCommand) -> None:
             here = project_onto(sim.track.route, np.array([sim.state.x_m, sim.state.y_m]))
@@ -75,7 +84,17 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
             where["parked"] = where["parked"] + sim.dt_s if parked and abs(sim.state.vx_mps) < 0.05 else 0.0
 
         # the drive ends at the scenario's time, or a second after the kart has parked
-        run_loop(_Until(sim, lambda: where["parked"] >= 1.0), step, sim, on_step=judge)
+        writer = None if record_dir is None else RecordingWriter(
+            record_dir, sim.cameras, metadata={"source": "kartpilot sim --scenario", "scenario": name, "seed": seed,
+                                               "vehicle": sim.vehicle.name, "pipeline": "lanes",
+                                               "config": {"lane_policy": config_to_dict(policy_config)}},
+            queue_frames=8, drop_when_full=False)
+        try:
+            run_loop(_Until(sim, lambda: where["parked"] >= 1.0), _Recorded(step, told), sim,
+                     [writer] if writer else [], on_step=judge)
+        finally:
+            if writer is not None:
+                writer.close()
         result = referee.result(where["s"])
         if sim.referee.disqualified:
             result["faults"].append(str(sim.referee.reason))
@@ -98,6 +117,36 @@ def _touching(kart: np.ndarray, things: list[tuple[str, np.ndarray]]) -> str:
         if footprints_touch(kart, corners[[0, 1, 3, 2]] if kind == "car" else corners):
             return kind
     return ""
+
+
+class _Told:
+    """The lane pipeline, told what the kart measured before each step, as a drive tells it (``observe_vehicle``);
+    the last feedback is the recording's ``kart`` topic."""
+
+    def __init__(self, policy: LanePolicy) -> None:
+        self.policy = policy
+        self.feedback: VehicleFeedback | None = None
+
+    def __call__(self, frames: FrameSet, feedback: VehicleFeedback) -> ActuatorCommand:
+        self.feedback = feedback
+        self.policy.observe_vehicle(feedback)
+        return self.policy(frames)
+
+
+class _Recorded:
+    """A step with the pipeline's outputs and the ``kart`` topic, for the recording."""
+
+    def __init__(self, step: Callable[[FrameSet], ActuatorCommand], told: _Told) -> None:
+        self.step, self.told = step, told
+
+    def __call__(self, frames: FrameSet) -> ActuatorCommand:
+        return self.step(frames)
+
+    def outputs(self) -> dict[str, dict[str, float | int | str]]:
+        topics = dict(self.told.policy.outputs())
+        if self.told.feedback is not None:
+            topics["kart"] = dict(feedback_columns(self.told.feedback))
+        return topics
 
 
 class _Until:
