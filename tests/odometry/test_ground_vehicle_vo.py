@@ -120,3 +120,22 @@ def test_keyframes_need_klt_and_frame_to_frame_refinements_need_no_keyframes() -
         StereoVOConfig(window_ba=WindowBAConfig(enabled=True))
     with pytest.raises(ConfigError, match="attitude_prior_deg"):
         StereoVOConfig(attitude_prior_deg=-1.0)
+
+
+def test_the_motion_model_moves_at_the_kart_s_measured_speed_while_it_is_fresh(source: SyntheticStereoSource) -> None:
+    """The SDC kart reports its wheel speed (0x440): the prediction keeps the last motion's direction and takes
+    the measured speed; a stale or NaN measurement leaves constant velocity."""
+    vo = StereoVO(source.rig)
+    for i in range(6):
+        vo.process(source.frame(i).as_frame_set())
+    stamp = source.frame(5).stamp_ns
+    direction = vo._predicted(0.1)[:3, 3] / np.linalg.norm(vo._predicted(0.1)[:3, 3])
+    vo.observe_speed(stamp, float("nan"))
+    assert np.linalg.norm(vo._predicted(0.1)[:3, 3]) == pytest.approx(0.2, rel=0.05)
+    vo.observe_speed(stamp, 1.0)  # braking: half the speed VO last measured
+    predicted = vo._predicted(0.1)[:3, 3]
+    assert np.linalg.norm(predicted) == pytest.approx(0.1, rel=1e-6)
+    assert predicted / np.linalg.norm(predicted) == pytest.approx(direction)
+    vo.observe_speed(stamp - 2_000_000_000, 1.0)  # two seconds old: not used
+    assert np.linalg.norm(vo._predicted(0.1)[:3, 3]) == pytest.approx(0.2, rel=0.05)
+    vo.close()

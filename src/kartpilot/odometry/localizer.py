@@ -158,6 +158,11 @@ class StereoVOLocalizer(PoseTracker):
     def close(self) -> None:
         self.vo.close()
 
+    def observe_speed(self, stamp_ns: int, speed_mps: float) -> None:
+        """The kart's measured speed: for a bridged pose (:class:`PoseTracker`) and VO's motion model."""
+        super().observe_speed(stamp_ns, speed_mps)
+        self.vo.observe_speed(stamp_ns, speed_mps)
+
     @property
     def timing_ms(self) -> dict[str, float]:
         """VO's stages and the relocalisation, milliseconds summed over every frame."""

@@ -22,6 +22,7 @@ as in KITTI's pose files.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -267,6 +268,7 @@ class StereoVO:
         self._next_track = 0
         self._anchor: _Anchor | None = None
         self._latest_ns = -1
+        self._measured_speed: tuple[int, float] | None = None  # (stamp_ns, m/s), the kart's own
         # the body's up seen from the camera on its mount; the world frame is the first camera, on its mount
         self._up_mount = level_mount(rig.camera)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
 
@@ -495,13 +497,23 @@ class StereoVO:
         step = StepVelocity.of_step(motion.pose_cur_prev, start_ns, end_ns)
         return step, check_motion(step, self.config.motion_limits, self._recent)
 
+    def observe_speed(self, stamp_ns: int, speed_mps: float) -> None:
+        """The kart's own measured speed (the RDW kart's 0x440 wheel speed): the motion model's prediction then
+        moves at it, in the direction of the last motion, while it is younger than half a second. Without one (a
+        dataset) the model is constant velocity."""
+        if math.isfinite(speed_mps):
+            self._measured_speed = (stamp_ns, speed_mps)
+
     def _predicted(self, dt_s: float) -> Array:
-        """Constant-velocity prediction of ``pose_cur_prev`` over ``dt_s``."""
-        if abs(dt_s - self._velocity_dt_s) < 1e-6:
-            return self._velocity_cur_prev.copy()
+        """The motion model's ``pose_cur_prev`` over ``dt_s``: the last motion (constant velocity), its length
+        the measured speed's where a fresh one was observed."""
         scale = dt_s / self._velocity_dt_s
-        return pose_from_rotvec(rotvec_from_pose(self._velocity_cur_prev) * scale,
-                                self._velocity_cur_prev[:3, 3] * scale)
+        rotvec, translation = rotvec_from_pose(self._velocity_cur_prev) * scale, self._velocity_cur_prev[:3, 3] * scale
+        measured = self._measured_speed
+        length = float(np.linalg.norm(translation))
+        if measured is not None and abs(self._latest_ns - measured[0]) <= 5e8 and length > 1e-6:
+            translation = translation * (abs(measured[1]) * dt_s / length)
+        return pose_from_rotvec(rotvec, translation)
 
     def _stereo_points(self, frame: StereoFrame, timer: _Timer) -> tuple[Features, Array, VODiagnostics]:
         config = self.config
