@@ -2,7 +2,8 @@
 
 The defaults were tuned on KITTI 06 (stereo and monocular), the stereo keyframes and the attitude prior on
 utrack seed 1 as well, and the monocular arc settings on sdc-assen; every other row is held out (utrack seed 2's
-result was seen with the attitude prior on and off before its default was set). Simulated drives are recorded once into ``--cache`` (several seeds each):
+result was seen with the attitude prior on and off before its default was set). Simulated drives are recorded
+once into ``--cache`` (several seeds each):
 
 * utrack, rc-kart stereo: 160 m from the start at 2 m/s, an 74 m straight and 130 degrees of the first bend;
 * sdc-assen, sdc-kart centre camera (monocular, the mount's arc): 70 s at 4 m/s, about 280 m with bends.
