@@ -46,10 +46,10 @@ def stereo_vo(folder):
     return run_vo(source.frame_sets(), StereoVO(source.rig), source.name).trajectory
 
 
-def write_foreign_bag(recording, out, vehicle):
+def write_foreign_bag(recording, out, vehicle, header_ns=lambda name, stamp: stamp):
     """The drive as a team's ROS 2 bag would hold it: raw rgb8 images under /stereo, camera info with the right
     camera's baseline in P, the mounts as a chain of static transforms, odometry of base_link, Twist commands,
-    and a topic kartpilot has no use for."""
+    and a topic kartpilot has no use for. ``header_ns`` gives each image's header stamp (a driver's clock)."""
     store = get_typestore(Stores.ROS2_HUMBLE)
     t = store.types
     reader = RecordingReader(recording)
@@ -78,8 +78,8 @@ def write_foreign_bag(recording, out, vehicle):
             rgb = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
             h, w = rgb.shape[:2]
             messages.append((stamp + lag, f"/stereo/{name}/image_raw", "sensor_msgs/msg/Image", t[
-                "sensor_msgs/msg/Image"](header=header(stamp + lag, f"{name}_optical"), height=h, width=w,
-                                         encoding="rgb8", is_bigendian=0, step=w * 3, data=rgb.ravel())))
+                "sensor_msgs/msg/Image"](header=header(header_ns(name, stamp + lag), f"{name}_optical"), height=h,
+                                         width=w, encoding="rgb8", is_bigendian=0, step=w * 3, data=rgb.ravel())))
             messages.append((stamp + lag, f"/stereo/{name}/camera_info", "sensor_msgs/msg/CameraInfo", t[
                 "sensor_msgs/msg/CameraInfo"](
                     header=header(stamp + lag, f"{name}_optical"), height=h, width=w, distortion_model="plumb_bob",
@@ -191,6 +191,17 @@ def test_bad_bags_and_topic_maps_are_refused_and_leave_nothing(drive, tmp_path, 
     assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out*"))
     with pytest.raises(DataError, match="the bag has no command topic"):
         import_bag(tmp_path / "bag", tmp_path / "out", BagImportConfig(commands="/cmd_vel"))
+
+
+def test_a_camera_whose_images_repeat_a_header_stamp_is_refused_naming_its_topic(drive, tmp_path):
+    """A driver's clock that stood still stamps two images alike: sorting by header stamp cannot order them, and
+    matching them to the other camera would pair the wrong images."""
+    first = RecordingReader(drive).frames("left")[3][0]
+    write_foreign_bag(drive, tmp_path / "bag", get_vehicle("rc-kart"),
+                      header_ns=lambda name, stamp: min(stamp, first) if name == "left" else stamp)
+    with pytest.raises(DataError, match=r"/stereo/left/image_raw: \d+ image\(s\) repeat another's header stamp"):
+        import_bag(tmp_path / "bag", tmp_path / "out", BagImportConfig())
+    assert not (tmp_path / "out").exists()
 
 
 def test_a_ros1_bag_of_compressed_images_without_transforms_imports(drive, tmp_path):
