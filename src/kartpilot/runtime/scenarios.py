@@ -17,12 +17,12 @@ from kartpilot.core.types import ActuatorCommand, FrameSet, VehicleFeedback
 from kartpilot.record.recording import RecordingWriter
 from kartpilot.runtime.config import StackConfig, load_stack_config
 from kartpilot.runtime.drive import feedback_columns
-from kartpilot.runtime.lane_policy import LanePolicy
+from kartpilot.runtime.lane_policy import LanePolicy, LanePolicyConfig
 from kartpilot.runtime.loop import run_loop
 from kartpilot.sim.referee import RefereeConfig
-from kartpilot.sim.scenarios import ScenarioReferee, footprints_touch, scenario, start_pose_s
+from kartpilot.sim.scenarios import Scenario, ScenarioReferee, footprints_touch, scenario, start_pose_s
 from kartpilot.sim.simulator import SimConfig, Simulator
-from kartpilot.sim.track import build_track, load_track_spec, project_onto
+from kartpilot.sim.track import Track, build_track, load_track_spec, project_onto
 
 __all__ = ["SCENARIO_SPEED_KMH", "run_scenario"]
 
@@ -40,15 +40,8 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
     ends the drive earlier than the scenario's own time (a test's short drive: then judged as far as it went)."""
     cv2.setNumThreads(1)
     plan = scenario(name, seed)
-    stack = stack or load_stack_config(None, "kart")
-    policy_config = replace(stack.lane_policy, events=True, speed_mps=SCENARIO_SPEED_KMH / 3.6,
-                            behaviour=replace(stack.lane_policy.behaviour, overtake=plan.overtake, park=plan.park,
-                                              park_after_m=plan.park_after_m, start_on_green=plan.start_on_green,
-                                              limit_kmh=plan.limit_kmh))
-    spec = load_track_spec("lelystad")
-    track = build_track(replace(spec, props=plan.props, barrier_blocks=spec.barrier_blocks + plan.barriers,
-                                dashed=spec.dashed + plan.dashed))
-    track = replace(track, spec=replace(track.spec, start_s_m=start_pose_s(track, plan)))
+    policy_config = _rules_for(stack or load_stack_config(None, "kart"), plan)
+    track = _course_for(plan)
     config = SimConfig(track="lelystad", vehicle="sdc-kart", seed=seed, camera_rate_hz=camera_rate_hz,
                        speed_mode_mps=SCENARIO_SPEED_KMH / 3.6,
                        max_time_s=plan.duration_s if max_time_s is None else min(max_time_s, plan.duration_s),
@@ -62,12 +55,6 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
         front = sim.vehicle.wheelbase_m + sim.vehicle.front_overhang_m
         length = sim.track.route.length_m
         where = {"s": math.nan, "lap": 0.0, "last": math.nan, "parked": 0.0}
-
-        told = _Told(policy)
-
-        def step(frames: FrameSet) -> ActuatorCommand:
-            # the kart's measured speed, and the RDW steering ECU's angle (0x440's sibling)
-            return told(frames, VehicleFeedback(frames.stamp_ns, sim.state.vx_mps, sim.state.steer_rad))
 
         def judge(frames: FrameSet, command: ActuatorCommand) -> None:
             here = project_onto(sim.track.route, np.array([sim.state.x_m, sim.state.y_m]))
@@ -90,8 +77,8 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
                                                "config": {"lane_policy": config_to_dict(policy_config)}},
             queue_frames=8, drop_when_full=False)
         try:
-            run_loop(_Until(sim, lambda: where["parked"] >= 1.0), _Recorded(step, told), sim,
-                     [writer] if writer else [], on_step=judge)
+            run_loop(_Until(sim, lambda: where["parked"] >= 1.0), _Told(policy, sim), sim, [writer] if writer else [],
+                     on_step=judge)
         finally:
             if writer is not None:
                 writer.close()
@@ -119,33 +106,38 @@ def _touching(kart: np.ndarray, things: list[tuple[str, np.ndarray]]) -> str:
     return ""
 
 
-class _Told:
-    """The lane pipeline, told what the kart measured before each step, as a drive tells it (``observe_vehicle``);
-    the last feedback is the recording's ``kart`` topic."""
+def _rules_for(stack: StackConfig, plan: Scenario) -> LanePolicyConfig:
+    """The lane pipeline with the event's rules, set for the scenario (what it holds, where to park)."""
+    behaviour = replace(stack.lane_policy.behaviour, overtake=plan.overtake, park=plan.park,
+                        park_after_m=plan.park_after_m, start_on_green=plan.start_on_green, limit_kmh=plan.limit_kmh)
+    return replace(stack.lane_policy, events=True, speed_mps=SCENARIO_SPEED_KMH / 3.6, behaviour=behaviour)
 
-    def __init__(self, policy: LanePolicy) -> None:
-        self.policy = policy
+
+def _course_for(plan: Scenario) -> Track:
+    """The venue track with the scenario's props, barriers and dashed lines, starting where the plan says."""
+    spec = load_track_spec("lelystad")
+    track = build_track(replace(spec, props=plan.props, barrier_blocks=spec.barrier_blocks + plan.barriers,
+                                dashed=spec.dashed + plan.dashed))
+    return replace(track, spec=replace(track.spec, start_s_m=start_pose_s(track, plan)))
+
+
+class _Told:
+    """The lane pipeline, told before each step what the kart measured (the simulator's speed, and the RDW steering
+    ECU's angle), as a drive tells it (``observe_vehicle``); that feedback is the recording's ``kart`` topic."""
+
+    def __init__(self, policy: LanePolicy, sim: Simulator) -> None:
+        self.policy, self.sim = policy, sim
         self.feedback: VehicleFeedback | None = None
 
-    def __call__(self, frames: FrameSet, feedback: VehicleFeedback) -> ActuatorCommand:
-        self.feedback = feedback
-        self.policy.observe_vehicle(feedback)
+    def __call__(self, frames: FrameSet) -> ActuatorCommand:
+        self.feedback = VehicleFeedback(frames.stamp_ns, self.sim.state.vx_mps, self.sim.state.steer_rad)
+        self.policy.observe_vehicle(self.feedback)
         return self.policy(frames)
 
-
-class _Recorded:
-    """A step with the pipeline's outputs and the ``kart`` topic, for the recording."""
-
-    def __init__(self, step: Callable[[FrameSet], ActuatorCommand], told: _Told) -> None:
-        self.step, self.told = step, told
-
-    def __call__(self, frames: FrameSet) -> ActuatorCommand:
-        return self.step(frames)
-
     def outputs(self) -> dict[str, dict[str, float | int | str]]:
-        topics = dict(self.told.policy.outputs())
-        if self.told.feedback is not None:
-            topics["kart"] = dict(feedback_columns(self.told.feedback))
+        topics = dict(self.policy.outputs())
+        if self.feedback is not None:
+            topics["kart"] = dict(feedback_columns(self.feedback))
         return topics
 
 
