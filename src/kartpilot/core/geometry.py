@@ -21,6 +21,7 @@ __all__ = [
     "Pose2D",
     "between_2d",
     "compose_2d",
+    "cross_matrix",
     "ground_poses",
     "invert_pose",
     "mount_pose",
@@ -28,6 +29,7 @@ __all__ = [
     "pose_from_quaternion",
     "pose_from_rotvec",
     "pose_from_rt",
+    "projection_jacobian",
     "quaternion_xyzw_from_pose",
     "relative_pose",
     "rotation_angle_rad",
@@ -89,6 +91,21 @@ def rotation_angle_rad(pose_or_rotation: Array) -> float:
     rotation = pose_or_rotation[:3, :3]
     cos_angle = (np.trace(rotation) - 1.0) / 2.0
     return float(np.arccos(np.clip(cos_angle, -1.0, 1.0)))
+
+
+def cross_matrix(v: Array) -> Array:
+    """(..., 3) vectors as (..., 3, 3) cross-product matrices: ``cross_matrix(a) @ b == a x b``."""
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1), np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+def projection_jacobian(points: Array, fx: float, fy: float) -> Array:
+    """(N, 2, 3): how a pinhole camera's pixel (u, v) moves with each (N, 3) point in its frame."""
+    x, y, z = points[:, 0], points[:, 1], points[:, 2]
+    zeros = np.zeros_like(z)
+    return np.stack([np.stack([fx / z, zeros, -fx * x / z**2], axis=1),
+                     np.stack([zeros, fy / z, -fy * y / z**2], axis=1)], axis=1)
 
 
 def transform_points(pose: Array, points: Array) -> Array:

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.geometry import Array, pose_from_rt
+from kartpilot.core.geometry import Array, cross_matrix, pose_from_rt, projection_jacobian
 
 __all__ = [
     "AttitudePrior",
@@ -97,13 +97,6 @@ class AttitudePrior:
     sigma_rad: float
 
 
-def _skew(v: Array) -> Array:
-    """(..., 3) vectors as (..., 3, 3) cross-product matrices."""
-    z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1), np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
-
-
 def refine_with_attitude_prior(pose_cur_prev: Array, points_prev_m: Array, pixels_cur: Array, camera_matrix: Array,
                                prior: AttitudePrior, pixel_sigma_px: float = 1.0, iterations: int = 5) -> Array:
     """Gauss-Newton on the whole motion with the reprojection errors (``pixel_sigma_px`` each) and the attitude
@@ -124,15 +117,13 @@ def refine_with_attitude_prior(pose_cur_prev: Array, points_prev_m: Array, pixel
             return np.asarray(pose_cur_prev, dtype=np.float64)
         residual = np.concatenate([(fx * moved[:, 0] / z + cx - pixels[:, 0]) / pixel_sigma_px,
                                    (fy * moved[:, 1] / z + cy - pixels[:, 1]) / pixel_sigma_px])
-        zeros = np.zeros_like(z)
-        d_trans = np.concatenate([np.stack([fx / z, zeros, -fx * moved[:, 0] / z**2], axis=1),
-                                  np.stack([zeros, fy / z, -fy * moved[:, 1] / z**2], axis=1)]) / pixel_sigma_px
+        d_point = projection_jacobian(moved, fx, fy) / pixel_sigma_px  # (N, 2, 3)
+        d_trans = d_point.transpose(1, 0, 2).reshape(-1, 3)  # the u rows, then the v rows
         # a small rotation w applied on the left moves each point by w x X = -[X]x w
-        d_rot = -np.einsum("nij,njk->nik", d_trans.reshape(2, -1, 3).transpose(1, 0, 2),
-                           _skew(moved)).transpose(1, 0, 2).reshape(-1, 3)
+        d_rot = -(d_point @ cross_matrix(moved)).transpose(1, 0, 2).reshape(-1, 3)
         up = pose[:3, :3] @ up_prev
         prior_residual = (up - up_mount) / prior.sigma_rad
-        prior_rot = -_skew(up) / prior.sigma_rad
+        prior_rot = -cross_matrix(up) / prior.sigma_rad
         jacobian = np.vstack([np.hstack([d_rot, d_trans]), np.hstack([prior_rot, np.zeros((3, 3))])])
         step = np.linalg.lstsq(jacobian, -np.concatenate([residual, prior_residual]), rcond=None)[0]
         update = np.eye(4)
@@ -172,11 +163,7 @@ def refine_translation(pose_cur_prev: Array, points_prev_m: Array, pixels_cur: A
         u = fx * points[:, 0] / z + camera_matrix[0, 2]
         v = fy * points[:, 1] / z + camera_matrix[1, 2]
         residual = np.concatenate([u - pixels_cur[:, 0], v - pixels_cur[:, 1]])
-        zeros = np.zeros_like(z)
-        jacobian = np.concatenate([
-            np.stack([fx / z, zeros, -fx * points[:, 0] / z**2], axis=1),
-            np.stack([zeros, fy / z, -fy * points[:, 1] / z**2], axis=1),
-        ])
+        jacobian = projection_jacobian(points, fx, fy).transpose(1, 0, 2).reshape(-1, 3)  # u rows, then v rows
         step = np.linalg.lstsq(jacobian, -residual, rcond=None)[0]
         pose[:3, 3] += step
         if np.linalg.norm(step) < 1e-9:

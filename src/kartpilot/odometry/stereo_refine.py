@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from kartpilot.core.geometry import Array
+from kartpilot.core.geometry import Array, cross_matrix, projection_jacobian
 
 __all__ = ["refine_pose_and_depths"]
 
@@ -61,17 +61,9 @@ def refine_pose_and_depths(
         residual_d = focal_baseline * rho - disparities_px
         w_uv = _huber_weights(np.linalg.norm(residual_uv, axis=1), huber_px)
         w_d = _huber_weights(np.abs(residual_d), huber_px)
-        # d(u, v)/dP, (N, 2, 3)
-        zeros = np.zeros_like(z)
-        d_uv_d_point = np.stack([
-            np.stack([fx / z, zeros, -fx * x / z**2], axis=1),
-            np.stack([zeros, fy / z, -fy * y / z**2], axis=1),
-        ], axis=1)
+        d_uv_d_point = projection_jacobian(points, fx, fy)  # d(u, v)/dP, (N, 2, 3)
         # dP/d(omega, t) with R <- exp(omega) R: dP/domega = -[R X]_x, dP/dt = I
-        skew = np.zeros((len(z), 3, 3))
-        skew[:, 0, 1], skew[:, 0, 2] = rotated[:, 2], -rotated[:, 1]
-        skew[:, 1, 0], skew[:, 1, 2] = -rotated[:, 2], rotated[:, 0]
-        skew[:, 2, 0], skew[:, 2, 1] = rotated[:, 1], -rotated[:, 0]
+        skew = -cross_matrix(rotated)
         d_point_d_pose = np.concatenate([skew, np.broadcast_to(np.eye(3), skew.shape)], axis=2)
         J_pose = d_uv_d_point @ d_point_d_pose  # (N, 2, 6)
         d_point_d_rho = -rotated / rho[:, None]  # (N, 3)
