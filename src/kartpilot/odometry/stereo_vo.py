@@ -350,7 +350,7 @@ class StereoVO:
             step, reason = self._checked(motion, previous.stamp_ns, frame.stamp_ns)
         if motion.ok and self.config.attitude_prior_deg > 0:
             motion = replace(motion, pose_cur_prev=self._with_attitude_prior(motion, prev_points, cur_pixels,
-                                                                             disparities))
+                                                                             self._pose_world_cam, disparities))
             step, reason = self._checked(motion, previous.stamp_ns, frame.stamp_ns)
         timer.lap("pnp")
         diagnostics = replace(
@@ -397,9 +397,9 @@ class StereoVO:
         dt_s = max((frame.stamp_ns - anchor.stamp_ns) * 1e-9, 1e-3)
         # the keyframe's points where the predicted motion puts them: the search starts there
         guess = anchor.pixels_px
+        predicted_kf = self._predicted(dt_s) @ anchor.pose_prev_kf  # this camera from the keyframe's, predicted
         if self._recent is not None:
-            moved = anchor.points_m @ (self._predicted(dt_s) @ anchor.pose_prev_kf)[:3, :3].T \
-                + (self._predicted(dt_s) @ anchor.pose_prev_kf)[:3, 3]
+            moved = anchor.points_m @ predicted_kf[:3, :3].T + predicted_kf[:3, 3]
             if np.all(moved[:, 2] > 0.1):
                 guess = (moved[:, :2] / moved[:, 2:3] * [self.rig.camera.fx_px, self.rig.camera.fy_px]
                          + [self.rig.camera.cx_px, self.rig.camera.cy_px]).astype(np.float32)
@@ -420,18 +420,14 @@ class StereoVO:
         step, reason = self._checked_from(motion, anchor, frame.stamp_ns)
         from_prior = False
         if reason and self._recent is not None:
-            retry = estimate_motion_from_prior(points, pixels, K, config.pnp,
-                                               self._predicted(dt_s) @ anchor.pose_prev_kf, disparities)
+            retry = estimate_motion_from_prior(points, pixels, K, config.pnp, predicted_kf, disparities)
             retry_step, retry_reason = self._checked_from(retry, anchor, frame.stamp_ns)
             if not retry_reason:
                 logger.info("frame %d: motion from the prediction (%s)", frame.index, reason)
                 motion, step, reason, from_prior = retry, retry_step, retry_reason, True
         if motion.ok and not reason and config.attitude_prior_deg > 0:
-            up_kf = anchor.pose_world_kf[:3, :3].T @ self._up_mount
-            prior = AttitudePrior(up_kf, self._up_mount, float(np.radians(config.attitude_prior_deg)))
-            refined = refine_with_attitude_prior(motion.pose_cur_prev, points[motion.inliers],
-                                                 pixels[motion.inliers], K, prior)
-            motion = replace(motion, pose_cur_prev=refined)
+            motion = replace(motion, pose_cur_prev=self._with_attitude_prior(motion, points, pixels,
+                                                                             anchor.pose_world_kf))
             step, reason = self._checked_from(motion, anchor, frame.stamp_ns)
         timer.lap("pnp")
         diagnostics = VODiagnostics(
@@ -474,20 +470,22 @@ class StereoVO:
         frame's pose is measured from the keyframe, so two frames' small errors do not add up to a jolt)."""
         return self._checked(motion, anchor.kf_stamp_ns, stamp_ns)
 
-    def _with_attitude_prior(self, motion: MotionEstimate, points: Array, pixels: Array, disparities: Array
-                             ) -> Array:
-        """The motion refined with the attitude prior on its inliers, then its translation from the near ones
-        again (as PnP's refinement ends: far points' depths are biased long)."""
+    def _with_attitude_prior(self, motion: MotionEstimate, points: Array, pixels: Array, pose_world_from: Array,
+                             disparities: Array | None = None) -> Array:
+        """The motion from the camera at ``pose_world_from`` refined with the attitude prior on its inliers; with
+        ``disparities``, then its translation from the near ones again (as PnP's refinement ends: far points'
+        depths are biased long)."""
         inl = motion.inliers
-        up_prev = self._pose_world_cam[:3, :3].T @ self._up_mount
-        prior = AttitudePrior(up_prev, self._up_mount, float(np.radians(self.config.attitude_prior_deg)))
+        up_from = pose_world_from[:3, :3].T @ self._up_mount
+        prior = AttitudePrior(up_from, self._up_mount, float(np.radians(self.config.attitude_prior_deg)))
         K = self.rig.camera.matrix
         pose = refine_with_attitude_prior(motion.pose_cur_prev, points[inl], pixels[inl], K, prior)
         pnp = self.config.pnp
+        if disparities is None or pnp.translation_min_disparity_px <= 0:
+            return pose
         near = inl[disparities[inl] >= pnp.translation_min_disparity_px]
-        if pnp.translation_min_disparity_px > 0 and len(near) >= pnp.translation_min_points:
-            pose = refine_translation(pose, points[near], pixels[near], K)
-        return pose
+        return refine_translation(pose, points[near], pixels[near], K) if len(near) >= pnp.translation_min_points \
+            else pose
 
     def _checked(self, motion: MotionEstimate, start_ns: int, end_ns: int) -> tuple[StepVelocity | None, str]:
         """``motion``'s step, and why it is no step the vehicle can have made (the estimate's own failure, or the
