@@ -14,11 +14,11 @@ import numpy as np
 
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.types import ActuatorCommand, FrameSet, VehicleFeedback
-from kartpilot.record.recording import RecordingWriter
 from kartpilot.runtime.config import StackConfig, load_stack_config
 from kartpilot.runtime.drive import feedback_columns
 from kartpilot.runtime.lane_policy import LanePolicy, LanePolicyConfig
 from kartpilot.runtime.loop import run_loop
+from kartpilot.runtime.simulate import sim_recording
 from kartpilot.sim.referee import RefereeConfig
 from kartpilot.sim.scenarios import Scenario, ScenarioReferee, footprints_touch, scenario, start_pose_s
 from kartpilot.sim.simulator import SimConfig, Simulator
@@ -71,11 +71,9 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
             where["parked"] = where["parked"] + sim.dt_s if parked and abs(sim.state.vx_mps) < 0.05 else 0.0
 
         # the drive ends at the scenario's time, or a second after the kart has parked
-        writer = None if record_dir is None else RecordingWriter(
-            record_dir, sim.cameras, metadata={"source": "kartpilot sim --scenario", "scenario": name, "seed": seed,
-                                               "vehicle": sim.vehicle.name, "pipeline": "lanes",
-                                               "config": {"lane_policy": config_to_dict(policy_config)}},
-            queue_frames=8, drop_when_full=False)
+        writer = sim_recording(sim, record_dir, {"source": "kartpilot sim --scenario", "scenario": name, "seed": seed,
+                                                 "vehicle": sim.vehicle.name, "pipeline": "lanes",
+                                                 "config": {"lane_policy": config_to_dict(policy_config)}})
         try:
             run_loop(_Until(sim, lambda: where["parked"] >= 1.0), _Told(policy, sim), sim, [writer] if writer else [],
                      on_step=judge)

@@ -55,7 +55,7 @@ if TYPE_CHECKING:
     from kartpilot.record.rerun_view import RerunView
 
 __all__ = ["DRIVERS", "SimRun", "SupervisedRun", "load_commands", "run_simulation", "run_supervised_drive",
-           "sim_context"]
+           "sim_context", "sim_recording"]
 
 DRIVERS = ("centerline", "commands", "lanes", "path")
 STOPPED_BEFORE_END_S = 1.5  # a path drive ends this long after the pipeline decided to stop
@@ -110,8 +110,9 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
     with Simulator(config) as sim:
         policy = _driver(sim, driver, driver_config, commands, stack, route or Route())
         path_policy = path_policy_of(policy)
-        writer = _writer(sim, outputs, {"source": "kartpilot sim", "driver": driver, "sim": config_to_dict(config),
-                                        "groundtruth_camera": _gt_camera(sim)})
+        writer = sim_recording(sim, outputs.record_dir, {
+            "source": "kartpilot sim", "driver": driver, "sim": config_to_dict(config),
+            "groundtruth_camera": _gt_camera(sim)})
         source = _UntilStopped(sim, path_policy) if path_policy is not None else sim
         view = outputs.open_view(sim.cameras if config.render_images else {})
         stats, wall_s = _run(sim, source, policy, sim, _Recorders(writer, view), outputs, path_policy)
@@ -150,11 +151,12 @@ def _driver(sim: Simulator, driver: str, driver_config: CenterlineDriverConfig |
     raise ConfigError(f"unknown driver {driver!r} ({', '.join(DRIVERS)})")
 
 
-def _writer(sim: Simulator, outputs: SessionOutputs, metadata: dict[str, object]) -> RecordingWriter | None:
+def sim_recording(sim: Simulator, record_dir: str | Path | None, metadata: dict[str, object]
+                  ) -> RecordingWriter | None:
     """The simulated run's recording (it waits for the writer instead of dropping frames), if one was asked for."""
-    if outputs.record_dir is None:
+    if record_dir is None:
         return None
-    return RecordingWriter(outputs.record_dir, sim.cameras, stereo_pair=_recorded_pair(sim), metadata=metadata,
+    return RecordingWriter(record_dir, sim.cameras, stereo_pair=_recorded_pair(sim), metadata=metadata,
                            queue_frames=8, drop_when_full=False)
 
 
@@ -509,9 +511,9 @@ def run_supervised_drive(config: SimConfig, pipeline: str, stack: StackConfig | 
             policy = RaisingPipeline(policy, at["stage-exception"])
         if bus == "virtual":
             _check_ecu_faults(stack.can, sim.vehicle, at)  # before the recording and the view are begun
-        writer = _writer(sim, outputs, {"source": "kartpilot drive --sim", "pipeline": pipeline, "bus": bus,
-                                        "vehicle": sim.vehicle.name, "sim": config_to_dict(config),
-                                        "injections": [f"{i.kind}@{i.at_s:g}" for i in injections]})
+        writer = sim_recording(sim, outputs.record_dir, {
+            "source": "kartpilot drive --sim", "pipeline": pipeline, "bus": bus, "vehicle": sim.vehicle.name,
+            "sim": config_to_dict(config), "injections": [f"{i.kind}@{i.at_s:g}" for i in injections]})
         view = outputs.open_view(sim.cameras if config.render_images else {},
                                  protocol_database(stack.can, sim.vehicle) if bus == "virtual" else None)
         log_frame = fan_out_frames([s.write_can for s in (writer, view) if s is not None])
