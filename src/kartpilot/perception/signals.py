@@ -220,7 +220,9 @@ def detect_speed_signs(image: Image, config: SignalConfig = SignalConfig(), came
             continue
         # a ring round one disc: its hole holds most of its area (a sign's white disc is about 0.8 of its
         # diameter, 0.64 of its area); a striped barrier's red, closed into one shape, has many small holes
-        hole = max(cv2.contourArea(contours[j]) for j in range(len(contours)) if hierarchy[0][j][3] == k)
+        hole, child = 0.0, int(hierarchy[0][k][2])
+        while child != -1:  # its holes: the first child, then that child's next siblings
+            hole, child = max(hole, cv2.contourArea(contours[child])), int(hierarchy[0][child][0])
         if hole < config.min_hole_share * cv2.contourArea(contour):
             continue
         if config.sign_side == "right" and ex < (w - 1) / 2:
