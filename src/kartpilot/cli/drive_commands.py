@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 from dataclasses import replace
 from pathlib import Path
@@ -27,7 +28,7 @@ from kartpilot.planning.reference_path import (
     save_reference_path,
 )
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
-from kartpilot.runtime.config import load_stack_config, sim_lane_preset
+from kartpilot.runtime.config import StackConfig, load_stack_config, sim_lane_preset
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
 from kartpilot.runtime.faults import parse_injection
 from kartpilot.runtime.lane_policy import LANE_PRESETS, lane_speed_mode_mps
@@ -215,40 +216,30 @@ def stage_lines(session: SessionResult) -> str:
     return line
 
 
-def _recorded_preset(folder: str) -> str:
-    """The lane preset a recording is replayed with by default: a simulated run's track's own, else the real
-    kart's (``kart``)."""
+def _recorded_stack(args: argparse.Namespace) -> StackConfig:
+    """The settings a recording is replayed with: ``--config`` and ``--preset`` where given; else the lane
+    preset of a simulated run's track (the real kart's, ``kart``, otherwise) and, for the lane pipeline, the lane
+    settings the recording names (a scenario's drive, a replay's own recording), so a replay makes the same
+    decisions without a config file."""
     try:
-        track = RecordingReader(folder).sim_track
+        reader: RecordingReader | None = RecordingReader(args.recording)
     except KartpilotError:
-        return "kart"  # the replay itself says what is wrong with the recording
-    if track is None:
-        return "kart"
-    try:
-        return sim_lane_preset(None, track)
-    except ConfigError:
-        return "kart"  # a track file no longer where it was
-
-
-def _recorded_settings(folder: str, pipeline: str) -> dict[str, Any]:
-    """The lane pipeline's settings a recording was made with, where it names them (a scenario's drive, a
-    replay's own recording): a replay then makes the same decisions without a config file."""
-    if pipeline != "lanes":
-        return {}
-    try:
-        settings = (RecordingReader(folder).manifest.get("metadata") or {}).get("config") or {}
-    except KartpilotError:
-        return {}  # the replay itself says what is wrong with the recording
-    return {"lane_policy": settings["lane_policy"]} if isinstance(settings.get("lane_policy"), dict) else {}
+        reader = None  # the replay itself says what is wrong with the recording
+    preset = args.preset or "kart"
+    if args.preset is None and reader is not None and reader.sim_track is not None:
+        with contextlib.suppress(ConfigError):  # a track file no longer where it was: the real kart's
+            preset = sim_lane_preset(None, reader.sim_track)
+    stack = load_stack_config(args.config, preset)
+    settings = ((reader.manifest.get("metadata") or {}).get("config") or {}) if reader is not None else {}
+    if args.config or args.preset or args.pipeline != "lanes" or not isinstance(settings.get("lane_policy"), dict):
+        return stack
+    print("settings: the recording's own (its manifest's lane_policy; --config to replay with others)")
+    return merge_config(stack, {"lane_policy": settings["lane_policy"]})
 
 
 def replay(args: argparse.Namespace) -> int:
     """A recording through a pipeline; its commands and outputs written as a new recording."""
-    stack = load_stack_config(args.config, args.preset or _recorded_preset(args.recording))
-    recorded = {} if args.config or args.preset else _recorded_settings(args.recording, args.pipeline)
-    if recorded:
-        stack = merge_config(stack, recorded)
-        print("settings: the recording's own (its manifest's lane_policy; --config to replay with others)")
+    stack = _recorded_stack(args)
     path = load_reference_path(args.reference) if args.reference else None
     visual_map = _visual_map(args) if path is not None and args.pipeline == "stereo-vo" else None
     places = load_places(args.places) if args.places and args.pipeline == "mono-vo" else None
