@@ -7,6 +7,7 @@ import math
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from tests.conftest import KART, road_texture, road_view
 
 from kartpilot.core.camera import PinholeCamera
@@ -23,6 +24,7 @@ from kartpilot.odometry.mono_vo import (
     ground_normal_prior,
     ground_region,
     relative_pose,
+    rotation_only,
 )
 from kartpilot.runtime.session import SessionOutputs
 
@@ -225,3 +227,26 @@ def test_on_a_simulated_kart_drive_the_ground_plane_gives_metres(tmp_path):
     assert "ground plane" in estimates[-1].scale_source
     assert metrics.end_drift_percent <= 20.0
     assert vo.bridged <= 5
+
+
+def test_a_rotation_alone_explains_views_without_parallax_and_not_views_with_it():
+    """``rotation_only``: a camera that only turned is explained, and the turn found; one that drove a metre
+    past near points is not (its translation shows)."""
+    k = np.array([[400.0, 0, 320], [0, 400.0, 240], [0, 0, 1]])
+    rng = np.random.default_rng(3)
+    points = np.c_[rng.uniform(-6, 6, 300), rng.uniform(-2, 1, 300), rng.uniform(3, 30, 300)]
+
+    def seen(rotation: np.ndarray, position: np.ndarray) -> np.ndarray:
+        local = (points - position) @ rotation  # the world seen from a camera turned by ``rotation``
+        pixels = local @ k.T
+        return pixels[:, :2] / pixels[:, 2:] + rng.normal(0, 0.3, (len(points), 2))
+
+    turn = Rotation.from_euler("y", 3.0, degrees=True).as_matrix()
+    first = seen(np.eye(3), np.zeros(3))
+    found, explained = rotation_only(first, seen(turn, np.zeros(3)), k, 1.0)
+    angle = np.degrees(Rotation.from_matrix(found @ turn).magnitude())  # x_second = turn^T x_first
+    print(f"turned 3 deg in place: {explained.mean():.0%} explained, rotation off by {angle:.3f} deg")
+    assert explained.mean() > 0.9 and angle < 0.05
+    _, explained = rotation_only(first, seen(np.eye(3), np.array([0.0, 0.0, 1.0])), k, 1.0)
+    print(f"drove 1 m: {explained.mean():.0%} explained")
+    assert explained.mean() < 0.5

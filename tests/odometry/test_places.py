@@ -207,3 +207,17 @@ def test_a_mounted_camera_s_fix_takes_the_offset_across_the_track_and_the_headin
     assert yaw_deg == pytest.approx(2.0, abs=0.3)
     assert found[0, 3] == pytest.approx(5.3, abs=2 * fix.sigma_m)
     _assert_same_fix(load_places(database.save(tmp_path / "road.db")).locate(query), fix)
+
+
+def test_a_place_seen_again_from_where_it_was_taken_keeps_its_heading(database):
+    """No parallax between the query and the place (a kart at rest on the spot where the place was taken): the
+    essential matrix's rotation is then arbitrary (54 degrees on a simulated start line), so the check takes
+    the rotation alone that turns the rays onto each other."""
+    rng = np.random.default_rng(11)
+    for k in (0, 7, 13):
+        image = np.clip(_place_image(k) + rng.normal(0, 2, (240, 320)), 0, 255).astype(np.uint8)
+        fix = database.locate(image)
+        assert fix.accepted and fix.place == k
+        turned = math.degrees(math.acos(np.clip((np.trace(fix.pose_world_cam[:3, :3]) - 1) / 2, -1, 1)))
+        print(f"place {k}: heading off by {turned:.3f} deg")
+        assert turned < 0.2

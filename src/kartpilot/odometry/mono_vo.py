@@ -40,12 +40,14 @@ import itertools
 import logging
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Literal
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
@@ -72,6 +74,7 @@ __all__ = [
     "mount_normal",
     "pitched_mount",
     "relative_pose",
+    "rotation_only",
 ]
 
 log = logging.getLogger(__name__)
@@ -200,6 +203,37 @@ def relative_pose(p0: F32, p1: F32, camera_matrix: Array, ransac_px: float, conf
         return None
     _, rotation, translation, mask = cv2.recoverPose(essential, p0, p1, camera_matrix, mask=mask)
     return rotation, translation.ravel(), mask.ravel() > 0
+
+
+def rotation_only(p0: F32, p1: F32, camera_matrix: Array, threshold_px: float, rounds: int = 3
+                  ) -> tuple[Array, NDArray[np.bool_]]:
+    """The rotation taking the first camera's frame to the second's that explains the matches with no
+    translation, and which matches it explains (the second view's point within ``threshold_px`` of the first's
+    turned by it). It turns the rays onto each other (Wahba's problem, scipy's ``align_vectors``), refitted on
+    the matches it explains, since the rest pull a least-squares fit off. Where it explains about as many
+    matches as the essential matrix does, the views show no parallax (a camera that has not moved, or only
+    turned): the essential matrix's translation is then undetermined and its rotation arbitrary (the same two
+    views of a kart at rest gave 54 degrees). It explains nothing where too few rays, or rays all but parallel,
+    leave the rotation undetermined."""
+    points = [np.asarray(p, np.float64).reshape(-1, 2) for p in (p0, p1)]
+    inverse = np.linalg.inv(camera_matrix)
+    rays = [np.c_[p, np.ones(len(p))] @ inverse.T for p in points]
+    rays = [r / np.linalg.norm(r, axis=1, keepdims=True) for r in rays]
+    rotation = np.eye(3)
+    kept = np.ones(len(points[0]), bool)
+    for _ in range(rounds):
+        if kept.sum() < 5:
+            return rotation, np.zeros(len(kept), bool)  # too few to fix a rotation: it explains nothing
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            rotation = Rotation.align_vectors(rays[1][kept], rays[0][kept])[0].as_matrix()
+        if caught:  # the rays all but parallel (a cluster of points): a turn about them is not fixed
+            return np.eye(3), np.zeros(len(kept), bool)
+        turned = (rays[0] @ rotation.T) @ camera_matrix.T
+        residual = np.linalg.norm(turned[:, :2] / turned[:, 2:] - points[1], axis=1)
+        # the first round's fit is pulled by what it cannot explain: keep the better half, then the threshold
+        kept = residual <= max(threshold_px, float(np.median(residual))) if _ == 0 else residual <= threshold_px
+    return rotation, kept
 
 
 def has_mount(camera: PinholeCamera) -> bool:

@@ -56,7 +56,7 @@ from kartpilot.core.errors import ConfigError, DataError, KartpilotError, Percep
 from kartpilot.core.files import write_atomic
 from kartpilot.core.geometry import Array, planar_pose
 from kartpilot.core.types import Image
-from kartpilot.odometry.mono_vo import beyond_ground_mask, has_mount
+from kartpilot.odometry.mono_vo import beyond_ground_mask, has_mount, rotation_only
 from kartpilot.perception.birdseye import (
     BirdseyeConfig,
     RoadRegistration,
@@ -75,6 +75,7 @@ FORMAT = "kartpilot-places"
 FORMAT_VERSION = 2
 
 F32 = NDArray[np.float32]
+NO_PARALLAX_SHARE = 0.9  # a rotation alone explaining this share of the essential matrix's inliers: no parallax
 
 
 @dataclass(frozen=True)
@@ -311,7 +312,9 @@ class PlaceDatabase:
         frame to the place's (None when there is no model).
 
         The inliers are RANSAC's, before recoverPose's chirality test: two views a metre apart of
-        things far away are almost a pure rotation, where that test keeps an arbitrary share of them."""
+        things far away are almost a pure rotation, where that test keeps an arbitrary share of them. Where
+        the inliers show no parallax at all (the kart at rest where a place was taken), the rotation is the one
+        that turns the rays onto each other (:func:`rotation_only`): the essential matrix's is then arbitrary."""
         descriptors = self.descriptors[place]
         if len(descriptors) < 8:
             return 0, None
@@ -326,8 +329,12 @@ class PlaceDatabase:
         essential, mask = cv2.findEssentialMat(query, place_points, k, cv2.USAC_FAST, 0.999, self.config.ransac_px)
         if essential is None or essential.shape != (3, 3):
             return 0, None
+        inliers = mask.ravel() > 0
+        still, explained = rotation_only(query[inliers], place_points[inliers], k, self.config.ransac_px)
+        if explained.mean() >= NO_PARALLAX_SHARE:
+            return int(inliers.sum()), still  # no parallax: the essential matrix's rotation is arbitrary
         _, rotation, _, _ = cv2.recoverPose(essential, query, place_points, k, mask=mask.copy())
-        return int(mask.sum()), rotation
+        return int(inliers.sum()), rotation
 
     def register(self, image: Image, place: int, yaw_guess_rad: float = 0.0) -> RoadRegistration | None:
         """The query body's planar pose relative to a place's, from the road's top views (None without them,
