@@ -395,40 +395,11 @@ class StereoVO:
                               replace(counts, timing_ms=timer.timing))
         config = self.config
         dt_s = max((frame.stamp_ns - anchor.stamp_ns) * 1e-9, 1e-3)
-        # the keyframe's points where the predicted motion puts them: the search starts there
-        guess = anchor.pixels_px
         predicted_kf = self._predicted(dt_s) @ anchor.pose_prev_kf  # this camera from the keyframe's, predicted
-        if self._recent is not None:
-            moved = anchor.points_m @ predicted_kf[:3, :3].T + predicted_kf[:3, 3]
-            if np.all(moved[:, 2] > 0.1):
-                guess = (moved[:, :2] / moved[:, 2:3] * [self.rig.camera.fx_px, self.rig.camera.fy_px]
-                         + [self.rig.camera.cx_px, self.rig.camera.cy_px]).astype(np.float32)
-        pixels, tracked = track_klt(anchor.image, frame.left, anchor.pixels_px, config.klt, initial_px=guess)
-        if self.config.keyframe_retrack:
-            # and from the keyframe's own image, starting where the chain put them: the chain's small errors
-            # do not add up from frame to frame
-            direct, direct_ok = track_klt(anchor.kf_image, frame.left, anchor.kf_pixels_px, _stereo_klt(config.klt),
-                                          initial_px=pixels)
-            pixels = np.where(direct_ok[:, None], direct, pixels)
-            tracked |= direct_ok
+        points, pixels, kf_pixels = self._track_anchor(anchor, frame.left, predicted_kf)
         timer.lap("temporal_match")
-        points, pixels = anchor.points_m[tracked], pixels[tracked]
-        kf_pixels = anchor.kf_pixels_px[tracked]
-        K = self.rig.camera.matrix
-        disparities = self.rig.camera.fx_px * self.rig.baseline_m / points[:, 2]
-        motion = estimate_motion_pnp(points, pixels, K, config.pnp, disparities)
-        step, reason = self._checked_from(motion, anchor, frame.stamp_ns)
-        from_prior = False
-        if reason and self._recent is not None:
-            retry = estimate_motion_from_prior(points, pixels, K, config.pnp, predicted_kf, disparities)
-            retry_step, retry_reason = self._checked_from(retry, anchor, frame.stamp_ns)
-            if not retry_reason:
-                logger.info("frame %d: motion from the prediction (%s)", frame.index, reason)
-                motion, step, reason, from_prior = retry, retry_step, retry_reason, True
-        if motion.ok and not reason and config.attitude_prior_deg > 0:
-            motion = replace(motion, pose_cur_prev=self._with_attitude_prior(motion, points, pixels,
-                                                                             anchor.pose_world_kf))
-            step, reason = self._checked_from(motion, anchor, frame.stamp_ns)
+        motion, step, reason, from_prior = self._solve_from_anchor(anchor, points, pixels, predicted_kf,
+                                                                   frame.stamp_ns)
         timer.lap("pnp")
         diagnostics = VODiagnostics(
             temporal_matches=len(points), inliers=len(motion.inliers), motion_from_prior=from_prior,
@@ -463,6 +434,49 @@ class StereoVO:
         lost = self._bridged_in_row > config.max_bridged_frames
         return VOEstimate(frame.index, frame.stamp_ns, self.pose_world_cam, status, reason, lost,
                           replace(diagnostics, timing_ms=timer.timing))
+
+    def _track_anchor(self, anchor: _Anchor, image: Image, predicted_kf: Array) -> tuple[Array, Array, Array]:
+        """The keyframe's points still seen in ``image``: their 3D points, their pixels here and in the keyframe.
+        KLT carries them from the previous image, starting where the predicted motion (``predicted_kf``: this
+        camera from the keyframe's) puts them, then (``keyframe_retrack``) from the keyframe's own image, starting
+        where the chain put them, so the chain's small errors do not add up from frame to frame."""
+        config = self.config
+        guess = anchor.pixels_px
+        if self._recent is not None:
+            moved = anchor.points_m @ predicted_kf[:3, :3].T + predicted_kf[:3, 3]
+            if np.all(moved[:, 2] > 0.1):
+                guess = (moved[:, :2] / moved[:, 2:3] * [self.rig.camera.fx_px, self.rig.camera.fy_px]
+                         + [self.rig.camera.cx_px, self.rig.camera.cy_px]).astype(np.float32)
+        pixels, tracked = track_klt(anchor.image, image, anchor.pixels_px, config.klt, initial_px=guess)
+        if config.keyframe_retrack:
+            direct, direct_ok = track_klt(anchor.kf_image, image, anchor.kf_pixels_px, _stereo_klt(config.klt),
+                                          initial_px=pixels)
+            pixels = np.where(direct_ok[:, None], direct, pixels)
+            tracked |= direct_ok
+        return anchor.points_m[tracked], pixels[tracked], anchor.kf_pixels_px[tracked]
+
+    def _solve_from_anchor(self, anchor: _Anchor, points: Array, pixels: Array, predicted_kf: Array, stamp_ns: int
+                           ) -> tuple[MotionEstimate, StepVelocity | None, str, bool]:
+        """This camera's motion from the keyframe's: PnP in RANSAC, or from the prediction where RANSAC's motion
+        fails the motion check; then the attitude prior. The motion, its step, why it is no step the kart can
+        have made (empty when it is), and whether it came from the prediction."""
+        config = self.config
+        K = self.rig.camera.matrix
+        disparities = self.rig.camera.fx_px * self.rig.baseline_m / points[:, 2]
+        motion = estimate_motion_pnp(points, pixels, K, config.pnp, disparities)
+        step, reason = self._checked_from(motion, anchor, stamp_ns)
+        from_prior = False
+        if reason and self._recent is not None:
+            retry = estimate_motion_from_prior(points, pixels, K, config.pnp, predicted_kf, disparities)
+            retry_step, retry_reason = self._checked_from(retry, anchor, stamp_ns)
+            if not retry_reason:
+                logger.info("at %d ns: motion from the prediction (%s)", stamp_ns, reason)
+                motion, step, reason, from_prior = retry, retry_step, retry_reason, True
+        if motion.ok and not reason and config.attitude_prior_deg > 0:
+            motion = replace(motion, pose_cur_prev=self._with_attitude_prior(motion, points, pixels,
+                                                                             anchor.pose_world_kf))
+            step, reason = self._checked_from(motion, anchor, stamp_ns)
+        return motion, step, reason, from_prior
 
     def _checked_from(self, motion: MotionEstimate, anchor: _Anchor, stamp_ns: int
                       ) -> tuple[StepVelocity | None, str]:
