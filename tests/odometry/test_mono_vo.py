@@ -3,6 +3,7 @@ drive with ground truth (a kart's camera, 0.6 m high and pitched down), and on K
 
 import itertools
 import math
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -14,6 +15,7 @@ from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import mount_pose, transform_points
 from kartpilot.core.types import FrameSet
+from kartpilot.core.vehicle import get_vehicle
 from kartpilot.odometry.mono_vo import (
     GroundConfig,
     MonoVO,
@@ -90,6 +92,9 @@ def test_an_arc_step_moves_the_camera_along_the_kart_s_heading_and_turns_it_abou
     assert math.degrees(math.atan2(body[1, 0], body[0, 0])) == pytest.approx(10.0)
     assert math.degrees(math.atan2(body[1, 3], body[0, 3])) == pytest.approx(5.0)  # a chord: half the turn
     assert math.hypot(body[0, 3], body[1, 3]) == pytest.approx(0.5) and body[2, 3] == pytest.approx(0.0)
+    slipping = mount @ arc_step(math.radians(10), 0.5, mount, math.radians(-2.0)) @ np.linalg.inv(mount)
+    assert math.degrees(math.atan2(slipping[1, 0], slipping[0, 0])) == pytest.approx(10.0)  # the same turn
+    assert math.degrees(math.atan2(slipping[1, 3], slipping[0, 3])) == pytest.approx(3.0)  # the rear slid outward
 
 
 @pytest.mark.parametrize(("yaw_deg", "length_m"), [(0.0, 0.5), (-1.1, 0.5), (2.5, 0.3), (0.4, 1.2), (0.0, 0.0)])
@@ -197,11 +202,12 @@ def test_the_road_region_follows_the_camera_s_height_and_mount():
 
 @pytest.mark.slow
 def test_on_a_simulated_kart_drive_the_ground_plane_gives_metres(tmp_path):
-    """The SDC kart's centre camera: 0.6 m above the road, pitched down 12 degrees, 15 Hz, 5 m/s, 60 m.
+    """The SDC kart's centre camera: 0.56 m above the road, pitched down 6.8 degrees, 15 Hz, 5 m/s, 60 m and the
+    first bend, with the arc's rear axle slipping as the kart's tyres do and without (the turn is then short).
 
     A check that the method carries over to another camera, not an accuracy claim: on the simulator's weak
-    asphalt texture the end drift varies with the seed (2.9 % for seed 1, 16 % for seed 2, 3.2 % for seed 3;
-    see the issue's note), so the bound only catches a broken scale."""
+    asphalt texture the end drift varied with the seed (2.9 to 16 % over seeds 1 to 3 on the earlier 0.6 m
+    mount), so the bound only catches a broken scale; benchmarks/vo_accuracy.py measures whole drives."""
     from kartpilot.core.trajectory import Trajectory
     from kartpilot.eval.trajectory_metrics import evaluate_trajectory
     from kartpilot.record.recording import RecordingReader
@@ -215,18 +221,23 @@ def test_on_a_simulated_kart_drive_the_ground_plane_gives_metres(tmp_path):
                    outputs=SessionOutputs(record_dir=tmp_path / "drive"))
     reader = RecordingReader(tmp_path / "drive")
     camera = reader.cameras["center"]
-    vo = MonoVO(camera, MonoVOConfig(ground=GroundConfig(camera_height_m=float(camera.pose_body_cam_array[2, 3]))),
-                "center")
-    estimates = [vo.process(FrameSet(k, stamp, {"center": cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)}))
-                 for k, (stamp, path) in enumerate(reader.frames("center"))]
-    estimate = Trajectory.from_poses([e.pose_world_cam for e in estimates], [e.stamp_ns * 1e-9 for e in estimates])
+    images = [(stamp, cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)) for stamp, path in reader.frames("center")]
     truth = reader.groundtruth()
     assert truth is not None
-    metrics = evaluate_trajectory(truth, estimate)
-    print("\nsdc-kart centre camera, monocular VO, ground-plane scale\n" + metrics.table())
-    assert "ground plane" in estimates[-1].scale_source
-    assert metrics.end_drift_percent <= 20.0
-    assert vo.bridged <= 5
+    config = MonoVOConfig(ground=GroundConfig(camera_height_m=float(camera.pose_body_cam_array[2, 3])))
+    results = {}
+    for slip in (True, False):
+        vo = MonoVO(camera, replace(config, tyre_slip=slip), "center", get_vehicle("sdc-kart"))
+        estimates = [vo.process(FrameSet(k, stamp, {"center": image})) for k, (stamp, image) in enumerate(images)]
+        estimate = Trajectory.from_poses([e.pose_world_cam for e in estimates],
+                                         [e.stamp_ns * 1e-9 for e in estimates])
+        results[slip] = metrics = evaluate_trajectory(truth, estimate)
+        print(f"\nsdc-kart centre camera, monocular VO, ground-plane scale, tyre slip {slip}\n" + metrics.table())
+        assert "ground plane" in estimates[-1].scale_source
+        assert vo.bridged <= 5
+    assert results[True].end_drift_percent <= 20.0
+    # the first bend at 5 m/s: without the rear axle's slip the arc takes the turn short
+    assert results[True].end_rotation_deg < results[False].end_rotation_deg
 
 
 def test_a_rotation_alone_explains_views_without_parallax_and_not_views_with_it():

@@ -41,6 +41,26 @@ def test_at_speed_the_dynamic_model_understeers_and_stays_stable():
     assert math.isfinite(state.x_m) and abs(state.vy_mps) < state.vx_mps
 
 
+@pytest.mark.parametrize(("name", "speed_mps", "steer"), [("sdc-kart", 5.0, 0.08), ("sdc-kart", 4.0, 0.15),
+                                                           ("rc-kart", 3.0, 0.05)])
+def test_the_rear_axle_slips_in_a_steady_turn_as_the_vehicle_model_says(name, speed_mps, steer):
+    """``VehicleParams.rear_slip_rad`` (what monocular VO's arc steps take into account) is the angle the
+    simulated kart's rear axle moves at off its heading, once its turn has settled, where the simulator runs the
+    dynamic model (from ``dynamic_above_mps``). Between it and ``kinematic_below_mps`` the simulator blends its
+    states every 2 ms, which leaves far less slip than the model's share of it."""
+    params = get_vehicle(name)
+    state = VehicleState(vx_mps=speed_mps, steer_rad=steer)
+    for _ in range(round(4.0 / 0.02)):  # the speed held (no throttle, no drag): only the turn settles
+        state = replace(step_vehicle(params, state, hold(steer, 0.0), 0.02), vx_mps=speed_mps)
+    rear_lateral = state.vy_mps - params.cg_to_rear_m * state.yaw_rate_radps
+    measured = math.atan2(rear_lateral, state.vx_mps)
+    model = params.rear_slip_rad(state.vx_mps, state.yaw_rate_radps)
+    print(f"{name} at {speed_mps} m/s: rear axle {math.degrees(measured):.3f} deg off its heading, "
+          f"the model {math.degrees(model):.3f}")
+    assert measured < 0 < state.yaw_rate_radps  # outward in a left turn
+    assert model == pytest.approx(measured, rel=0.05)
+
+
 def test_the_servo_is_rate_limited():
     steer, _ = actuate(RC, VehicleState(), hold(RC.max_steer_rad, 0.0), 0.01)
     assert steer == pytest.approx(RC.steer_rate_radps * 0.01)

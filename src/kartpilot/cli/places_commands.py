@@ -15,6 +15,7 @@ from kartpilot.core.files import write_csv_atomic, write_json_atomic
 from kartpilot.core.geometry import invert_pose
 from kartpilot.core.trajectory import Trajectory, read_trajectory
 from kartpilot.core.types import FrameSet, Image
+from kartpilot.core.vehicle import VEHICLES, get_vehicle
 from kartpilot.eval.places import evaluate_places
 from kartpilot.odometry.mono_vo import MonoVO
 from kartpilot.odometry.places import PlaceFix, build_places, load_places
@@ -107,7 +108,8 @@ def _positions(reader: RecordingReader, camera: str, args: argparse.Namespace, s
                 continue
             yield FrameSet(k, stamp, {camera: lens(image) if lens is not None else image})
 
-    mono = run_vo(frames(), MonoVO(pinhole, config, camera), str(reader.folder))
+    vehicle = get_vehicle(reader.vehicle) if reader.vehicle in VEHICLES else None  # its tyres' slip in bends
+    mono = run_vo(frames(), MonoVO(pinhole, config, camera, vehicle), str(reader.folder))
     print(mono.summary())
     return mono.trajectory, f"monocular VO over the recording (scale from the {mono.scale_source})"
 

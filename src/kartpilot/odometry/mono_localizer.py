@@ -39,6 +39,7 @@ from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError, OdometryError, PerceptionError
 from kartpilot.core.geometry import Array, Pose2D, between_2d, compose_2d, invert_pose, vo_ground_pose
 from kartpilot.core.types import FrameSet, VehiclePose
+from kartpilot.core.vehicle import VehicleParams
 from kartpilot.odometry.localizer import PoseTracker
 from kartpilot.odometry.mono_vo import MonoVO, MonoVOConfig
 from kartpilot.odometry.places import PlaceDatabase, PlaceFix
@@ -196,8 +197,9 @@ class MonoLocalizer(PoseTracker):
 
     def __init__(self, camera: PinholeCamera, places: PlaceDatabase, vo_config: MonoVOConfig | None = None,
                  config: MonoLocalizerConfig | None = None, *,
-                 wrap_vo: Callable[[MonoVO], MonoVO] | None = None) -> None:
-        """``wrap_vo`` is the seam fault injection wraps the VO at (``vo-failure``)."""
+                 wrap_vo: Callable[[MonoVO], MonoVO] | None = None, vehicle: VehicleParams | None = None) -> None:
+        """``wrap_vo`` is the seam fault injection wraps the VO at (``vo-failure``); ``vehicle``, the kart, whose
+        tyres' slip the VO's arc steps take into account."""
         self.config = config or MonoLocalizerConfig()
         super().__init__(self.config.max_bridge_s, self.config.speed_time_constant_s)
         if camera.size_wh != places.camera.size_wh:
@@ -210,7 +212,7 @@ class MonoLocalizer(PoseTracker):
         height = float(camera.pose_body_cam_array[2, 3])
         if height > 0:  # the mount knows the camera's height above the road better than a default
             vo_config = replace(vo_config, ground=replace(vo_config.ground, camera_height_m=height))
-        vo = MonoVO(camera, vo_config, self.config.camera)
+        vo = MonoVO(camera, vo_config, self.config.camera, vehicle)
         self.vo = wrap_vo(vo) if wrap_vo is not None else vo
         self._camera = camera
         self.places = places

@@ -169,7 +169,8 @@ def _mono_vo(context: PipelineContext) -> Policy:
     camera = context.cameras[name]
     lens = route.places.lens_for(camera, name)  # the one place the lens is taken out, as the database's images were
     pinhole = lens.pinhole if lens is not None else camera
-    localizer = MonoLocalizer(pinhole, route.places, stack.mono_vo, stack.drive.mono, wrap_vo=context.wrap_vo)
+    localizer = MonoLocalizer(pinhole, route.places, stack.mono_vo, stack.drive.mono, wrap_vo=context.wrap_vo,
+                              vehicle=context.vehicle)
     path = route.reference or places_reference(route.places, pinhole.pose_body_cam_array, stack.drive.path)
     policy = PathFollowPolicy(localizer, path, stack.drive.follow, context.vehicle.wheelbase_m,
                               context.max_steer_rad, context.rate_hz)

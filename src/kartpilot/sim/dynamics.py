@@ -19,11 +19,10 @@ import math
 from dataclasses import dataclass, replace
 
 from kartpilot.core.types import ActuatorCommand
-from kartpilot.core.vehicle import VehicleParams
+from kartpilot.core.vehicle import GRAVITY_MPS2, VehicleParams
 
 __all__ = ["Disturbances", "VehicleState", "actuate", "dynamic_derivatives", "kinematic_derivatives", "step_vehicle"]
 
-GRAVITY_MPS2 = 9.81
 MAX_SUBSTEP_S = 0.002
 
 
@@ -121,8 +120,7 @@ def _substep(params: VehicleParams, s: VehicleState, command: ActuatorCommand, h
     vy_kin, r_kin = kinematic_derivatives(params, vx, wheel, dist.lateral_accel_mps2)
     dvy, dr = dynamic_derivatives(params, s.vx_mps, s.vy_mps, s.yaw_rate_radps, wheel, dist.lateral_accel_mps2)
     vy_dyn, r_dyn = s.vy_mps + dvy * h, s.yaw_rate_radps + dr * h
-    span = params.dynamic_above_mps - params.kinematic_below_mps
-    w = min(max((vx - params.kinematic_below_mps) / span, 0.0), 1.0)
+    w = params.dynamic_share(vx)
     vy = w * vy_dyn + (1 - w) * vy_kin
     r = w * r_dyn + (1 - w) * r_kin
 

@@ -20,9 +20,9 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image
-from kartpilot.core.vehicle import VehicleParams, get_vehicle
+from kartpilot.core.vehicle import GRAVITY_MPS2, VehicleParams, get_vehicle
 from kartpilot.perception.objects import Detection
-from kartpilot.sim.dynamics import GRAVITY_MPS2, Disturbances, VehicleState, step_vehicle
+from kartpilot.sim.dynamics import Disturbances, VehicleState, step_vehicle
 from kartpilot.sim.referee import Referee, RefereeConfig, RunResult
 from kartpilot.sim.render import RenderConfig, Renderer
 from kartpilot.sim.track import Prop, Track, load_track, project_onto
