@@ -227,7 +227,7 @@ def rotation_only(p0: F32, p1: F32, camera_matrix: Array, threshold_px: float, r
     rays = [r / np.linalg.norm(r, axis=1, keepdims=True) for r in rays]
     rotation = np.eye(3)
     kept = np.ones(len(points[0]), bool)
-    for _ in range(rounds):
+    for round_ in range(rounds):
         if kept.sum() < 5:
             return rotation, np.zeros(len(kept), bool)  # too few to fix a rotation: it explains nothing
         with warnings.catch_warnings(record=True) as caught:
@@ -238,7 +238,7 @@ def rotation_only(p0: F32, p1: F32, camera_matrix: Array, threshold_px: float, r
         turned = (rays[0] @ rotation.T) @ camera_matrix.T
         residual = np.linalg.norm(turned[:, :2] / turned[:, 2:] - points[1], axis=1)
         # the first round's fit is pulled by what it cannot explain: keep the better half, then the threshold
-        kept = residual <= max(threshold_px, float(np.median(residual))) if _ == 0 else residual <= threshold_px
+        kept = residual <= (max(threshold_px, float(np.median(residual))) if round_ == 0 else threshold_px)
     return rotation, kept
 
 
