@@ -195,9 +195,9 @@ def test_a_team_s_onnx_model_runs_through_the_seam(tmp_path, layout):
     # model (28..36, 24..40) -> image x (56..72), y ((24-16)*2 .. (40-16)*2) = (16..48)
     assert light.box_px == pytest.approx((56.0, 16.0, 72.0, 48.0), abs=0.5)
     assert light.source == "team.onnx" and light.confidence == pytest.approx(0.9, abs=1e-5)
-    # through the detector beside the classical ones, placed and tracked
+    # through the detector beside the classical ones, placed and tracked (an image of the camera's shape)
     both = ObjectDetector(DetectorConfig(detector=f"classical+onnx:{model}", classes=str(classes)), CAMERA)
-    tracked = both(np.zeros((64, 128, 3), np.uint8))
+    tracked = both(np.zeros((72, 128, 3), np.uint8))
     assert {d.label for d in tracked} >= {"traffic_light", "car"} and all(d.track_id > 0 for d in tracked)
 
 

@@ -68,10 +68,21 @@ class RoadMarkConfig:
             raise ConfigError("road_marks: need 0 < lane_half_width_m <= zebra_half_width_m")
 
 
+MAX_ASPECT_CHANGE = 0.03
+"""An image whose width over height differs from the calibration's by more than this share is another camera's
+(or a crop), not the calibrated camera's at another resolution."""
+
+
 def camera_for_image(camera: PinholeCamera, width_px: int, height_px: int) -> PinholeCamera:
-    """The camera's model for an image of another size than its calibration's (the same field of view)."""
+    """The camera's model for an image of another size than its calibration's (the same field of view). An image
+    of another shape is refused: the mount would place everything on the ground at a wrong distance (a 160x120
+    image read as the SDC kart's 848x480 centre camera takes its hood and the sky for the road)."""
     if (camera.width_px, camera.height_px) == (width_px, height_px):
         return camera
+    if abs((width_px / height_px) / (camera.width_px / camera.height_px) - 1.0) > MAX_ASPECT_CHANGE:
+        raise ConfigError(f"the image is {width_px}x{height_px} and the camera that places it on the ground is "
+                          f"calibrated at {camera.width_px}x{camera.height_px}, another shape: give this camera's "
+                          "own calibration and mount (--rig)")
     sx, sy = width_px / camera.width_px, height_px / camera.height_px
     return replace(camera, fx_px=camera.fx_px * sx, fy_px=camera.fy_px * sy, cx_px=(camera.cx_px + 0.5) * sx - 0.5,
                    cy_px=(camera.cy_px + 0.5) * sy - 0.5, width_px=width_px, height_px=height_px)
