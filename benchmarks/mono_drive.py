@@ -6,22 +6,24 @@ simulator's truth, as a survey would). Then the ``mono-vo`` pipeline drives the 
 supervisor and the virtual CAN bus with the speed PI at 5 m/s, once at noon and once at dusk (another
 light than the database's). Prints, per run, how far the kart got and how close to the centre line it stayed,
 the localiser's error against the truth (across the track and in heading), the per-stage
-milliseconds and the frames per second; writes JSON.
+milliseconds and the frames per second; writes JSON, and puts its table into docs/mono-vo.md.
 
-    python benchmarks/mono_drive.py --out benchmarks/results/mono_drive.json
+    python benchmarks/mono_drive.py --out docs/results/mono_drive.json
+    python benchmarks/mono_drive.py --render docs/results/mono_drive.json   # into docs/mono-vo.md
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import json
 import math
 import platform
 import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 
@@ -39,7 +41,10 @@ from kartpilot.runtime.simulate import run_simulation, run_supervised_drive
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.render import RenderConfig
 from kartpilot.sim.simulator import SimConfig
+from vo_table import put_between_markers
 
+ROOT = Path(__file__).resolve().parents[1]
+PAGE = ROOT / "docs" / "mono-vo.md"
 SIM = SimConfig(track="sdc-assen", vehicle="sdc-kart-steep", cameras=("center",), camera_rate_hz=10.0,
                 render=RenderConfig(scenery_spacing_m=15.0))
 
@@ -70,11 +75,33 @@ def localisation_errors(log: Path, recording: Path, database: PlaceDatabase) -> 
             "heading_p90_deg": float(np.percentile(h, 90))}
 
 
+def render(results: dict[str, Any]) -> str:
+    """The closed-loop table of docs/mono-vo.md."""
+    lines = [f"Measured by `benchmarks/mono_drive.py` (a lap taught on the centre line at 5 m/s, "
+             f"{results['places']} places, through the supervisor and the virtual CAN bus):", "",
+             "| run | distance | disqualified | centre offset max | localisation vs truth: across the track median / "
+             "90 % | heading median / 90 % | step |", "|---|---|---|---|---|---|---|"]
+    for name, label in (("noon", "noon, speed PI at 5 m/s"), ("dusk", "dusk (18:30), speed PI at 5 m/s")):
+        run = results[name]
+        stages = run["pipeline_stage_ms"]
+        lines.append(f"| {label} | {run['distance_m']:.0f} m | {'yes' if run['disqualified'] else 'no'} | "
+                     f"{run['max_center_offset_m']:.2f} m | {run['cross_track_p50_m']:.3f} / "
+                     f"{run['cross_track_p90_m']:.3f} m | {run['heading_p50_deg']:.2f} / {run['heading_p90_deg']:.2f} "
+                     f"deg | {run['step_ms']:.0f} ms (VO {stages.get('localize.vo', math.nan):.0f}, places "
+                     f"{stages.get('localize.places', math.nan):.0f}): {run['fps']:.0f} frames/s |")
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=215.0, help="the taught drive (215: a lap)")
-    parser.add_argument("--out", default="benchmarks/results/mono_drive.json")
+    parser.add_argument("--out", default="docs/results/mono_drive.json")
+    parser.add_argument("--render", type=Path, help="write this JSON's table into docs/mono-vo.md")
     args = parser.parse_args()
+    if args.render:
+        put_between_markers(PAGE, render(json.loads(args.render.read_text())), "<!-- mono-drive -->",
+                            "<!-- /mono-drive -->")
+        return
     results: dict[str, object] = {"machine": platform.processor() or platform.machine(), "seconds": args.seconds}
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()

@@ -133,3 +133,14 @@ def test_the_view_cost_shown_is_the_measured_one() -> None:
     assert text[text.index(start) + len(start):text.index(end)].strip() == view_cost.render(results).strip(), (
         "docs/viewing.md's view-cost table differs from docs/results/view_cost.json: run "
         "benchmarks/view_cost.py --docs")
+
+
+@pytest.mark.parametrize(("script", "marker"), [("detect", "detection"), ("mono_drive", "mono-drive")])
+def test_the_detection_and_one_camera_drive_tables_shown_are_the_measured_ones(script: str, marker: str) -> None:
+    module = _script(script)
+    results = json.loads((ROOT / "docs" / "results" / f"{script}.json").read_text(encoding="utf-8"))
+    text = module.PAGE.read_text(encoding="utf-8")
+    start, end = f"<!-- {marker} -->", f"<!-- /{marker} -->"
+    assert text[text.index(start) + len(start):text.index(end)].strip() == module.render(results).strip(), (
+        f"{module.PAGE.name}'s {marker} section differs from docs/results/{script}.json: run benchmarks/{script}.py "
+        "--render")
