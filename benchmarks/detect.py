@@ -182,8 +182,6 @@ def rendered(count: int = 60, seed: int = 2) -> dict[str, Any]:
     return out
 
 
-
-
 def rendered_props(count: int = 40, seed: int = 3) -> dict[str, Any]:
     """The scenario props on rendered frames of the venue track with exact truth (``Simulator.object_truth``):
     a signal head (red, then green), a 20 km/h sign, a person and the car, the kart 4 to 25 m before them, a
