@@ -181,10 +181,7 @@ def test_simulated_laps_recall_at_1_within_2_m(tmp_path):
     # the road's top view puts the kart across the track to centimetres, on the other line and light too
     assert same.registered >= 0.9 and other.registered >= 0.7
     assert max(same.p90_cross_track_error_m, other.p90_cross_track_error_m) < 0.1
-    # the other drive's 90th percentile in heading moves between 0.5 and 1.05 deg with the process's history:
-    # Panda3D draws an object's edge a pixel column differently after another simulator has run in the process,
-    # and a dozen of its 118 dusk queries are that close to the line
-    assert same.p90_heading_error_deg < 1.0 and other.p90_heading_error_deg < 2.0
+    assert max(same.p90_heading_error_deg, other.p90_heading_error_deg) < 1.0
 
 
 def test_a_mounted_camera_s_fix_takes_the_offset_across_the_track_and_the_heading_from_the_road(tmp_path):

@@ -37,6 +37,9 @@ from kartpilot.sim.track import PROP_SIZES_M, SAMPLE_SPACING_M, Prop, Track, sce
 
 __all__ = ["RenderConfig", "Renderer", "lighting_for_time"]
 
+# state-cache false: Panda3D's cache of render states made a drawing depend on what an earlier renderer in the
+# process drew (an object's edge a pixel column off), and through it the tests that ran before; a fresh process
+# draws the same images with it or without it, at the same speed
 _PRC = """
 load-display p3tinydisplay
 aux-display
@@ -46,6 +49,7 @@ texture-quality-level best
 sync-video false
 notify-level warning
 notify-level-display error
+state-cache false
 """
 
 
