@@ -31,6 +31,7 @@ __all__ = [
     "estimate_motion_from_prior",
     "estimate_motion_pnp",
     "refine_translation",
+    "refine_translation_near",
     "refine_with_attitude_prior",
     "reprojection_errors",
 ]
@@ -133,6 +134,18 @@ def refine_with_attitude_prior(pose_cur_prev: Array, points_prev_m: Array, pixel
         if np.linalg.norm(step) < 1e-10:
             break
     return pose
+
+
+def refine_translation_near(pose_cur_prev: Array, points_prev_m: Array, pixels_cur: Array, camera_matrix: Array,
+                            inliers: NDArray[np.intp], disparities_px: Array | None, config: PnpConfig) -> Array:
+    """The translation estimated again from the inliers nearer than ``translation_min_disparity_px`` (far points'
+    stereo depths are biased long), where there are ``translation_min_points`` of them; else the pose as it is."""
+    if disparities_px is None or config.translation_min_disparity_px <= 0:
+        return pose_cur_prev
+    near = inliers[np.asarray(disparities_px)[inliers] >= config.translation_min_disparity_px]
+    if len(near) < config.translation_min_points:
+        return pose_cur_prev
+    return refine_translation(pose_cur_prev, points_prev_m[near], pixels_cur[near], camera_matrix)
 
 
 def _failure(reason: str) -> MotionEstimate:
@@ -243,11 +256,8 @@ def _refine(points: Array, pixels: Array, K: Array, config: PnpConfig, rvec: Arr
             if len(refined) < config.min_inliers or np.array_equal(refined, inlier_index):
                 break
             inlier_index = refined
-    pose = pose_from_rt(cv2.Rodrigues(rvec)[0], tvec)
-    if disparities_px is not None and config.translation_min_disparity_px > 0:
-        near = inlier_index[np.asarray(disparities_px)[inlier_index] >= config.translation_min_disparity_px]
-        if len(near) >= config.translation_min_points:
-            pose = refine_translation(pose, points[near], pixels[near], K)
+    pose = refine_translation_near(pose_from_rt(cv2.Rodrigues(rvec)[0], tvec), points, pixels, K, inlier_index,
+                                   disparities_px, config)
     errors = reprojection_errors(pose, points[inlier_index], pixels[inlier_index], K)
     rmse = float(np.sqrt(np.mean(errors**2)))
     return MotionEstimate(pose, inlier_index, rmse, True)

@@ -43,7 +43,7 @@ from kartpilot.odometry.pnp import (
     PnpConfig,
     estimate_motion_from_prior,
     estimate_motion_pnp,
-    refine_translation,
+    refine_translation_near,
     refine_with_attitude_prior,
 )
 from kartpilot.odometry.stereo_refine import refine_pose_and_depths
@@ -445,8 +445,7 @@ class StereoVO:
         if self._recent is not None:
             moved = anchor.points_m @ predicted_kf[:3, :3].T + predicted_kf[:3, 3]
             if np.all(moved[:, 2] > 0.1):
-                guess = (moved[:, :2] / moved[:, 2:3] * [self.rig.camera.fx_px, self.rig.camera.fy_px]
-                         + [self.rig.camera.cx_px, self.rig.camera.cy_px]).astype(np.float32)
+                guess = self.rig.camera.project(moved).astype(np.float32)
         pixels, tracked = track_klt(anchor.image, image, anchor.pixels_px, config.klt, initial_px=guess)
         if config.keyframe_retrack:
             direct, direct_ok = track_klt(anchor.kf_image, image, anchor.kf_pixels_px, _stereo_klt(config.klt),
@@ -494,12 +493,7 @@ class StereoVO:
         prior = AttitudePrior(up_from, self._up_mount, float(np.radians(self.config.attitude_prior_deg)))
         K = self.rig.camera.matrix
         pose = refine_with_attitude_prior(motion.pose_cur_prev, points[inl], pixels[inl], K, prior)
-        pnp = self.config.pnp
-        if disparities is None or pnp.translation_min_disparity_px <= 0:
-            return pose
-        near = inl[disparities[inl] >= pnp.translation_min_disparity_px]
-        return refine_translation(pose, points[near], pixels[near], K) if len(near) >= pnp.translation_min_points \
-            else pose
+        return refine_translation_near(pose, points, pixels, K, inl, disparities, self.config.pnp)
 
     def _checked(self, motion: MotionEstimate, start_ns: int, end_ns: int) -> tuple[StepVelocity | None, str]:
         """``motion``'s step, and why it is no step the vehicle can have made (the estimate's own failure, or the
