@@ -601,12 +601,12 @@ class MonoVO:
         pitch = self._pitch()
         return self._mount if pitch == 0.0 else pitched_mount(self._mount, pitch)
 
-    def _slip(self, stamp_ns: int, previous_stamp_ns: int | None) -> Callable[[float, float], float] | None:
+    def _slip(self, stamp_ns: int, previous_stamp_ns: int | None) -> Callable[[float, float], float]:
         """The rear axle's slip angle of an arc step (turn, length) over this frame's time, from the vehicle's
-        tyres (None without a vehicle, without ``tyre_slip``, or without the time)."""
+        tyres (none without a vehicle, without ``tyre_slip``, or without the time)."""
         vehicle = self.vehicle
         if vehicle is None or not self.config.tyre_slip or previous_stamp_ns is None or stamp_ns <= previous_stamp_ns:
-            return None
+            return lambda yaw, length: 0.0
         dt_s = (stamp_ns - previous_stamp_ns) * 1e-9
         return lambda yaw, length: vehicle.rear_slip_rad(length / dt_s, yaw / dt_s)
 
@@ -649,7 +649,7 @@ class MonoVO:
         self.timing_ms["ground"] += (time.perf_counter() - t0) * 1e3
         if not quality <= cfg.max_alignment_ratio:
             return self._estimate(index, stamp_ns, "bridged", f"the road does not align (cost ratio {quality:.2f})")
-        step = arc_step(yaw, length, mount, slip(yaw, length) if slip is not None else 0.0)
+        step = arc_step(yaw, length, mount, slip(yaw, length))
         if previous_stamp_ns is not None:
             velocity = StepVelocity.of_motion(step, previous_stamp_ns, stamp_ns)
             reason = check_motion(velocity, cfg.motion_limits, self._recent)
@@ -658,7 +658,7 @@ class MonoVO:
                 # can make. Keep the last step (none before the first) and search near it again next frame.
                 if last is not None:
                     self._last_arc = last
-                    self._pose = self._pose @ arc_step(*last, mount, slip(*last) if slip is not None else 0.0)
+                    self._pose = self._pose @ arc_step(*last, mount, slip(*last))
                 return self._estimate(index, stamp_ns, "bridged", f"the road's best fit is implausible: {reason}")
             self._recent = velocity
         self._last_arc = (yaw, length)

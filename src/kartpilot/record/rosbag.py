@@ -323,11 +323,12 @@ def _import(reader: AnyReader, out: Path, config: BagImportConfig, vehicle: Vehi
     for name, own in stamps.items():
         # a bag stores messages as they arrived, so its images are put in the order of their header stamps; but
         # two images of one camera with one stamp cannot both be that moment (a driver's clock that stood still)
-        repeated = np.flatnonzero(np.diff(np.sort(np.asarray(own, np.int64))) == 0)
+        ordered = np.sort(np.asarray(own, np.int64))
+        repeated = np.flatnonzero(np.diff(ordered) == 0)
         if len(repeated):
             topic = next(t for t, n in by_topic.items() if n == name)
             raise DataError(f"{topic}: {len(repeated)} image(s) repeat another's header stamp (first "
-                            f"{int(np.sort(own)[repeated[0]])} ns): one camera's frames must each have their own time")
+                            f"{int(ordered[repeated[0]])} ns): one camera's frames must each have their own time")
     base = config.base_frame.lstrip("/")
     mounts, notes = _mounts(cameras, frame_ids, transforms, base, pair, infos)
     rig = {c.name: camera_from_info(infos[c.info], mounts[c.name]) for c in cameras}
