@@ -26,7 +26,7 @@ from kartpilot.runtime.loop import Policy
 from kartpilot.runtime.supervisor import Supervisor
 from kartpilot.sensors.health import CameraWatchdog, HealthConfig
 
-__all__ = ["ScriptedOperator", "SupervisedDrive", "WatchdogConfig", "Watchdogs", "feedback_columns",
+__all__ = ["ScriptedOperator", "SupervisedDrive", "ToldPipeline", "WatchdogConfig", "Watchdogs", "feedback_columns",
            "recorded_feedback"]
 
 log = logging.getLogger(__name__)
@@ -169,3 +169,31 @@ def recorded_feedback(row: dict[str, Any], stamp_ns: int) -> VehicleFeedback:
         return float(v) if isinstance(v, (int, float)) and math.isfinite(v) else None
 
     return VehicleFeedback(stamp_ns, value("feedback_speed_mps"), value("feedback_steer_rad"))
+
+
+class ToldPipeline:
+    """A pipeline told before each step what the kart measured (``observe_vehicle``), as a live drive tells it:
+    ``feedback_of`` gives that for a frame set (None: nothing was measured then). With ``kart_topic``, what it was
+    told is its ``kart`` output topic as well, as a drive records it."""
+
+    def __init__(self, policy: Any, feedback_of: Callable[[FrameSet], VehicleFeedback | None],
+                 kart_topic: bool = False) -> None:
+        self.policy, self.feedback_of, self.kart_topic = policy, feedback_of, kart_topic
+        self.feedback: VehicleFeedback | None = None
+
+    def __call__(self, frames: FrameSet) -> ActuatorCommand:
+        feedback = self.feedback_of(frames)
+        if feedback is not None:
+            self.feedback = feedback
+            self.policy.observe_vehicle(feedback)
+        return self.policy(frames)
+
+    def outputs(self) -> dict[str, dict[str, Any]]:
+        outputs_of = getattr(self.policy, "outputs", None)
+        topics = dict(outputs_of()) if outputs_of is not None else {}
+        if self.kart_topic and self.feedback is not None:
+            topics["kart"] = dict(feedback_columns(self.feedback))
+        return topics
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.policy, name)

@@ -24,12 +24,12 @@ import numpy as np
 from kartpilot.calibration.rectify import StereoSetup
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource
+from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource, VehicleFeedback
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 from kartpilot.record.replay import RecordingFrameSource, StereoReplaySource
 from kartpilot.runtime.config import StackConfig
-from kartpilot.runtime.drive import recorded_feedback
+from kartpilot.runtime.drive import ToldPipeline, recorded_feedback
 from kartpilot.runtime.loop import Outputs, Recorder, run_loop
 from kartpilot.runtime.path_policy import write_drive_log
 from kartpilot.runtime.pipelines import PIPELINES, PipelineContext, Route, StereoInput, build_pipeline, path_policy_of
@@ -83,21 +83,11 @@ class _WithoutFrames:
         self.writer.write_outputs(stamp_ns, outputs)
 
 
-class _Told:
-    """The pipeline, told before each step what the kart measured then (the drive's recorded ``kart`` topic), as
-    the live drive told it: a replay of a closed-loop drive stays closed loop."""
-
-    def __init__(self, policy: Any, kart: dict[int, dict[str, Any]]) -> None:
-        self.policy, self.kart = policy, kart
-
-    def __call__(self, frames: FrameSet) -> ActuatorCommand:
-        row = self.kart.get(frames.stamp_ns)
-        if row is not None:
-            self.policy.observe_vehicle(recorded_feedback(row, frames.stamp_ns))
-        return self.policy(frames)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.policy, name)
+def _told_at(kart: dict[int, dict[str, Any]], stamp_ns: int) -> VehicleFeedback | None:
+    """What the drive told its pipeline at ``stamp_ns`` (its recorded ``kart`` row), as a live drive told it: a
+    replay of a closed-loop drive stays closed loop."""
+    row = kart.get(stamp_ns)
+    return recorded_feedback(row, stamp_ns) if row is not None else None
 
 
 def _recorded_kart(reader: RecordingReader) -> dict[int, dict[str, Any]]:
@@ -157,7 +147,7 @@ def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, rout
     path_policy = path_policy_of(policy)
     recorded = _recorded_kart(reader)
     if recorded and hasattr(policy, "observe_vehicle"):
-        policy = _Told(policy, recorded)
+        policy = ToldPipeline(policy, lambda frames: _told_at(recorded, frames.stamp_ns))
     writer = _replay_writer(reader, pipeline, params.name, stack, outputs.record_dir)
     recorders: list[Recorder] = [] if writer is None else [writer if with_frames else _WithoutFrames(writer)]
     view = outputs.open_view(reader.cameras)

@@ -15,7 +15,7 @@ import numpy as np
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.types import ActuatorCommand, FrameSet, VehicleFeedback
 from kartpilot.runtime.config import StackConfig, load_stack_config
-from kartpilot.runtime.drive import feedback_columns
+from kartpilot.runtime.drive import ToldPipeline
 from kartpilot.runtime.lane_policy import LanePolicy, LanePolicyConfig
 from kartpilot.runtime.loop import run_loop
 from kartpilot.runtime.simulate import sim_recording
@@ -71,11 +71,14 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
             where["parked"] = where["parked"] + sim.dt_s if parked and abs(sim.state.vx_mps) < 0.05 else 0.0
 
         # the drive ends at the scenario's time, or a second after the kart has parked
+        # told what the kart measured, as a drive tells it: the simulator's speed and the RDW steering ECU's angle
+        told = ToldPipeline(policy, lambda frames: VehicleFeedback(frames.stamp_ns, sim.state.vx_mps,
+                                                                   sim.state.steer_rad), kart_topic=True)
         writer = sim_recording(sim, record_dir, {"source": "kartpilot sim --scenario", "scenario": name, "seed": seed,
                                                  "vehicle": sim.vehicle.name, "pipeline": "lanes",
                                                  "config": {"lane_policy": config_to_dict(policy_config)}})
         try:
-            run_loop(_Until(sim, lambda: where["parked"] >= 1.0), _Told(policy, sim), sim, [writer] if writer else [],
+            run_loop(_Until(sim, lambda: where["parked"] >= 1.0), told, sim, [writer] if writer else [],
                      on_step=judge)
         finally:
             if writer is not None:
@@ -117,26 +120,6 @@ def _course_for(plan: Scenario) -> Track:
     track = build_track(replace(spec, props=plan.props, barrier_blocks=spec.barrier_blocks + plan.barriers,
                                 dashed=spec.dashed + plan.dashed))
     return replace(track, spec=replace(track.spec, start_s_m=start_pose_s(track, plan)))
-
-
-class _Told:
-    """The lane pipeline, told before each step what the kart measured (the simulator's speed, and the RDW steering
-    ECU's angle), as a drive tells it (``observe_vehicle``); that feedback is the recording's ``kart`` topic."""
-
-    def __init__(self, policy: LanePolicy, sim: Simulator) -> None:
-        self.policy, self.sim = policy, sim
-        self.feedback: VehicleFeedback | None = None
-
-    def __call__(self, frames: FrameSet) -> ActuatorCommand:
-        self.feedback = VehicleFeedback(frames.stamp_ns, self.sim.state.vx_mps, self.sim.state.steer_rad)
-        self.policy.observe_vehicle(self.feedback)
-        return self.policy(frames)
-
-    def outputs(self) -> dict[str, dict[str, float | int | str]]:
-        topics = dict(self.policy.outputs())
-        if self.feedback is not None:
-            topics["kart"] = dict(feedback_columns(self.feedback))
-        return topics
 
 
 class _Until:
