@@ -8,8 +8,9 @@ a road mark) and by its known size where it does not (a lamp, a sign); a person'
 on a zebra crossing the kart sees, or beside it. :class:`ObjectDetector` holds the model and the tracker that
 gives each object an id over frames.
 
-Costs on one core at 848x480 (``benchmarks/detect.py``): the HOG people detector is most of it, which is why
-``people`` can be turned off (a team's model, or every few frames).
+Costs on one core at 848x480 are measured by ``benchmarks/detect.py``. With the camera's mount, the HOG people
+detector looks only around the upright things the car and the people's shapes are found from; without one it
+searches the whole image at every scale and is most of the cost, which is why ``people`` can be turned off.
 """
 
 from __future__ import annotations
@@ -97,7 +98,7 @@ def detect_classical(image: Image, camera: PinholeCamera | None, config: Detecto
     things = upright_things(image, camera, config.obstacles) if camera is not None and image.ndim == 3 else []
     people = detect_standing_people(image, camera, config.obstacles, things)
     if config.people:  # HOG's people, and the upright shapes it did not find
-        hog = detect_people(image, camera, config.obstacles)
+        hog = detect_people(image, camera, config.obstacles, things)
         if camera is not None and image.ndim == 3:
             hog = [p for p in hog if _stands_under(p.box_px, things)]
         people = hog + [p for p in people if not any(box_iou(p.box_px, q.box_px) > 0.3 for q in hog)]

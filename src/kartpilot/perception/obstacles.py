@@ -3,10 +3,12 @@
 Each stands on the ground, so each is placed where its box's bottom meets the ground (the camera's mount), and each
 is checked against that place: a thing that does not concern the kart is not reported.
 
-- **People**: OpenCV's HOG people detector (Dalal and Triggs), shipped with OpenCV. A box counts only if a person
-  standing where its bottom meets the ground would be that tall in the image (``person_height_m``, within
-  ``height_tolerance``): a tall box on a near point is a lamp post, a short one a bag. People beyond
-  ``max_lateral_m`` from the kart's line (behind a spectator fence) are not reported.
+- **People**: OpenCV's HOG people detector (Dalal and Triggs), shipped with OpenCV, run only where a person
+  could stand: around each upright thing, at the scale a person standing there has (the ground plane's
+  constraint on sliding windows). A box counts only if a person standing where its bottom meets the ground would
+  be that tall in the image (``person_height_m``, within ``height_tolerance``): a tall box on a near point is a
+  lamp post, a short one a bag. People beyond ``max_lateral_m`` from the kart's line (behind a spectator fence)
+  or ``person_max_distance_m`` ahead are not reported.
 - **Car**: something upright in the kart's corridor (``corridor_half_width_m`` either side of its line, ahead
   to ``max_distance_m``): a blob that is not asphalt (its colour far from the road's own, measured in the
   image's lower middle) and not grass, standing on the ground in the corridor and reaching the horizon row (a
@@ -31,7 +33,7 @@ from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import invert_pose, transform_points
 from kartpilot.core.types import Image
-from kartpilot.perception.objects import Detection, place_on_ground
+from kartpilot.perception.objects import Detection, box_iou, place_on_ground
 from kartpilot.perception.road_marks import camera_for_image
 
 __all__ = ["ObstacleConfig", "Upright", "detect_barriers", "detect_car", "detect_people", "detect_standing_people",
@@ -43,8 +45,8 @@ class ObstacleConfig:
     """Attributes:
         horizon: the horizon's row as a fraction of the height (used without a camera mount).
         person_height_m, height_tolerance: a standing person's height, and how far a box may be off it (a share).
-        min_person_px: the least box height searched (fraction of the image's height; HOG's window is 128 px,
-            so the image is scaled up to find smaller people, at a cost).
+        min_person_px: without a camera mount, the least box height HOG searches (fraction of the image's
+            height; HOG's window is 128 px, so the image is scaled up to find smaller people, at a cost).
         hog_threshold: the least HOG score (the SVM's margin) a box needs.
         max_lateral_m: people and barriers farther than this from the kart's line are not reported.
         max_distance_m: nothing farther than this ahead is reported.
@@ -58,9 +60,10 @@ class ObstacleConfig:
         min_person_width_m, max_person_width_m: an upright thing this wide on the ground may be a person.
         shape_height_tolerance: how far an upright thing's height may be off a person's to be one (a share; tighter
             than HOG's, as the shape says nothing else).
-        shape_max_distance_m: a person is found by shape no farther than this: beyond it a pixel of the foot's
-            row is more than a metre on the ground, and a far car's or barrier's column looks as tall as a person
-            (the kart acts on people within 15 m).
+        person_max_distance_m: people are found (by shape or by HOG) no farther than this: beyond it a pixel
+            of the foot's row is more than a metre on the ground, a far car's or barrier's column looks as tall as
+            a person, and spectators beside the course stand 5 to 6 m to the side (the kart acts on people within
+            15 m).
         barrier_min_px: a barrier's least size (fraction of the image's height).
     """
 
@@ -81,7 +84,7 @@ class ObstacleConfig:
     min_person_width_m: float = 0.2
     max_person_width_m: float = 1.0
     shape_height_tolerance: float = 0.25
-    shape_max_distance_m: float = 18.0
+    person_max_distance_m: float = 18.0
 
     def __post_init__(self) -> None:
         if not 0 < self.height_tolerance < 1 or min(self.person_height_m, self.max_lateral_m,
@@ -100,25 +103,84 @@ def _hog() -> cv2.HOGDescriptor:
     return _HOG
 
 
-def detect_people(image: Image, camera: PinholeCamera | None, config: ObstacleConfig = ObstacleConfig()
-                  ) -> list[Detection]:
-    """People standing on the ground, with their place; without a camera mount, every box HOG is sure of."""
+def detect_people(image: Image, camera: PinholeCamera | None, config: ObstacleConfig = ObstacleConfig(),
+                  things: list[Upright] | None = None) -> list[Detection]:
+    """People standing on the ground, with their place, by OpenCV's HOG people detector.
+
+    With the camera's mount, HOG looks only where a person could be: around each upright thing
+    (:func:`upright_things`, computed here unless given) nearer than ``person_max_distance_m``, at the scales a
+    person 1.5 to 2 m tall standing at the thing's foot would have, and their feet near its foot. A person is
+    taller than the camera, so one is always an upright thing; the search of the whole image at every scale
+    costs about ten times more and finds nothing more that stands on the ground (the geometric constraint of
+    Sudowe and Leibe's sliding windows on the ground plane). Without a mount, the whole image at every scale
+    down to ``min_person_px``, every box HOG is sure of."""
     h, w = image.shape[:2]
-    scale = max(1.0, 128.0 / (config.min_person_px * h))
-    search = image if scale == 1.0 else cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
-    boxes, weights = _hog().detectMultiScale(search, winStride=(8, 8), padding=(8, 8), scale=1.08)
-    if len(boxes) == 0:
+    if camera is None or image.ndim != 3:
+        boxes, weights = _hog_whole(image, config)
+    else:
+        things = upright_things(image, camera, config) if things is None else things
+        boxes, weights = _hog_around(image, camera_for_image(camera, w, h), things, config)
+    if not boxes:
         return []
-    kept = cv2.dnn.NMSBoxes([list(map(int, b)) for b in boxes], [float(s) for s in np.ravel(weights)],
-                            config.hog_threshold, 0.4)
+    kept = cv2.dnn.NMSBoxes([list(map(int, b)) for b in boxes], weights, config.hog_threshold, 0.4)
     out = []
     for k in np.ravel(kept):
-        x, y, bw, bh = (float(v) / scale for v in boxes[int(k)])
+        x, y, bw, bh = boxes[int(k)]
         # HOG's window has a margin around the person: about an eighth of its height above and below
         box = (x + 0.1 * bw, y + 0.06 * bh, x + 0.9 * bw, y + 0.94 * bh)
-        score = float(np.ravel(weights)[int(k)])
-        out.append(Detection("person", box, float(1.0 - math.exp(-score)), source="classical"))
+        out.append(Detection("person", box, float(1.0 - math.exp(-weights[int(k)])), source="classical"))
     return [d for d in place_on_ground(out, camera, (w, h)) if _plausible_person(d, camera, w, h, config)]
+
+
+_WINDOW_PERSON = 0.88
+"""The share of HOG's 128 px window a person's height fills (its margin is about 6 % above and below)."""
+
+
+def _hog_whole(image: Image, config: ObstacleConfig) -> tuple[list[list[float]], list[float]]:
+    """HOG over the whole image at every scale, its own grouping of the hits: (x, y, w, h) boxes, scores."""
+    scale = max(1.0, 128.0 / (config.min_person_px * image.shape[0]))
+    search = image if scale == 1.0 else cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
+    boxes, weights = _hog().detectMultiScale(search, winStride=(8, 8), padding=(8, 8), scale=1.08)
+    return [[float(v) / scale for v in b] for b in boxes], [float(v) for v in np.ravel(weights)]
+
+
+def _hog_around(image: Image, cam: PinholeCamera, things: list[Upright], config: ObstacleConfig
+                ) -> tuple[list[list[float]], list[float]]:
+    """HOG's windows around each upright thing at a person's scale there (``cam`` fits the image's size): the
+    hits that three or more overlapping hits support (as HOG's own grouping asks), as (x, y, w, h) boxes and
+    scores."""
+    h, w = image.shape[:2]
+    ahead = float(cam.pose_body_cam_array[0, 3])
+    boxes: list[list[float]] = []
+    weights: list[float] = []
+    for t in things:
+        depth = t.distance_m - ahead
+        if not 0.5 < depth <= config.person_max_distance_m - ahead:
+            continue
+        person_px = cam.fy_px * config.person_height_m / depth
+        foot = t.box_px[3]
+        for size in (0.86, 1.0, 1.16):  # people of 1.5 to 2 m
+            s = 128.0 * _WINDOW_PERSON / (person_px * size)
+            win_w, win_h = 64.0 / s, 128.0 / s
+            slack = 0.1 * person_px  # the thing's foot against the person's
+            top = max(int(foot - slack - (1 - 0.06) * win_h), 0)
+            bottom = min(math.ceil(foot + slack + 0.06 * win_h), h)
+            left = max(int(t.box_px[0] - win_w), 0)
+            right = min(math.ceil(t.box_px[2] + win_w), w)
+            if (bottom - top) * s < 128 or (right - left) * s < 64:
+                continue  # no whole window fits (a near person's head above the image)
+            crop = cv2.resize(image[top:bottom, left:right], None, fx=s, fy=s, interpolation=cv2.INTER_LINEAR)
+            found, scores = _hog().detect(crop, hitThreshold=0.0, winStride=(4, 4), padding=(0, 0))
+            for (x, y), score in zip(np.reshape(found, (-1, 2)), np.ravel(scores), strict=True):
+                boxes.append([left + float(x) / s, top + float(y) / s, win_w, win_h])
+                weights.append(float(score))
+    support = [sum(box_iou(_corners(a), _corners(b)) > 0.5 for b in boxes) for a in boxes]
+    kept = [n for n, count in enumerate(support) if count >= 3]
+    return [boxes[n] for n in kept], [weights[n] for n in kept]
+
+
+def _corners(box: list[float]) -> tuple[float, float, float, float]:
+    return box[0], box[1], box[0] + box[2], box[1] + box[3]
 
 
 def _plausible_person(d: Detection, camera: PinholeCamera | None, w: int, h: int, config: ObstacleConfig) -> bool:
@@ -270,7 +332,7 @@ def detect_standing_people(image: Image, camera: PinholeCamera | None, config: O
     out = []
     for t in things:
         lateral = (t.left_m + t.right_m) / 2
-        if not (0 < t.distance_m <= min(config.max_distance_m, config.shape_max_distance_m)
+        if not (0 < t.distance_m <= min(config.max_distance_m, config.person_max_distance_m)
                 and abs(lateral) <= config.max_lateral_m
                 and config.min_person_width_m <= t.width_m <= config.max_person_width_m):
             continue
