@@ -76,7 +76,7 @@ def test_a_pedestrian_at_the_crossing_stops_the_kart_until_the_crossing_is_clear
     config = BehaviourConfig(limit_kmh=15, front_m=0.0)
 
     def scene(x, t):
-        zebra = _at("zebra", 15 - x)
+        zebra = _at("crosswalk", 15 - x)
         person = _at("person", 16 - x, "on_crossing" if t < 12 else "beside_crossing", 0.0)
         return [zebra, person] if t < 14 else [zebra]
 
@@ -106,7 +106,7 @@ def test_a_person_walking_across_holds_the_kart_until_they_have_crossed_and_walk
         lateral = min(-3.0 + 0.8 * max(t - 4.0, 0.0), 3.5)  # from 3 m right to 3.5 m left, from t = 4 s
         person = Detection("person", (0, 0, 1, 1), 0.9, "beside_crossing" if abs(lateral) > 2.5 else "on_crossing",
                            distance_m=22 - x, lateral_m=lateral, track_id=7)
-        zebra = [_at("zebra", 20 - x)] if 20 - x < 10 else []
+        zebra = [_at("crosswalk", 20 - x)] if 20 - x < 10 else []
         return [person, *zebra]
 
     log = drive(config, walker, seconds=25)
@@ -119,7 +119,7 @@ def test_a_person_walking_across_holds_the_kart_until_they_have_crossed_and_walk
     def waiter(x, t):
         person = Detection("person", (0, 0, 1, 1), 0.9, "beside_crossing", distance_m=22 - x, lateral_m=-3.0,
                            track_id=3)
-        return [person, *([_at("zebra", 20 - x)] if 20 - x < 10 else [])]
+        return [person, *([_at("crosswalk", 20 - x)] if 20 - x < 10 else [])]
 
     log = drive(config, waiter, seconds=25)
     assert log[-1][3] == "yield" and 20 - log[-1][1] >= 0.2

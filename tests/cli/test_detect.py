@@ -19,8 +19,11 @@ def test_detect_writes_a_row_per_object_and_one_for_a_frame_with_none(tmp_path, 
     out = tmp_path / "objects.csv"
     assert main(["detect", str(folder), "--out", str(out), "--no-people", "--overlay", str(tmp_path / "ov")]) == 0
     rows = list(csv.DictReader(out.open()))
-    assert [(r["file"], r["label"], r["state"]) for r in rows] == [("a.png", "speed_sign", "20"), ("b.png", "", "")]
+    # the columns the event's brief asks for: class, the box as x1, y1, x2, y2, the value, the track id
+    assert list(rows[0])[:10] == ["frame", "file", "class", "x1", "y1", "x2", "y2", "confidence", "value", "distance_m"]
+    assert [(r["file"], r["class"], r["value"]) for r in rows] == [("a.png", "speed_sign", "20"), ("b.png", "", "")]
     assert float(rows[0]["distance_m"]) > 0 and rows[0]["track_id"] == "1"
+    assert float(rows[0]["x1"]) < float(rows[0]["x2"]) and float(rows[0]["y1"]) < float(rows[0]["y2"])
     assert len(list((tmp_path / "ov").glob("*.png"))) == 2
     assert "1 speed_sign" in capsys.readouterr().out
 

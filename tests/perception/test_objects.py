@@ -145,7 +145,7 @@ def test_a_barrier_across_the_lane_is_not_a_car():
 
 
 def test_a_person_on_or_beside_the_crossing():
-    zebra = Detection("zebra", (0, 300, 848, 340), 0.8, distance_m=6.0, lateral_m=0.0)
+    zebra = Detection("crosswalk", (0, 300, 848, 340), 0.8, distance_m=6.0, lateral_m=0.0)
     on = Detection("person", (400, 200, 420, 300), 0.8, distance_m=7.0, lateral_m=0.5)
     beside = Detection("person", (700, 200, 720, 300), 0.8, distance_m=7.0, lateral_m=-3.5)
     away = Detection("person", (700, 200, 720, 300), 0.8, distance_m=20.0, lateral_m=-3.5)

@@ -107,3 +107,30 @@ def test_scenario_props_are_rendered_as_they_are_and_their_truth_comes_with_each
         for label in ("person", "car"):
             print(label, "truth", round(truth[label].distance_m, 2), "found", round(found[label].distance_m, 2))
             assert found[label].distance_m == pytest.approx(truth[label].distance_m, rel=0.1)
+
+
+@pytest.mark.parametrize(("label", "before_m"), [("stop_line", 5.0), ("stop_line", 13.0), ("crosswalk", 6.0),
+                                                 ("crosswalk", 13.0)])
+def test_rendered_stop_lines_and_zebras_are_found_at_their_near_edge(label, before_m):
+    """The detectors against the renderer's exact truth: 13 m before the zebra, the road bends and the crossing
+    lies 3 m or more to the side, where a search straight ahead would not see it; only the mark that is there is
+    reported."""
+    from kartpilot.perception.detect import DetectorConfig, detect_classical
+
+    with Simulator(SimConfig(track="lelystad", vehicle="sdc-kart", seed=1, cameras=("center",))) as sim:
+        kind = "zebra" if label == "crosswalk" else label  # the track's paint, the detectors' class
+        mark = next(m.s_m for m in sim.track.spec.road_marks if m.kind == kind)
+        route = sim.track.route
+        i = route.index_at(mark - before_m)
+        sim.state = VehicleState(x_m=float(route.xy_m[i, 0]), y_m=float(route.xy_m[i, 1]),
+                                 yaw_rad=float(route.heading_rad[i]))
+        truth = next(d for d in sim.object_truth("center") if d.label == label)
+        frame = sim.read()
+        found = [d for d in detect_classical(frame.images["center"], sim.cameras["center"],
+                                             DetectorConfig(people=False)) if d.label in ("stop_line", "crosswalk")]
+    print(label, "truth", round(truth.distance_m, 2), round(truth.lateral_m, 2),
+          "found", [(d.label, round(d.distance_m, 2), round(d.lateral_m, 2)) for d in found])
+    assert [d.label for d in found] == [label]
+    assert found[0].distance_m == pytest.approx(truth.distance_m, abs=0.05 * truth.distance_m)
+    if label == "crosswalk" and before_m > 10:
+        assert truth.lateral_m > 2.0 and found[0].lateral_m > 1.0

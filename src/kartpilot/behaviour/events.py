@@ -174,7 +174,7 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
     green = _nearest(detections, "traffic_light", "green")
     red = _nearest(detections, "traffic_light", "red")
     line = _nearest(detections, "stop_line")
-    crossing = _nearest(detections, "zebra")
+    crossing = _nearest(detections, "crosswalk")
     people = [d for d in detections if d.label == "person" and math.isfinite(d.distance_m)
               and 0 < d.distance_m <= config.crossing_range_m]
     nearest = dict(s.nearest_lateral_m)

@@ -22,11 +22,15 @@ from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
 
 __all__ = ["DETECT_COLUMNS", "add_parsers", "draw_detections"]
 
-DETECT_COLUMNS = ("frame", "file", "track_id", "label", "state", "confidence", "left", "top", "right", "bottom",
-                  "distance_m", "lateral_m", "source", "new_scene")
+DETECT_COLUMNS = ("frame", "file", "class", "x1", "y1", "x2", "y2", "confidence", "value", "distance_m", "lateral_m",
+                  "track_id", "source", "new_scene")
+"""One row per detection: the frame's index and file, the class, the box (left, top, right, bottom, pixels), the
+confidence, the value (a light's colour, a sign's limit in km/h, a person's place against a crossing, a bay's free
+length in metres), where it stands on the ground (metres ahead and to the left), its track id, which detector
+found it, and whether a new scene starts at this frame. A frame with nothing in it has one row with no class."""
 
 _COLOURS = {"traffic_light": (0, 200, 255), "speed_sign": (0, 0, 255), "stop_line": (255, 255, 255),
-            "zebra": (255, 255, 0), "person": (255, 0, 255), "car": (255, 128, 0), "barrier": (0, 0, 180),
+            "crosswalk": (255, 255, 0), "person": (255, 0, 255), "car": (255, 128, 0), "barrier": (0, 0, 180),
             "parking_bay": (0, 255, 0)}
 
 
@@ -75,10 +79,10 @@ def detect(args: argparse.Namespace) -> int:
                 rows.append([*head, "", "", "", "", "", "", "", "", "", "", "", int(new_scene)])
             for d in found:
                 counts[d.label] = counts.get(d.label, 0) + 1
-                rows.append([*head, d.track_id, d.label, d.state, f"{d.confidence:.3f}",
-                             *(f"{v:.1f}" for v in d.box_px),
+                rows.append([*head, d.label, *(f"{v:.1f}" for v in d.box_px), f"{d.confidence:.3f}", d.state,
                              f"{d.distance_m:.2f}" if math.isfinite(d.distance_m) else "",
-                             f"{d.lateral_m:.2f}" if math.isfinite(d.lateral_m) else "", d.source, int(new_scene)])
+                             f"{d.lateral_m:.2f}" if math.isfinite(d.lateral_m) else "", d.track_id, d.source,
+                             int(new_scene)])
             if overlay is not None:
                 drawn = draw_detections(image, found)
                 if overlay.suffix.lower() in VIDEO_SUFFIXES:

@@ -94,22 +94,28 @@ def detect_classical(image: Image, camera: PinholeCamera | None, config: Detecto
         signals = replace(signals, camera_height_m=float(camera.pose_body_cam_array[2, 3]),
                           horizon=min(max(horizon_row(camera) / camera.height_px, 0.0), 1.0))
     out = detect_traffic_lights(image, signals, camera) + detect_speed_signs(image, signals, camera)
-    out += detect_road_marks(image, camera, config.road_marks)
     things = upright_things(image, camera, config.obstacles) if camera is not None and image.ndim == 3 else []
+    barriers = detect_barriers(image, camera, config.obstacles)
     people = detect_standing_people(image, camera, config.obstacles, things)
     if config.people:  # HOG's people, and the upright shapes it did not find
         hog = detect_people(image, camera, config.obstacles, things)
         if camera is not None and image.ndim == 3:
             hog = [p for p in hog if _stands_under(p.box_px, things)]
         people = hog + [p for p in people if not any(box_iou(p.box_px, q.box_px) > 0.3 for q in hog)]
-    barriers = detect_barriers(image, camera, config.obstacles)
     # a barrier in the corridor stands upright too: it is not a car
     cars = [c for c in detect_car(image, camera, config.obstacles, things)
             if not any(_covered(c.box_px, b.box_px) for b in barriers)]
     # red on a car (its plate, its lights) is not a barrier
     barriers = [b for b in barriers if not any(_inside(b.box_px, c.box_px) for c in cars)]
     people = [p for p in people if not any(_covered(p.box_px, b.box_px) for b in barriers)]
-    out += people + cars + barriers + find_parking_bay(barriers, camera, (image.shape[1], image.shape[0]))
+    # a signal head or a sign on its pole is as tall and as thin as a person
+    people = [p for p in people if not any(_inside(d.box_px, p.box_px) for d in out
+                                            if d.label in ("traffic_light", "speed_sign"))]
+    # what stands on the ground is not paint on it (seen from above, a barrier's white stripes would lie across
+    # the road)
+    out += detect_road_marks(image, camera, config.road_marks, [d.box_px for d in barriers + cars + people],
+                             [t.box_px for t in things])
+    out += people + cars + barriers + find_parking_bay(barriers, camera)
     return out
 
 
@@ -139,7 +145,7 @@ def _inside(inner: tuple[float, float, float, float], outer: tuple[float, float,
 def crossing_states(detections: list[Detection], beside_m: float) -> list[Detection]:
     """Each person's state against the zebra crossings found with them: ``on_crossing`` where they stand on
     one (on the ground), ``beside_crossing`` within ``beside_m`` of it, else unchanged."""
-    zebras = [d for d in detections if d.label == "zebra" and math.isfinite(d.distance_m)]
+    zebras = [d for d in detections if d.label == "crosswalk" and math.isfinite(d.distance_m)]
     if not zebras:
         return detections
     out = []

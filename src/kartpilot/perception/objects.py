@@ -22,7 +22,7 @@ from kartpilot.core.errors import ConfigError
 
 __all__ = ["CLASSES", "Detection", "ObjectTracker", "TrackerConfig", "box_iou", "place_on_ground"]
 
-CLASSES = ("traffic_light", "speed_sign", "stop_line", "zebra", "person", "car", "barrier", "parking_bay")
+CLASSES = ("traffic_light", "speed_sign", "stop_line", "crosswalk", "person", "car", "barrier", "parking_bay")
 """kartpilot's object classes; a team's model maps its own class ids onto these (``--classes``)."""
 
 
@@ -39,6 +39,8 @@ class Detection:
         distance_m: how far ahead it stands on the ground (body x), NaN where the mount or the ground point
             is unknown (the box's bottom above the horizon).
         lateral_m: how far left (+) or right (-) of the kart's centre line it stands (body y), NaN likewise.
+        far_m: for a thing that reaches away along the ground (a barrier seen along its side), how far ahead its
+            farthest foot stands; NaN where not measured.
         track_id: the same object's id over frames (0: not tracked).
         source: which detector found it (``classical`` or the ONNX model's file name).
     """
@@ -49,6 +51,7 @@ class Detection:
     state: str = ""
     distance_m: float = math.nan
     lateral_m: float = math.nan
+    far_m: float = math.nan
     track_id: int = 0
     source: str = "classical"
 

@@ -13,16 +13,18 @@ is checked against that place: a thing that does not concern the kart is not rep
   to ``max_distance_m``): a blob that is not asphalt (its colour far from the road's own, measured in the
   image's lower middle) and not grass, standing on the ground in the corridor and reaching the horizon row (a
   thing taller than the camera; paint on the ground never does), at least ``min_car_width_m`` wide on the ground.
-- **Barrier**: a strongly red blob standing on the ground (its bottom below the horizon) with white beside it in
-  its box (the red-and-white stripes); a lit lamp is small and high, a sign's ring is high, so neither is one.
-- **Parking bay**: two barriers on the same side, one behind the other: the bay is the ground between them, its
-  free length the gap.
+- **Barrier**: a strongly red blob (its stripes joined) standing on the ground (its bottom below the horizon),
+  as tall as a barrier where its foot stands, split where its foot jumps (one barrier behind another); a lit lamp
+  is small and high, a sign's ring is high, a red jacket's lower edge is above the camera, so none is one.
+- **Parking bay**: the next barrier behind another on the same side (the line between them turning less than a
+  bend does from the kart's heading): the bay is the ground between them, its free length the gap from the near
+  one's far end.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import cv2
@@ -34,7 +36,7 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import invert_pose, transform_points
 from kartpilot.core.types import Image
 from kartpilot.perception.objects import Detection, box_iou, place_on_ground
-from kartpilot.perception.road_marks import camera_for_image
+from kartpilot.perception.road_marks import camera_for_image, grass
 
 __all__ = ["ObstacleConfig", "Upright", "detect_barriers", "detect_car", "detect_people", "detect_standing_people",
            "find_parking_bay", "horizon_row", "upright_things"]
@@ -65,6 +67,7 @@ class ObstacleConfig:
             a person, and spectators beside the course stand 5 to 6 m to the side (the kart acts on people within
             15 m).
         barrier_min_px: a barrier's least size (fraction of the image's height).
+        barrier_height_m: a barrier's height (least, most), measured where its foot stands.
     """
 
     horizon: float = 0.34
@@ -79,6 +82,7 @@ class ObstacleConfig:
     max_car_width_m: float = 3.0
     colour_sigmas: float = 6.0
     barrier_min_px: float = 0.02
+    barrier_height_m: tuple[float, float] = (0.4, 1.6)
     min_run_px: int = 3
     min_car_height_m: float = 0.5
     min_person_width_m: float = 0.2
@@ -245,9 +249,7 @@ def upright_things(image: Image, camera: PinholeCamera, config: ObstacleConfig =
     # covering less than half a row stands out from it
     rows = cv2.blur(np.median(lab, axis=1)[:, None, :], (1, 15))[:, 0, :]
     distance = np.max(np.abs(lab - rows[:, None, :]) / spread, axis=2)
-    hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
-    grass = (hsv[..., 0] >= 30) & (hsv[..., 0] <= 90) & (hsv[..., 1] >= 50)
-    thing = ((distance > config.colour_sigmas) & ~grass).astype(np.uint8)
+    thing = ((distance > config.colour_sigmas) & ~grass(cv2.cvtColor(image, cv2.COLOR_BGR2HSV))).astype(np.uint8)
     thing = cv2.morphologyEx(thing, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)).astype(bool)
     down = np.cumprod(thing[row0:], axis=0).sum(axis=0)
     up = np.cumprod(thing[row0 - 1::-1], axis=0).sum(axis=0)
@@ -347,7 +349,10 @@ def detect_standing_people(image: Image, camera: PinholeCamera | None, config: O
 
 def detect_barriers(image: Image, camera: PinholeCamera | None, config: ObstacleConfig = ObstacleConfig()
                     ) -> list[Detection]:
-    """Red-and-white barriers standing on the ground."""
+    """Red-and-white barriers standing on the ground: red blobs (a barrier's stripes joined), split where one
+    stands behind another, as tall as a barrier where they stand. With the mount, each is placed by its nearest
+    foot and reports its farthest (``far_m``: a barrier beside the road shows its inner side, whose foot runs to
+    its far end)."""
     if image.ndim != 3:
         return []
     h, w = image.shape[:2]
@@ -360,45 +365,129 @@ def detect_barriers(image: Image, camera: PinholeCamera | None, config: Obstacle
     red = cv2.morphologyEx(red, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     # a striped barrier's red blocks, joined across the white between them
     joined = cv2.morphologyEx(red, cv2.MORPH_CLOSE, np.ones((1, max(3, round(0.03 * w))), np.uint8))
-    count, _, stats, _ = cv2.connectedComponentsWithStats(joined, connectivity=8)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(joined, connectivity=8)
+    pieces = [piece for k in range(1, count) for piece in _by_foot(labels, k, tuple(int(v) for v in stats[k][:4]))]
     out = []
-    for k in range(1, count):
-        x, y, bw, bh, _ = (int(v) for v in stats[k])
+    for piece in _join_stripes(pieces):
+        x, y, bw, bh = piece.box
         area = int(np.count_nonzero(red[y:y + bh, x:x + bw]))
         if max(bw, bh) < config.barrier_min_px * h or y + bh - 1 <= horizon:
             continue  # too small, or not standing on the ground seen below the horizon (a lamp, a sign's ring)
-        if bw < 1.2 * bh or area < 0.25 * bw * bh:
-            continue  # a barrier is longer than tall, and mostly red
+        if area < 0.25 * bw * bh or bw < 0.2 * bh:
+            continue  # a barrier is mostly red, and even end on more than a fifth as wide as tall (not a sliver)
+        if cam is None and bw < 1.2 * bh:
+            continue  # with no ground to measure on: a barrier seen from the side is longer than tall
+        if cam is not None and not config.barrier_height_m[0] <= _height_on_ground(cam, y, y + bh - 1) \
+                <= config.barrier_height_m[1]:
+            continue  # as tall as a barrier where it stands (seen end on, one is taller than wide in the image)
         pad = max(2, bh // 3)
         around = white[max(y - pad, 0):y + bh + pad, max(x - pad, 0):x + bw + pad]
         stripes = float(np.mean(around)) if around.size else 0.0
-        confidence = min(1.0, 0.5 + 2.0 * stripes)
-        out.append(Detection("barrier", (float(x), float(y), float(x + bw), float(y + bh - 1)), confidence))
-    placed = place_on_ground(out, cam, (w, h)) if cam is not None else out
-    return [d for d in placed if cam is None or (math.isfinite(d.distance_m) and d.distance_m <= config.max_distance_m
-                                                 and abs(d.lateral_m) <= config.max_lateral_m)]
+        box = (float(x), float(y), float(x + bw), float(y + bh - 1))
+        found = Detection("barrier", box, min(1.0, 0.5 + 2.0 * stripes))
+        if cam is not None:
+            near, far = _ends(cam, piece)
+            found = replace(place_on_ground([found], cam, (w, h))[0], distance_m=near, far_m=far)
+        out.append(found)
+    return [d for d in out if cam is None or (math.isfinite(d.distance_m) and d.distance_m <= config.max_distance_m
+                                              and abs(d.lateral_m) <= config.max_lateral_m)]
 
 
-def find_parking_bay(barriers: list[Detection], camera: PinholeCamera | None, image_size_wh: tuple[int, int],
-                     min_length_m: float = 2.0, same_side_m: float = 1.0) -> list[Detection]:
-    """The bay between two barriers on the same side, one behind the other: a ``parking_bay`` whose state is its
-    free length in metres (as text) and whose distance is where it begins."""
+def _ends(camera: PinholeCamera, piece: _Piece) -> tuple[float, float]:
+    """How far ahead a barrier's near and far ends stand on the ground. Near: its feet's nearest tenth (a few
+    columns' stray foot, where it meets another blob, does not move it). Far: the feet of its columns nearest
+    the image's middle, where its inner side runs away from the kart."""
+    ahead = ground_points(camera, np.column_stack([piece.cols + 0.5, piece.feet + 0.5]))[:, 0]
+    if not np.isfinite(ahead).any():
+        return math.nan, math.nan
+    inner = np.argsort(np.abs(piece.cols + 0.5 - camera.cx_px))[:max(3, len(piece.cols) // 20)]
+    return float(np.nanpercentile(ahead, 10)), float(np.nanmedian(ahead[inner]))
+
+
+class _Piece(NamedTuple):
+    """Part of a red blob: its (x, y, w, h) box, and its columns with each one's lowest pixel (its foot)."""
+
+    box: tuple[int, int, int, int]
+    cols: np.ndarray
+    feet: np.ndarray
+
+
+def _by_foot(labels: np.ndarray, k: int, box: tuple[int, ...]) -> list[_Piece]:
+    """Component ``k`` split where its foot (its lowest row, column by column) jumps: a barrier behind another,
+    seen over its end, touches it in the image but stands farther up on the ground."""
+    x, y, bw, bh = box
+    mask = labels[y:y + bh, x:x + bw] == k
+    seen = mask.any(axis=0)
+    foot = bh - 1 - np.argmax(mask[::-1], axis=0)
+    head = np.argmax(mask, axis=0)
+    out = []
+    start = 0
+    for c in range(1, bw + 1):
+        if c < bw and seen[c] and seen[c - 1] and abs(int(foot[c]) - int(foot[c - 1])) <= max(3, 0.1 * bh):
+            continue
+        cols = np.flatnonzero(seen[start:c]) + start
+        if len(cols):
+            top, bottom = int(head[cols].min()), int(foot[cols].max())
+            out.append(_Piece((x + int(cols[0]), y + top, int(cols[-1] - cols[0] + 1), bottom - top + 1),
+                              x + cols, y + foot[cols]))
+        start = c
+    return out
+
+
+def _join_stripes(pieces: list[_Piece]) -> list[_Piece]:
+    """Pieces side by side joined: level with each other (overlapping over 70 % of the taller one's height: a
+    barrier's stripes are as tall as each other, a farther barrier behind a near one is not) and apart by less
+    than 0.6 of the taller one's height. A near barrier's red stripes lie farther apart than the fixed closing
+    joins; a barrier's stripes are narrower than it is tall."""
+    out = list(pieces)
+    merged = True
+    while merged:
+        merged = False
+        for i in range(len(out)):
+            for j in range(i + 1, len(out)):
+                (x0, y0, w0, h0), (x1, y1, w1, h1) = out[i].box, out[j].box
+                level = min(y0 + h0, y1 + h1) - max(y0, y1) >= 0.7 * max(h0, h1)
+                gap = max(x0, x1) - min(x0 + w0, x1 + w1)
+                if level and gap <= 0.6 * max(h0, h1):
+                    left, top = min(x0, x1), min(y0, y1)
+                    box = (left, top, max(x0 + w0, x1 + w1) - left, max(y0 + h0, y1 + h1) - top)
+                    out[i] = _Piece(box, np.r_[out[i].cols, out[j].cols], np.r_[out[i].feet, out[j].feet])
+                    del out[j]
+                    merged = True
+                    break
+            if merged:
+                break
+    return out
+
+
+def find_parking_bay(barriers: list[Detection], camera: PinholeCamera | None, min_length_m: float = 2.0,
+                     max_length_m: float = 15.0, max_bend_deg: float = 30.0) -> list[Detection]:
+    """The bay between two barriers on the same side, the next one behind the other: a ``parking_bay`` whose
+    state is its free length in metres (as text), from the near barrier's far end (its farthest foot) to the
+    next one's near end, and whose distance is where it begins. Needs the barriers placed on the ground.
+
+    The same side: the line from one to the next turns less than ``max_bend_deg`` from the kart's heading (the
+    road may bend between them: by a kart's side offset, barriers on the same side 9 m apart in a bend differ by
+    2 m or more; barriers across the road from each other lie square to it). A free length over
+    ``max_length_m`` is road between two barriers, not a bay."""
     if camera is None:
         return []
-    cam = camera_for_image(camera, *image_size_wh)
     placed = [b for b in barriers if math.isfinite(b.distance_m)]
+    slope = math.tan(math.radians(max_bend_deg))
     out = []
     for a in placed:
-        for b in placed:
-            if not a.distance_m < b.distance_m or abs(a.lateral_m - b.lateral_m) > same_side_m:
-                continue
-            near_end = _ground_ahead(cam, a.box_px[2] if a.lateral_m < 0 else a.box_px[0], a.box_px[3])
-            free = b.distance_m - near_end
-            if free >= min_length_m:
-                box = (min(a.box_px[0], b.box_px[0]), min(a.box_px[1], b.box_px[1]), max(a.box_px[2], b.box_px[2]),
-                       max(a.box_px[3], b.box_px[3]))
-                out.append(Detection("parking_bay", box, min(a.confidence, b.confidence), f"{free:.1f}",
-                                     distance_m=near_end, lateral_m=(a.lateral_m + b.lateral_m) / 2))
+        start = a.far_m if math.isfinite(a.far_m) else a.distance_m
+        beyond = [b for b in placed if b.distance_m > start
+                  and abs(a.lateral_m - b.lateral_m) <= slope * (b.distance_m - a.distance_m)]
+        if not beyond:
+            continue
+        b = min(beyond, key=lambda d: d.distance_m)
+        free = b.distance_m - start
+        if min_length_m <= free <= max_length_m:
+            box = (min(a.box_px[0], b.box_px[0]), min(a.box_px[1], b.box_px[1]), max(a.box_px[2], b.box_px[2]),
+                   max(a.box_px[3], b.box_px[3]))
+            out.append(Detection("parking_bay", box, min(a.confidence, b.confidence), f"{free:.1f}",
+                                 distance_m=start, lateral_m=(a.lateral_m + b.lateral_m) / 2))
     return out
 
 
@@ -408,8 +497,12 @@ def horizon_row(camera: PinholeCamera) -> float:
     return float(camera.project(far)[0, 1])
 
 
-def _ground_lateral(camera: PinholeCamera, u: float, v: float) -> float:
-    return float(ground_points(camera, np.array([[u, v]]))[0, 1])
+def _height_on_ground(camera: PinholeCamera, top: float, bottom: float) -> float:
+    """The height in metres of a thing standing on the ground whose image runs from row ``top`` down to row
+    ``bottom`` (its foot), at the distance its foot gives; NaN where the foot is above the horizon."""
+    ahead = _ground_ahead(camera, camera.cx_px, bottom)
+    depth = ahead - float(camera.pose_body_cam_array[0, 3])
+    return (bottom - top) * depth / camera.fy_px if depth > 0 else math.nan
 
 
 def _ground_ahead(camera: PinholeCamera, u: float, v: float) -> float:

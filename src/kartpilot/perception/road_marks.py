@@ -1,12 +1,17 @@
-"""Paint across the lane, on the ground: stop lines and zebra crossings, through the camera's mount.
+"""Paint across the lane, on the ground: stop lines and zebra crossings (the ``crosswalk`` class), through the
+camera's mount.
 
 The centre image is warped to the ground from above (the camera's pose over the ground, from ``kartpilot calibrate
-ground``), where a stop line is a bar across the lane of a fixed depth and a zebra a row of stripes along the road,
+ground``), where a stop line is a bar across the lane of a fixed depth and a zebra a row of bars along the road,
 whatever their distance. Paint is what is brighter than the asphalt around it by more than the ground's own texture
-(a grey top-hat a metre wide, thresholded at the median plus ``noise_sigmas`` robust standard deviations of the
-ground within a few metres of each row). A lane boundary, which runs along the road, covers little of any row across
-the lane; a stop line covers most of it (``stop_cover``) over a depth of ``stop_depth_m``; a zebra's rows hold at
-least ``zebra_min_stripes`` separate stripes of a stripe's width over ``zebra_min_length_m`` along the road.
+(a grey top-hat a metre wide, its pixel grain taken out by a 3-pixel median, thresholded at the median plus
+``noise_sigmas`` robust standard deviations of the ground within a few metres of each row), on the road: not on
+grass, and not on what stands on the ground. A lane boundary, which runs along the road, covers little of any row
+across the lane; a stop line's rows are one run of paint over most of a lane's width (``stop_cover``), the same
+columns in each, over a depth of ``stop_depth_m``, with bare asphalt before and behind it; a zebra's rows hold at
+least ``zebra_min_stripes`` bars side by side in a regular pattern over ``zebra_min_length_m`` along the road.
+Both are sought across ``search_half_width_m`` either side of the kart's line, not only straight ahead: 14 m into a
+bend the lane lies metres to the side. Each is reported with the lateral offset of its middle.
 
 Without a camera mount there is no ground and nothing is reported: these marks are told apart by their size on the
 ground, not by how they look in the image.
@@ -14,7 +19,9 @@ ground, not by how they look in the image.
 
 from __future__ import annotations
 
+import itertools
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import cv2
@@ -27,15 +34,17 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import Image
 from kartpilot.perception.objects import Detection
 
-__all__ = ["RoadMarkConfig", "camera_for_image", "detect_road_marks"]
+__all__ = ["RoadMarkConfig", "camera_for_image", "detect_road_marks", "grass"]
 
 
 @dataclass(frozen=True)
 class RoadMarkConfig:
     """Attributes:
         near_m, far_m: the stretch of ground ahead that is searched.
-        lane_half_width_m: half the lane's width: the stop line is sought across it.
-        zebra_half_width_m: half the width searched for a zebra's stripes.
+        search_half_width_m: the marks are sought this far either side of the kart's line (14 m into a bend of
+            25 m radius the lane lies 4 m to the side, and a crossing reaches 2.5 m either side of it).
+        lane_half_width_m: half the lane's width: a stop line covers most of a stretch this wide (wherever it
+            lies in the search).
         pixels_per_m: the ground view's resolution.
         noise_sigmas, min_contrast: the paint threshold (robust sigmas above the median top-hat; a floor).
         stop_cover: the least share of the lane's width that a stop line's rows cover.
@@ -48,14 +57,14 @@ class RoadMarkConfig:
     """
 
     near_m: float = 1.2
-    far_m: float = 16.0
+    far_m: float = 19.0
+    search_half_width_m: float = 8.0
     lane_half_width_m: float = 1.4
-    zebra_half_width_m: float = 2.5
-    pixels_per_m: float = 25.0
+    pixels_per_m: float = 20.0
     noise_sigmas: float = 5.0
     min_contrast: float = 20.0
     stop_cover: float = 0.6
-    stop_depth_m: tuple[float, float] = (0.08, 0.8)
+    stop_depth_m: tuple[float, float] = (0.15, 0.8)
     stripe_width_m: tuple[float, float] = (0.2, 1.0)
     zebra_min_stripes: int = 3
     zebra_min_length_m: float = 1.0
@@ -64,8 +73,8 @@ class RoadMarkConfig:
     def __post_init__(self) -> None:
         if not 0 < self.near_m < self.far_m or self.pixels_per_m <= 0:
             raise ConfigError("road_marks: need 0 < near_m < far_m and a positive pixels_per_m")
-        if not 0 < self.lane_half_width_m <= self.zebra_half_width_m:
-            raise ConfigError("road_marks: need 0 < lane_half_width_m <= zebra_half_width_m")
+        if not 0 < self.lane_half_width_m <= self.search_half_width_m:
+            raise ConfigError("road_marks: need 0 < lane_half_width_m <= search_half_width_m")
 
 
 MAX_ASPECT_CHANGE = 0.03
@@ -88,45 +97,182 @@ def camera_for_image(camera: PinholeCamera, width_px: int, height_px: int) -> Pi
                    cy_px=(camera.cy_px + 0.5) * sy - 0.5, width_px=width_px, height_px=height_px)
 
 
-def detect_road_marks(image: Image, camera: PinholeCamera | None, config: RoadMarkConfig = RoadMarkConfig()
-                      ) -> list[Detection]:
-    """Stop lines and zebra crossings ahead, each with its near edge's distance on the ground."""
+def grass(hsv: Image) -> np.ndarray:
+    """Green, saturated pixels of an HSV image (OpenCV's hue 0 to 180): grass, not road or paint."""
+    hue, sat = hsv[..., 0], hsv[..., 1]
+    return (hue >= 30) & (hue <= 90) & (sat >= 50)
+
+
+def detect_road_marks(image: Image, camera: PinholeCamera | None, config: RoadMarkConfig = RoadMarkConfig(),
+                      upright: Sequence[tuple[float, float, float, float]] = (),
+                      columns: Sequence[tuple[float, float, float, float]] = ()) -> list[Detection]:
+    """Stop lines and zebra crossings ahead, each with its near edge's distance on the ground.
+
+    ``upright``: the image boxes of things found standing on the ground (barriers, cars, people), which are not
+    ground: seen from above, a barrier's white stripes would lie across the road as far as the eye reaches.
+    ``columns``: the boxes of other upright things, whose foot is less sure (a far thing's column can run on down
+    into the paint before it): not ground for a stop line (a bright edge along a thing's foot is a bar across the
+    view), but ground for a zebra, whose pattern of bars such an edge does not make."""
     if camera is None:
         return []
     h, w = image.shape[:2]
     camera = camera_for_image(camera, w, h)
-    view = BirdseyeView((config.near_m, config.far_m), (-config.zebra_half_width_m, config.zebra_half_width_m),
-                        config.pixels_per_m)
+    half = config.search_half_width_m
+    view = BirdseyeView((config.near_m, config.far_m), (-half, half), config.pixels_per_m)
     bw, bh = view.size_wh
     homography = birdseye_homography(camera, view)
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     ground = cv2.warpPerspective(gray, homography, (bw, bh), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
     valid = cv2.warpPerspective(np.full((h, w), 255, np.uint8), homography, (bw, bh),
                                 flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP) > 0
-    valid &= _in_front(view, camera)
+    # paint lies on the road: not on grass, and not on what stands on the ground
+    off_road = (grass(cv2.cvtColor(image, cv2.COLOR_BGR2HSV)) if image.ndim == 3 else np.zeros((h, w), bool)
+                ).astype(np.uint8)
+    _mark_boxes(off_road, upright, 1)
+    _mark_boxes(off_road, columns, 2)
+    seen = cv2.warpPerspective(off_road, homography, (bw, bh), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP)
+    valid &= (seen != 1) & _in_front(view, camera)
+    bare = valid & (seen == 0)  # the ground a stop line may lie on
     if valid.sum() < 50:
         return []
     k = max(3, round(1.2 * config.pixels_per_m) | 1)
     tophat = cv2.morphologyEx(ground, cv2.MORPH_TOPHAT, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
+    # the asphalt's grain, sharp near the camera, is as bright as paint pixel by pixel but not over three: a
+    # median keeps every mark here (a stop line's depth and a zebra's bars are several pixels) and loses the grain
+    tophat = cv2.medianBlur(tophat, 3)
     paint = (tophat > _row_thresholds(tophat, valid, config)[:, None]) & valid
     out: list[Detection] = []
-    ys = (np.arange(bw) + 0.5) / config.pixels_per_m  # lateral offset of each column, left positive, from the right
-    lateral = config.zebra_half_width_m - ys
-    lane = np.abs(lateral) <= config.lane_half_width_m
-    zebra_cols = np.abs(lateral) <= config.zebra_half_width_m
-    cover = (paint[:, lane].sum(axis=1) / np.maximum(valid[:, lane].sum(axis=1), 1)) * (
-        valid[:, lane].mean(axis=1) > 0.6)
-    for r0, r1 in _bands(cover >= config.stop_cover):
+    lateral = half - (np.arange(bw) + 0.5) / config.pixels_per_m  # each column's offset, left positive
+    # a stop line: a row's longest run of paint spans most of a lane's width (or of what is seen of it); a zebra's
+    # stripes or a barrier's, side by side, are many short runs
+    lane_px = 2 * config.lane_half_width_m * config.pixels_per_m
+    gap = max(3, round(0.12 * config.pixels_per_m) | 1)  # pinholes the asphalt's grain leaves in paint
+    closed = cv2.morphologyEx(paint.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((1, gap), np.uint8)).astype(bool)
+    rows, starts, ends = _row_runs(closed & bare)
+    order = np.lexsort((ends - starts, rows))  # per row, its longest run last
+    last = np.ones(rows.size, bool)
+    last[:-1] = rows[order][1:] != rows[order][:-1]
+    longest = np.zeros((bh, 2), np.int64)
+    longest[rows[order][last]] = np.column_stack([starts, ends])[order][last]
+    length = (longest[:, 1] - longest[:, 0]).astype(np.float64)
+    width = bare.sum(axis=1)
+    line = (width >= 0.6 * lane_px) & (length >= config.stop_cover * np.minimum(width, lane_px))
+    smear = _row_length_m(view, camera)  # the ground one image row spans, per ground row: a far line's blur
+    for r0, r1 in _bands(line):
         depth = (r1 - r0) / config.pixels_per_m
-        if config.stop_depth_m[0] <= depth <= config.stop_depth_m[1]:
-            out.append(_detection("stop_line", view, camera, (r0, r1), lane, float(np.mean(cover[r0:r1])), w, h))
+        # far away, one image row spans more ground than the line is deep: the line is seen as deep as a row or
+        # two there
+        if not config.stop_depth_m[0] <= depth <= config.stop_depth_m[1] + 2.0 * float(smear[(r0 + r1) // 2]):
+            continue
+        # a bar across the road covers the same columns in each of its rows; a lane line curving across the view
+        # (a bend's boundary, nearly square to the kart for a moment) covers a long stretch of each row, but one
+        # that moves along the row from row to row
+        common = np.percentile(longest[r0:r1, 1], 25) - np.percentile(longest[r0:r1, 0], 75)
+        cols = _span(bw, longest[r0:r1])
+        # and it lies on the road: bare asphalt before and behind it (a white car's body, seen from above, is
+        # paint running on behind its bumper, or not ground at all)
+        margin = max(2, round(0.3 * config.pixels_per_m))
+        sides = [(max(r0 - margin, 0), r0), (r1, min(r1 + margin, bh))]
+        asphalt = [float(np.mean((bare & ~paint)[a:b][:, cols])) if b > a else 0.0 for a, b in sides]
+        if common >= 0.75 * float(np.median(length[r0:r1])) and min(asphalt) >= 0.5:
+            out.append(_detection("stop_line", view, camera, (r0, r1), cols, float(np.mean(length[r0:r1]) / lane_px),
+                                  w, h, lateral))
     stripe_px = (config.stripe_width_m[0] * config.pixels_per_m, config.stripe_width_m[1] * config.pixels_per_m)
-    stripes = np.array([_count_runs(row[zebra_cols], stripe_px) for row in paint])
-    for r0, r1 in _bands(stripes >= config.zebra_min_stripes):
+    stripes, outer = _regular_stripes(paint, stripe_px)
+    # worn paint, a seam in the asphalt or a shadow breaks a few rows of a crossing's pattern
+    bridge = max(1, round(0.25 * config.pixels_per_m))
+    zebras: list[tuple[int, int, np.ndarray, float]] = []  # far row, past the near row, columns, share
+    for r0, r1 in _bands(_bridged(stripes >= config.zebra_min_stripes, bridge)):
         if (r1 - r0) / config.pixels_per_m >= config.zebra_min_length_m:
             share = min(1.0, float(np.mean(stripes[r0:r1])) / (2 * config.zebra_min_stripes))
-            out.append(_detection("zebra", view, camera, (r0, r1), zebra_cols, 0.5 + 0.5 * share, w, h))
+            cols = _span(bw, outer[r0:r1][stripes[r0:r1] >= config.zebra_min_stripes])
+            # a crossing seen askew (in a bend) begins where its nearest bar does, before its bars run side by
+            # side: its near edge is the last row on with a stripe under it
+            under = np.array([stripes[r] >= 1 and cols[outer[r, 0]:max(outer[r, 1], outer[r, 0] + 1)].any()
+                              for r in range(r1, bh)], bool)
+            near = r1 + (_bands(_bridged(np.r_[True, under], bridge))[0][1] - 1)
+            if zebras and zebras[-1][1] >= r0:  # the same crossing, a worn stretch between its parts
+                r0, cols, share = zebras[-1][0], zebras[-1][2] | cols, max(share, zebras[-1][3])
+                zebras.pop()
+            zebras.append((r0, near, cols, share))
+    out += [_detection("crosswalk", view, camera, (r0, near), cols, 0.5 + 0.5 * share, w, h, lateral)
+            for r0, near, cols, share in zebras]
     return out
+
+
+def _mark_boxes(mask: np.ndarray, boxes: Sequence[tuple[float, float, float, float]], value: int) -> None:
+    """Each (left, top, right, bottom) box set to ``value`` in ``mask`` where it is 0, with the rows just under
+    it (a thing's foot is found to a pixel or two, and a shadow lies at it)."""
+    for left, top, right, bottom in boxes:
+        foot = int(bottom + max(3.0, 0.1 * (bottom - top)))
+        region = mask[max(int(top), 0):foot + 1, max(int(left), 0):int(right) + 1]
+        region[region == 0] = value
+
+
+def _bridged(flags: np.ndarray, gap: int) -> np.ndarray:
+    """``flags`` with each run of False shorter than ``gap`` between two runs of True set True."""
+    out = flags.copy()
+    bands = _bands(flags)
+    for (_, end), (start, _) in itertools.pairwise(bands):
+        if start - end < gap:
+            out[end:start] = True
+    return out
+
+
+def _row_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every run of True in every row: its row, first column and one past its last."""
+    padded = np.pad(mask.astype(np.int8), ((0, 0), (1, 1)))
+    rows, cols = np.nonzero(np.diff(padded, axis=1))  # row-major: each run's start, then its end
+    return rows[::2], cols[::2], cols[1::2]
+
+
+def _regular_stripes(paint: np.ndarray, width_px: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Per row, the most stripes side by side in a regular pattern (each a stripe's width, the next like it in
+    width, within half to twice a width of it: a zebra's bars and their gaps are alike), and that pattern's first
+    and past-last column. Two lane lines and a patch of worn asphalt between them are three runs, but not a
+    pattern."""
+    bh = paint.shape[0]
+    rows, starts, ends = _row_runs(paint)
+    width = ends - starts
+    keep = (width >= width_px[0]) & (width <= width_px[1])
+    rows, starts, ends, width = rows[keep], starts[keep], ends[keep], width[keep]
+    mean = 0.5 * (width[1:] + width[:-1])
+    gap = starts[1:] - ends[:-1]
+    link = ((rows[1:] == rows[:-1]) & (np.maximum(width[1:], width[:-1]) <= 1.5 * np.minimum(width[1:], width[:-1]))
+            & (gap >= 0.5 * mean) & (gap <= 2.0 * mean))
+    count = np.zeros(bh, np.int64)
+    outer = np.zeros((bh, 2), np.int64)
+    for a, b in _bands(link):  # links a..b-1 join runs a..b: b - a + 1 stripes in one row
+        r = rows[a]
+        if b - a + 1 > count[r]:
+            count[r], outer[r] = b - a + 1, (starts[a], ends[b])
+    alone = count == 0  # a row with stripes but no pattern: one stripe, its first one
+    count[rows[alone[rows]]] = 1
+    first = np.r_[True, rows[1:] != rows[:-1]] & alone[rows]
+    outer[rows[first]] = np.column_stack([starts[first], ends[first]])
+    return count, outer
+
+
+def _span(width: int, first_last: np.ndarray) -> np.ndarray:
+    """The columns between the median first and the median last of rows' (first, past-last) columns."""
+    cols = np.zeros(width, bool)
+    cols[int(np.median(first_last[:, 0])):int(np.median(first_last[:, 1]))] = True
+    return cols
+
+
+def _row_length_m(view: BirdseyeView, camera: PinholeCamera) -> np.ndarray:
+    """For each ground row of ``view`` (straight ahead), the length along the ground that one image row spans."""
+    bw, bh = view.size_wh
+    rows = np.arange(bh, dtype=np.float64)
+    pix = np.column_stack([np.full(bh, bw / 2), rows, np.ones(bh)])
+    ground = pix @ view.ground_from_pixels().T
+    cam_body = np.linalg.inv(camera.pose_body_cam_array)
+    pts = np.column_stack([ground[:, 0], np.zeros(bh), np.zeros(bh)])
+    v_near = camera.project(pts @ cam_body[:3, :3].T + cam_body[:3, 3])[:, 1]
+    pts[:, 0] += 0.01
+    v_far = camera.project(pts @ cam_body[:3, :3].T + cam_body[:3, 3])[:, 1]
+    with np.errstate(divide="ignore"):
+        return np.where(np.abs(v_near - v_far) > 1e-9, 0.01 / np.abs(v_near - v_far), 0.0)
 
 
 def _row_thresholds(tophat: np.ndarray, valid: np.ndarray, config: RoadMarkConfig) -> np.ndarray:
@@ -152,13 +298,14 @@ def _row_thresholds(tophat: np.ndarray, valid: np.ndarray, config: RoadMarkConfi
 
 
 def _in_front(view: BirdseyeView, camera: PinholeCamera) -> np.ndarray:
-    """Ground pixels well in front of the camera (the homography folds what lies behind it onto the image)."""
+    """Ground pixels well in front of the camera (the homography folds what lies behind it onto the image). The
+    depth is affine in the view's pixels."""
     bw, bh = view.size_wh
-    grid = np.stack(np.meshgrid(np.arange(bw), np.arange(bh)), axis=-1).reshape(-1, 2).astype(np.float64)
-    ground = np.column_stack([grid, np.ones(len(grid))]) @ view.ground_from_pixels().T
     cam_body = np.linalg.inv(camera.pose_body_cam_array)
-    depth = np.column_stack([ground[:, :2], np.zeros(len(ground))]) @ cam_body[2, :3] + cam_body[2, 3]
-    return (depth > 0.3).reshape(bh, bw)
+    to_ground = view.ground_from_pixels()  # (x, y, 1) per (column, row, 1)
+    coeff = cam_body[2, :2] @ to_ground[:2]  # depth = coeff . (column, row, 1) + the camera's offset
+    depth = coeff[0] * np.arange(bw)[None, :] + coeff[1] * np.arange(bh)[:, None] + coeff[2] + cam_body[2, 3]
+    return depth > 0.3
 
 
 def _bands(flags: np.ndarray) -> list[tuple[int, int]]:
@@ -168,12 +315,8 @@ def _bands(flags: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
-def _count_runs(row: np.ndarray, width_px: tuple[float, float]) -> int:
-    return sum(1 for a, b in _bands(row) if width_px[0] <= b - a <= width_px[1])
-
-
 def _detection(label: str, view: BirdseyeView, camera: PinholeCamera, rows: tuple[int, int], cols: np.ndarray,
-               confidence: float, w: int, h: int) -> Detection:
+               confidence: float, w: int, h: int, lateral: np.ndarray) -> Detection:
     """The mark's box in the image (its ground rectangle's corners projected) and its near edge's distance."""
     c = np.flatnonzero(cols)
     corners = np.array([[c[0], rows[0]], [c[-1] + 1, rows[0]], [c[-1] + 1, rows[1]], [c[0], rows[1]]], np.float64)
@@ -184,4 +327,5 @@ def _detection(label: str, view: BirdseyeView, camera: PinholeCamera, rows: tupl
     box = (float(np.clip(px[:, 0].min(), 0, w - 1)), float(np.clip(px[:, 1].min(), 0, h - 1)),
            float(np.clip(px[:, 0].max(), 0, w - 1)), float(np.clip(px[:, 1].max(), 0, h - 1)))
     near_x = float(ground[:, 0].min())
-    return Detection(label, box, float(min(max(confidence, 0.0), 1.0)), distance_m=near_x, lateral_m=0.0)
+    return Detection(label, box, float(min(max(confidence, 0.0), 1.0)), distance_m=near_x,
+                     lateral_m=float(np.mean(lateral[cols])) if cols.any() else 0.0)

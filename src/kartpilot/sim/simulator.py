@@ -212,7 +212,8 @@ class Simulator:
         """The scenario's objects as ``camera`` sees them now, exactly: each prop (a light with its phase, a sign
         with its value, a person, the car), stop line, zebra and barrier block in front of the camera and in its
         image, with its box (its 3D box's corners projected, clipped to the image), its distance ahead and to
-        the left of the kart's body frame on the ground (a car's to its nearest face), and its state."""
+        the left of the kart's body frame on the ground (a car's and a barrier's to the nearest point of their
+        footprint, a stop line's and a zebra's to their near edge, where the kart stops), and its state."""
         cam = self.cameras[camera]
         world_cam = self.camera_pose(camera)
         cam_world = np.linalg.inv(world_cam)
@@ -233,7 +234,8 @@ class Simulator:
             items.append((prop.kind, state, corners, foot))
         for number, mark in enumerate(track.spec.road_marks):
             polygons = np.vstack([p for p, k in zip(track.road_marks, track.road_mark_of, strict=True) if k == number])
-            items.append((mark.kind, "", np.column_stack([polygons, np.zeros(len(polygons))]), polygons.mean(axis=0)))
+            paint = "crosswalk" if mark.kind == "zebra" else str(mark.kind)  # the detectors' class for a zebra
+            items.append((paint, "", np.column_stack([polygons, np.zeros(len(polygons))]), polygons.mean(axis=0)))
         for block, footprint in zip(track.spec.barrier_blocks, track.barrier_blocks, strict=True):
             corners = np.vstack([np.column_stack([footprint, np.zeros(4)]),
                                  np.column_stack([footprint, np.full(4, block.height_m)])])
@@ -250,8 +252,9 @@ class Simulator:
             if right <= left or bottom <= top:
                 continue
             body = body_world[:3, :3] @ np.r_[foot, 0.0] + body_world[:3, 3]
-            if label == "car":  # the face the kart meets, not the car's middle
-                body[0] = float(np.min(corners[:4] @ body_world[:3, :3].T[:, 0] + body_world[0, 3]))
+            if label in ("car", "barrier", "stop_line", "crosswalk"):  # the face or edge the kart meets, not the middle
+                base = corners[:4] if label in ("car", "barrier") else corners  # a mark's all lie on the ground
+                body[0] = float(np.min(base @ body_world[:3, :3].T[:, 0] + body_world[0, 3]))
             out.append(Detection(label, (left, top, right, bottom), 1.0, state, distance_m=float(body[0]),
                                  lateral_m=float(body[1]), source="truth"))
         return out
