@@ -134,3 +134,38 @@ def test_rendered_stop_lines_and_zebras_are_found_at_their_near_edge(label, befo
     assert found[0].distance_m == pytest.approx(truth.distance_m, abs=0.05 * truth.distance_m)
     if label == "crosswalk" and before_m > 10:
         assert truth.lateral_m > 2.0 and found[0].lateral_m > 1.0
+
+
+def test_rendered_barriers_their_parking_bay_and_a_speed_sign_are_found_where_they_are():
+    """A bay between two barriers beside the road (the parking scenario's, 7 m free) and a 20 km/h sign, rendered
+    with their exact truth: the barriers placed at their near end, the bay's free length and start, the sign's
+    value and distance, each within 10 %."""
+    from dataclasses import replace
+
+    from kartpilot.perception.detect import DetectorConfig, detect_classical
+    from kartpilot.sim.track import BarrierBlock, Prop, build_track, load_track_spec
+
+    spec = load_track_spec("lelystad")
+    bay = (BarrierBlock(side="right", s_m=19.6, offset_m=0.3, length_m=0.4, depth_m=1.5),
+           BarrierBlock(side="right", s_m=27.0, offset_m=0.3, length_m=0.4, depth_m=1.5))
+    sign = Prop(kind="speed_sign", s_m=22.0, offset_m=-2.3, value_kmh=20)
+    track = build_track(replace(spec, props=(sign,), barrier_blocks=spec.barrier_blocks + bay))
+    with Simulator(SimConfig(track="lelystad", vehicle="sdc-kart", seed=1, cameras=("center",)), track=track) as sim:
+        i = sim.track.route.index_at(11.0)
+        sim.state = VehicleState(x_m=float(sim.track.route.xy_m[i, 0]), y_m=float(sim.track.route.xy_m[i, 1]),
+                                 yaw_rad=float(sim.track.route.heading_rad[i]))
+        truth = sim.object_truth("center")
+        found = detect_classical(sim.read().images["center"], sim.cameras["center"], DetectorConfig(people=False))
+    near, far = sorted((d for d in truth if d.label == "barrier" and d.distance_m < 20), key=lambda d: d.distance_m)
+    barriers = sorted((d for d in found if d.label == "barrier"), key=lambda d: d.distance_m)
+    bays = [d for d in found if d.label == "parking_bay"]
+    signs = [d for d in found if d.label == "speed_sign"]
+    print("barriers", [(round(d.distance_m, 2), round(d.far_m, 2)) for d in barriers], "truth",
+          [round(near.distance_m, 2), round(far.distance_m, 2)], "bays",
+          [(d.state, round(d.distance_m, 2)) for d in bays], "signs",
+          [(d.state, round(d.distance_m, 2)) for d in signs])
+    assert [round(d.distance_m / t.distance_m, 1) for d, t in zip(barriers, (near, far), strict=True)] == [1.0, 1.0]
+    assert len(bays) == 1 and float(bays[0].state) == pytest.approx(7.0, rel=0.1)
+    assert bays[0].distance_m == pytest.approx(near.distance_m + 0.4, rel=0.1)  # the near barrier's far end
+    truth_sign = next(d for d in truth if d.label == "speed_sign")
+    assert [d.state for d in signs] == ["20"] and signs[0].distance_m == pytest.approx(truth_sign.distance_m, rel=0.1)

@@ -394,14 +394,14 @@ def detect_barriers(image: Image, camera: PinholeCamera | None, config: Obstacle
 
 
 def _ends(camera: PinholeCamera, piece: _Piece) -> tuple[float, float]:
-    """How far ahead a barrier's near and far ends stand on the ground. Near: its feet's nearest tenth (a few
-    columns' stray foot, where it meets another blob, does not move it). Far: the feet of its columns nearest
-    the image's middle, where its inner side runs away from the kart."""
+    """How far ahead a barrier's near and far ends stand on the ground: the nearest and the farthest tenth of its
+    feet, column by column, placed on the ground (a barrier beside the road shows its inner side, whose foot runs
+    to its far end; a few columns' stray foot, where it meets another blob or its side lies in shadow, does not
+    move either end)."""
     ahead = ground_points(camera, np.column_stack([piece.cols + 0.5, piece.feet + 0.5]))[:, 0]
     if not np.isfinite(ahead).any():
         return math.nan, math.nan
-    inner = np.argsort(np.abs(piece.cols + 0.5 - camera.cx_px))[:max(3, len(piece.cols) // 20)]
-    return float(np.nanpercentile(ahead, 10)), float(np.nanmedian(ahead[inner]))
+    return float(np.nanpercentile(ahead, 10)), float(np.nanpercentile(ahead, 90))
 
 
 class _Piece(NamedTuple):
