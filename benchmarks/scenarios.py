@@ -46,7 +46,7 @@ def decision_cost_us(steps: int = 20000) -> dict[str, float]:
     seen = [Detection("traffic_light", (0, 0, 1, 1), 0.9, "red", distance_m=20.0, lateral_m=-2.0, track_id=1),
             Detection("stop_line", (0, 0, 1, 1), 0.9, distance_m=16.0, track_id=2),
             Detection("speed_sign", (0, 0, 1, 1), 0.9, "20", distance_m=12.0, lateral_m=-2.3, track_id=3),
-            Detection("zebra", (0, 0, 1, 1), 0.9, distance_m=9.0, track_id=4),
+            Detection("crosswalk", (0, 0, 1, 1), 0.9, distance_m=9.0, track_id=4),
             Detection("person", (0, 0, 1, 1), 0.9, "beside_crossing", distance_m=10.0, lateral_m=-3.0, track_id=5),
             Detection("car", (0, 0, 1, 1), 0.9, distance_m=24.0, lateral_m=0.0, track_id=6)]
     config = BehaviourConfig(overtake=True)
