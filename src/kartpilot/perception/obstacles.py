@@ -114,10 +114,12 @@ def detect_people(image: Image, camera: PinholeCamera | None, config: ObstacleCo
     With the camera's mount, HOG looks only where a person could be: around each upright thing
     (:func:`upright_things`, computed here unless given) nearer than ``person_max_distance_m``, at the scales a
     person 1.5 to 2 m tall standing at the thing's foot would have, and their feet near its foot. A person is
-    taller than the camera, so one is always an upright thing; the search of the whole image at every scale
-    costs about ten times more and finds nothing more that stands on the ground (the geometric constraint of
-    Sudowe and Leibe's sliding windows on the ground plane). Without a mount, the whole image at every scale
-    down to ``min_person_px``, every box HOG is sure of."""
+    taller than the camera, so one is always an upright thing, and a box with no upright thing under it is not
+    kept anyway (:func:`~kartpilot.perception.detect.detect_classical`). The search of the whole image at every
+    scale costs about ten times more (``benchmarks/detect.py``); on the real venue frames it found one group of
+    people, which this search finds too, where they stand (the geometric constraint of Sudowe and Leibe's sliding
+    windows on the ground plane). Without a mount, the whole image at every scale down to ``min_person_px``,
+    every box HOG is sure of."""
     h, w = image.shape[:2]
     if camera is None or image.ndim != 3:
         boxes, weights = _hog_whole(image, config)
@@ -151,7 +153,7 @@ def _hog_whole(image: Image, config: ObstacleConfig) -> tuple[list[list[float]],
 def _hog_around(image: Image, cam: PinholeCamera, things: list[Upright], config: ObstacleConfig
                 ) -> tuple[list[list[float]], list[float]]:
     """HOG's windows around each upright thing at a person's scale there (``cam`` fits the image's size): the
-    hits that three or more overlapping hits support (as HOG's own grouping asks), as (x, y, w, h) boxes and
+    hits that two or more other hits overlap (as HOG's own grouping asks of a cluster), as (x, y, w, h) boxes and
     scores."""
     h, w = image.shape[:2]
     ahead = float(cam.pose_body_cam_array[0, 3])
