@@ -72,6 +72,27 @@ def test_a_red_light_stops_the_kart_before_the_line_and_green_lets_it_go(speed_k
     assert "stop_red" in states and "wait_red" in states and states[-1] == "drive"
 
 
+def test_paint_beyond_the_red_light_taken_for_a_stop_line_does_not_move_the_stop_point():
+    """Standing at the line at red, the kart sees for one frame something beyond the light taken for a stop line
+    (a bend's boundary square to it, the tripod's foot): the light's own line lies before the light, and the line
+    the kart stands at does not jump ahead, so the kart stays."""
+    config = BehaviourConfig(front_m=0.0)
+
+    def scene(x, t):
+        seen = [_at("traffic_light", 12.5 - x, "red")]
+        if 12.0 - x > 1.2:
+            seen.append(_at("stop_line", 12.0 - x))
+        if abs(t - 15.0) < 0.03:
+            seen.append(_at("stop_line", 12.0 - x + 9.0))  # the false line, beyond the light
+        if abs(t - 16.0) < 0.03:
+            seen.append(_at("stop_line", 12.5 - x + 0.4))  # one just beyond the light (its placement's slack)
+        return seen
+
+    log = drive(config, scene, speed=5.0, seconds=20)
+    assert max(x for t, x, v, s in log) < 12.0  # it never passes the line on red
+    assert [s for t, x, v, s in log][-1] == "wait_red"
+
+
 def test_a_pedestrian_at_the_crossing_stops_the_kart_until_the_crossing_is_clear():
     config = BehaviourConfig(limit_kmh=15, front_m=0.0)
 
@@ -82,7 +103,7 @@ def test_a_pedestrian_at_the_crossing_stops_the_kart_until_the_crossing_is_clear
 
     log = drive(config, scene, seconds=22)
     waiting = [x for t, x, v, s in log if 9 < t < 14]
-    assert 0.2 <= 15 - waiting[-1] <= 1.5
+    assert 15 - waiting[-1] == pytest.approx(config.crossing_margin_m, abs=0.3)  # out of the crossing's approach
     assert log[-1][1] > 17  # went on once clear
     left_at = next(t for t, x, v, s in log if t > 14 and s == "drive")
     assert left_at >= 14 + config.clear_s - 0.1
@@ -114,7 +135,9 @@ def test_a_person_walking_across_holds_the_kart_until_they_have_crossed_and_walk
     assert stopped and 20 - stopped[-1] >= 0.2  # stopped before the crossing
     assert log[-1][1] > 21  # went on after the person had crossed
     went = next(t for t, x, v, s in log if t > 5 and s == "drive")
-    assert went > 4.0 + 6.5 / 0.8  # not before the person was 1 m past the nearest they came to the line
+    # not before the person had left the kart's corridor, 1 m or more past the nearest they came to its line,
+    # and the crossing had been clear for clear_s
+    assert went >= 4.0 + (3.0 + config.corridor_m) / 0.8 + config.clear_s - 0.06
 
     def waiter(x, t):
         person = Detection("person", (0, 0, 1, 1), 0.9, "beside_crossing", distance_m=22 - x, lateral_m=-3.0,
@@ -142,3 +165,19 @@ def test_a_light_lost_from_view_mid_stop_still_stops_the_kart_at_the_line():
     print(f"\nstopped {gap:.2f} m before the line, in {log[-1][3]}")
     assert 0.2 <= gap <= 1.5 and log[-1][2] < 1e-6
     assert log[-1][3] == "wait_red"
+
+
+def test_a_person_who_crossed_and_stops_at_the_far_end_does_not_hold_the_kart():
+    """Having walked across, the person stands at the crossing's far end, 2.6 m to the left: the detector sees
+    them on the crossing and beside it by turns. They have crossed the kart's line and are out of its corridor,
+    so the kart goes on."""
+    config = BehaviourConfig(limit_kmh=15, front_m=0.0)
+
+    def scene(x, t):
+        lateral = min(-3.0 + 0.8 * max(t - 2.0, 0.0), 2.6)
+        state = "on_crossing" if abs(lateral) <= 2.5 or int(t * 10) % 2 else "beside_crossing"
+        person = Detection("person", (0, 0, 1, 1), 0.9, state, distance_m=22 - x, lateral_m=lateral, track_id=5)
+        return [person, *([_at("crosswalk", 20 - x)] if 20 - x < 10 else [])]
+
+    log = drive(config, scene, seconds=30)
+    assert log[-1][1] > 21 and log[-1][3] == "drive"

@@ -13,10 +13,11 @@ States:
   ``drive``).
 - ``drive``: at the posted limit (the last speed sign read, ``limit_kmh`` until one is) or the mode's speed,
   whichever is lower.
-- ``stop_red``: a red light and a stop line ahead: braking to stop ``stop_margin_m`` before the line; ``wait_red``
+- ``stop_red``: a red light and a stop line ahead (before the light, where its line lies): braking to stop
+  ``stop_margin_m`` before the line; ``wait_red``
   once stopped; back to ``drive`` on green.
 - ``yield``: a person on or beside a zebra crossing ahead, or on the road in the kart's corridor: braking to stop
-  ``stop_margin_m`` before the crossing (``person_clearance_m`` before the person where no crossing is seen yet);
+  ``crossing_margin_m`` before the crossing (``person_clearance_m`` before the person where no crossing is seen yet);
   waiting until no such person has been seen for ``clear_s``.
 - ``overtake``: a car in the kart's lane within ``car_range_m`` (with ``overtake`` on): the path around it is
   planned once, from the car's measured distance, and followed until its end; then ``drive``.
@@ -53,13 +54,18 @@ class BehaviourConfig:
         start_on_green: stand at the start until a green light is seen.
         limit_kmh: the speed limit until a sign says otherwise (the event's signs: 10, 15 and 20 km/h).
         limit_margin: drive this share under the posted limit (a speedometer's and a controller's error).
-        stop_margin_m: where the kart's front stops before a stop line or a crossing (the event: 0.2 to 1.5 m).
+        stop_margin_m: where the kart's front stops before a stop line (the event: 0.2 to 1.5 m).
+        crossing_margin_m: where the kart's front stops before a crossing it yields at: out of the last metres
+            before it, where a kart still rolling as a pedestrian steps onto the road is faulted (the scenario
+            referee watches 3 m).
         front_m: from the body frame's origin (where detections' distances are measured from) to the kart's front
             (the sdc-kart: its rear axle, 1.05 m of wheelbase and 0.45 m of overhang).
         decel_mps2: the braking the plan uses (comfortable, well under the kart's maximum).
         brake_delay_s: the brake's delay before it bites (the RDW brake actuator travels first).
         light_range_m: a light farther than this does not stop the kart yet.
         stop_line_range_m: a stop line this far ahead belongs to a red light seen with it.
+        line_refine_m: how much farther a stop line seen again may move the stop point (its placement refines as
+            the kart comes; a jump beyond is not the line it is stopping at).
         crossing_range_m: a person on or beside a crossing, or on the road in the kart's corridor, within this
             distance makes the kart yield.
         corridor_m: a person this close to the kart's line (either side) is on its road, crossing or not.
@@ -81,11 +87,13 @@ class BehaviourConfig:
     limit_kmh: float = 20.0
     limit_margin: float = 0.1
     stop_margin_m: float = 0.7
+    crossing_margin_m: float = 3.0
     front_m: float = 1.5
     decel_mps2: float = 1.5
     brake_delay_s: float = 0.4
     light_range_m: float = 25.0
     stop_line_range_m: float = 25.0
+    line_refine_m: float = 0.5
     crossing_range_m: float = 20.0
     corridor_m: float = 2.0
     person_clearance_m: float = 2.0
@@ -105,8 +113,9 @@ class BehaviourConfig:
     def __post_init__(self) -> None:
         if min(self.limit_kmh, self.decel_mps2, self.light_range_m, self.crossing_range_m) <= 0:
             raise ConfigError("behaviour: limit_kmh, decel_mps2 and the ranges must be positive")
-        if not 0 <= self.limit_margin < 1 or self.stop_margin_m < 0 or self.brake_delay_s < 0:
-            raise ConfigError("behaviour: limit_margin must be in [0, 1), stop_margin_m and brake_delay_s not negative")
+        if not 0 <= self.limit_margin < 1 or min(self.stop_margin_m, self.crossing_margin_m, self.brake_delay_s) < 0:
+            raise ConfigError("behaviour: limit_margin must be in [0, 1), stop_margin_m, crossing_margin_m and "
+                              "brake_delay_s not negative")
 
 
 @dataclass(frozen=True)
@@ -185,10 +194,10 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
     s = replace(s, nearest_lateral_m=tuple(sorted(nearest.items()))[-_TRACKED_PEOPLE:])
     # a person on the road in the kart's way (whether a crossing is seen yet or not: the camera finds a zebra on
     # the ground nearer than it finds a person), or on or beside a crossing unless they have crossed the kart's
-    # line and walk away from it
-    waiting = [p for p in people if abs(p.lateral_m) <= config.corridor_m or p.state == "on_crossing"
-               or (p.state == "beside_crossing" and abs(p.lateral_m) - nearest.get(p.track_id, math.inf)
-                   < config.crossed_m)]
+    # line and walk away from it (one who stops at the crossing's far end is seen on it or beside it by turns)
+    waiting = [p for p in people if abs(p.lateral_m) <= config.corridor_m
+               or (p.state in ("on_crossing", "beside_crossing")
+                   and abs(p.lateral_m) - nearest.get(p.track_id, math.inf) < config.crossed_m)]
 
     car = min((d for d in detections if d.label == "car" and math.isfinite(d.distance_m) and d.distance_m > 0
                and abs(d.lateral_m) <= config.car_corridor_m), key=lambda d: d.distance_m, default=None)
@@ -225,8 +234,15 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
         return BehaviourDecision(0.0, "wait_start", "waiting for green"), s
 
     if s.state in ("drive", "stop_red", "wait_red") and red is not None and red.distance_m <= config.light_range_m:
-        if line is not None and line.distance_m <= config.stop_line_range_m:
-            s = replace(s, stop_at_m=odometer + line.distance_m - config.front_m - config.stop_margin_m)
+        # the light's stop line lies before it: a line beyond the light (by more than the light's placement, from
+        # its lamp's size, may be off) is another, or paint taken for one, and does not move the stop point
+        if line is not None and line.distance_m <= min(config.stop_line_range_m, red.distance_m
+                                                       + max(1.0, 0.1 * red.distance_m)):
+            stop_at = odometer + line.distance_m - config.front_m - config.stop_margin_m
+            # nearer is always taken; farther only by a line's placement as the kart comes (a line far beyond the
+            # one the kart is stopping or standing at is another, or paint taken for one, seen for a frame)
+            if not math.isfinite(s.stop_at_m) or stop_at <= s.stop_at_m + config.line_refine_m:
+                s = replace(s, stop_at_m=stop_at)
         elif not math.isfinite(s.stop_at_m):
             s = replace(s, stop_at_m=odometer + max(red.distance_m - 3.0 - config.front_m, 0.0))  # no line: short
         if s.state == "drive":
@@ -235,9 +251,9 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
         return BehaviourDecision(cruise, "drive", "green: go on"), replace(s, state="drive", stop_at_m=math.nan)
 
     if waiting and s.state in ("drive", "yield"):
-        edge = crossing.distance_m if crossing is not None else (
-            min(p.distance_m for p in waiting) - config.person_clearance_m + config.stop_margin_m)
-        stop_at = odometer + edge - config.front_m - config.stop_margin_m
+        edge = crossing.distance_m - config.crossing_margin_m if crossing is not None else (
+            min(p.distance_m for p in waiting) - config.person_clearance_m)
+        stop_at = odometer + edge - config.front_m
         if s.state == "drive" or stop_at < s.stop_at_m:  # a crossing seen nearer than the person: stop there
             s = replace(s, state="yield", stop_at_m=stop_at)
         s = replace(s, clear_for_s=0.0)
