@@ -154,20 +154,21 @@ straight, beside the stop line, as in the event scenario), and its free length (
 
 def act_window(label: str, behaviour: BehaviourConfig | None = None) -> tuple[float, float]:
     """Where (metres ahead of the rear axle) the kart acts on a thing of this class, from the event's rules as
-    :mod:`kartpilot.behaviour.events` plays them. Far end: where it must have seen it: a light, a sign, a stop
-    line, a zebra or a person far enough to stop before it from the highest limit posted (20 km/h) with the
-    planned braking after the brake's delay, the kart's front and its margin; a car where the overtake is
-    planned; a parking bay and its barriers where parking starts. Near end: where the kart stands still before
-    it (its front and margin before a stop line, a crossing or a person; its gap behind a car), or for a bay,
-    where the bay's start passes under the kart's front; nearer, the kart has acted already (the stop point is
-    kept by the metres driven, the manoeuvre's path is planned once)."""
+    :mod:`kartpilot.behaviour.events` plays them. Near end: where the kart stands still before it (its front and
+    margin before a light's line or a sign, its margin before a crossing, its clearance before a person, its gap
+    behind a car), or for a bay, where the bay passes under its front; nearer, the kart has acted already (the
+    stop point is kept by the metres driven, a manoeuvre's path is planned once). Far end: where it must have seen
+    it: for a light, a sign, a stop line, a crossing or a person, the near end plus the stopping distance from the
+    highest limit posted (20 km/h) with the planned braking after the brake's delay; for a car, where the overtake
+    is planned; for a parking bay and its barriers, where parking starts."""
     b = behaviour or BehaviourConfig()
     if label == "car":
         return b.front_m + b.car_gap_m, b.car_range_m
     if label in ("barrier", "parking_bay"):
         return b.front_m, b.bay_range_m
+    margin = {"crosswalk": b.crossing_margin_m, "person": b.person_clearance_m}.get(label, b.stop_margin_m)
     v = b.limit_kmh / 3.6
-    return b.front_m + b.stop_margin_m, v * b.brake_delay_s + v * v / (2 * b.decel_mps2) + b.front_m + b.stop_margin_m
+    return b.front_m + margin, b.front_m + margin + v * b.brake_delay_s + v * v / (2 * b.decel_mps2)
 
 
 def rendered(seed: int, count: int = 40) -> dict[str, Any]:
@@ -409,12 +410,13 @@ def render(results: dict[str, Any]) -> str:
              "Where the kart acts on each class (metres ahead of its rear axle, from the event's rules as "
              "`behaviour.events` plays them): " + ", ".join(f"{k} {row['act_m'][0]:.1f} to {row['act_m'][1]:.1f} m"
                                                             for k, row in sorted(r["classes"].items()))
-             + f". The far end is where it must have seen the thing: a light, a sign, a stop line, a zebra or a "
-             f"person far enough to stop before it from {b['limit_kmh']:.0f} km/h (braking at {b['decel_mps2']} m/s² "
-             f"after the brake's {b['brake_delay_s']} s delay, the kart's front and its margin); a car where the "
-             "overtake is planned; a parking bay and its barriers where parking starts. The near end is where it "
-             "stands still before it (its front and margin before a line, a crossing or a person; its gap behind "
-             "a car) or, for a bay, where the bay passes under its front: nearer, it has acted already.", "",
+             + f". The near end is where the kart stands still before it (its front and margin before a line or a "
+             "sign, a crossing or a person; its gap behind a car) or, for a bay, where the bay passes under its "
+             "front: nearer, it has acted already. The far end is where it must have seen the thing: for a light, "
+             "a sign, a stop line, a crossing or a person, far enough to stop at the near end from "
+             f"{b['limit_kmh']:.0f} km/h (braking at {b['decel_mps2']} m/s² after the brake's "
+             f"{b['brake_delay_s']} s delay); for a car, where the overtake is planned; for a parking bay and its "
+             "barriers, where parking starts.", "",
              f"Rendered venue frames ({r['frames']}: seeds {', '.join(map(str, r['seeds']))}, held out; seeds 3 "
              "to 22 were looked at while building the detectors) against the renderer's exact truth: the "
              "track's stop line, zebra and barriers, and the scenario's props (a signal head red then green, a "

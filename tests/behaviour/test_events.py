@@ -85,7 +85,7 @@ def test_paint_beyond_the_red_light_taken_for_a_stop_line_does_not_move_the_stop
         if abs(t - 15.0) < 0.03:
             seen.append(_at("stop_line", 12.0 - x + 9.0))  # the false line, beyond the light
         if abs(t - 16.0) < 0.03:
-            seen.append(_at("stop_line", 12.5 - x + 0.4))  # one just beyond the light (its placement's slack)
+            seen.append(_at("stop_line", 12.5 - x + 1.2))  # one just beyond the light (its placement's slack)
         return seen
 
     log = drive(config, scene, speed=5.0, seconds=20)

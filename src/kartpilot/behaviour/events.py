@@ -93,7 +93,7 @@ class BehaviourConfig:
     brake_delay_s: float = 0.4
     light_range_m: float = 25.0
     stop_line_range_m: float = 25.0
-    line_refine_m: float = 0.5
+    line_refine_m: float = 1.5
     crossing_range_m: float = 20.0
     corridor_m: float = 2.0
     person_clearance_m: float = 2.0
