@@ -238,3 +238,20 @@ def test_a_people_detector_box_counts_only_over_an_upright_thing_reaching_its_he
     beside = Upright((10.0, 60.0, 105.0, 200.0), 10.0, 3.0, 2.0, 1.7, False)  # under its edge only
     assert _stands_under(box, [person]) and _stands_under(box, [tree])
     assert not _stands_under(box, [barrier]) and not _stands_under(box, [beside]) and not _stands_under(box, [])
+
+
+def test_the_new_detector_settings_refuse_values_that_make_no_sense():
+    from kartpilot.behaviour.events import BehaviourConfig
+    from kartpilot.perception.obstacles import ObstacleConfig
+    from kartpilot.perception.road_marks import RoadMarkConfig
+
+    with pytest.raises(ConfigError, match="barrier_height_m"):
+        ObstacleConfig(barrier_height_m=(1.6, 0.4))
+    with pytest.raises(ConfigError, match="person_max_distance_m"):
+        ObstacleConfig(person_max_distance_m=0.0)
+    with pytest.raises(ConfigError, match="search_half_width_m"):
+        RoadMarkConfig(search_half_width_m=1.0)
+    with pytest.raises(ConfigError, match="line_refine_m"):
+        BehaviourConfig(line_refine_m=-1.0)
+    with pytest.raises(ConfigError, match="crossing_margin_m"):
+        BehaviourConfig(crossing_margin_m=-0.5)

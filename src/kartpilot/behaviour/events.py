@@ -113,9 +113,10 @@ class BehaviourConfig:
     def __post_init__(self) -> None:
         if min(self.limit_kmh, self.decel_mps2, self.light_range_m, self.crossing_range_m) <= 0:
             raise ConfigError("behaviour: limit_kmh, decel_mps2 and the ranges must be positive")
-        if not 0 <= self.limit_margin < 1 or min(self.stop_margin_m, self.crossing_margin_m, self.brake_delay_s) < 0:
-            raise ConfigError("behaviour: limit_margin must be in [0, 1), stop_margin_m, crossing_margin_m and "
-                              "brake_delay_s not negative")
+        if not 0 <= self.limit_margin < 1 or min(self.stop_margin_m, self.crossing_margin_m, self.line_refine_m,
+                                                 self.brake_delay_s) < 0:
+            raise ConfigError("behaviour: limit_margin must be in [0, 1), stop_margin_m, crossing_margin_m, "
+                              "line_refine_m and brake_delay_s not negative")
 
 
 @dataclass(frozen=True)

@@ -94,6 +94,10 @@ class ObstacleConfig:
         if not 0 < self.height_tolerance < 1 or min(self.person_height_m, self.max_lateral_m,
                                                     self.max_distance_m, self.corridor_half_width_m) <= 0:
             raise ConfigError("obstacles: height_tolerance must be in (0, 1) and the sizes positive")
+        if not self.person_max_distance_m > 0:
+            raise ConfigError("obstacles: person_max_distance_m must be positive")
+        if not 0 < self.barrier_height_m[0] < self.barrier_height_m[1]:
+            raise ConfigError("obstacles: barrier_height_m must be (least, most) with 0 < least < most")
 
 
 _HOG: cv2.HOGDescriptor | None = None
