@@ -51,6 +51,8 @@ class RoadMarkConfig:
         stop_depth_m: a stop line's depth along the road (least, most).
         stripe_width_m: a zebra stripe's width across the road (least, most).
         zebra_min_stripes, zebra_min_length_m: the fewest stripes side by side, over at least this length.
+        zebra_angles_deg: a zebra is sought with its bars along the kart's line and turned by each of these
+            (a crossing in a bend lies askew); 0 must be one of them.
         stats_half_window_m: each row's paint threshold comes from the rows this far either side of it (a
             running median of the rows' own statistics; wider than half a zebra's length, so a zebra's rows,
             a third paint, do not raise their own threshold).
@@ -69,12 +71,15 @@ class RoadMarkConfig:
     zebra_min_stripes: int = 3
     zebra_min_length_m: float = 1.0
     stats_half_window_m: float = 4.0
+    zebra_angles_deg: tuple[float, ...] = (0.0, -20.0, 20.0, -40.0, 40.0)
 
     def __post_init__(self) -> None:
         if not 0 < self.near_m < self.far_m or self.pixels_per_m <= 0:
             raise ConfigError("road_marks: need 0 < near_m < far_m and a positive pixels_per_m")
         if not 0 < self.lane_half_width_m <= self.search_half_width_m:
             raise ConfigError("road_marks: need 0 < lane_half_width_m <= search_half_width_m")
+        if 0.0 not in self.zebra_angles_deg or any(not abs(a) < 90.0 for a in self.zebra_angles_deg):
+            raise ConfigError("road_marks: zebra_angles_deg must hold 0 and angles between -90 and 90")
 
 
 MAX_ASPECT_CHANGE = 0.03
@@ -142,7 +147,6 @@ def detect_road_marks(image: Image, camera: PinholeCamera | None, config: RoadMa
     tophat = cv2.medianBlur(tophat, 3)
     paint = (tophat > _row_thresholds(tophat, valid, config)[:, None]) & valid
     out: list[Detection] = []
-    lateral = half - (np.arange(bw) + 0.5) / config.pixels_per_m  # each column's offset, left positive
     # a stop line: a row's longest run of paint spans most of a lane's width (or of what is seen of it); a zebra's
     # stripes or a barrier's, side by side, are many short runs
     lane_px = 2 * config.lane_half_width_m * config.pixels_per_m
@@ -175,13 +179,59 @@ def detect_road_marks(image: Image, camera: PinholeCamera | None, config: RoadMa
         sides = [(max(r0 - margin, 0), r0), (r1, min(r1 + margin, bh))]
         asphalt = [float(np.mean((bare & ~paint)[a:b][:, cols])) if b > a else 0.0 for a, b in sides]
         if common >= 0.75 * float(np.median(length[r0:r1])) and min(asphalt) >= 0.5:
-            out.append(_detection("stop_line", view, camera, (r0, r1), cols, float(np.mean(length[r0:r1]) / lane_px),
-                                  w, h, lateral))
+            c = np.flatnonzero(cols)
+            corners = np.array([[c[0], r0], [c[-1] + 1, r0], [c[-1] + 1, r1], [c[0], r1]], np.float64)
+            out.append(_detection("stop_line", view, camera, corners, float(np.mean(length[r0:r1]) / lane_px), w, h))
+    out += [_detection("crosswalk", view, camera, corners, 0.5 + 0.5 * share, w, h)
+            for corners, share in _zebras(paint, config)]
+    return out
+
+
+def _zebras(paint: np.ndarray, config: RoadMarkConfig) -> list[tuple[np.ndarray, float]]:
+    """Zebra crossings in the paint, each as its ground rectangle's corners (the view's pixels) and the share of
+    its pattern seen.
+
+    A crossing lies square to its road, and the road ahead may turn: 15 m into a bend of 20 m radius the
+    crossing is turned 40 degrees from the kart's line, where few rows of the view cross all of its bars. So the
+    pattern is sought in the paint turned by each of ``zebra_angles_deg`` as well, and of a crossing found at
+    several turns the one that saw the most of it is kept. (Which way a far crossing's bars run cannot be told from
+    the kart's low camera: 15 m ahead the crossing is five image rows deep, and its bars are found at every turn.
+    So a crossing is not told from a pattern on a road beside the course by its bars' heading.)"""
+    bh, bw = paint.shape
+    found: list[tuple[np.ndarray, float, float]] = []  # corners, share, turn
+    for angle in config.zebra_angles_deg:
+        if angle == 0:
+            turned, back = paint, np.eye(3)
+        else:
+            # turned about the view's middle, onto a canvas that holds all of it
+            side = int(np.ceil(np.hypot(bw, bh))) + 2
+            turn = cv2.getRotationMatrix2D((bw / 2, bh / 2), angle, 1.0)
+            turn[:, 2] += (side / 2 - bw / 2, side / 2 - bh / 2)
+            turned = cv2.warpAffine(paint.astype(np.uint8), turn, (side, side), flags=cv2.INTER_NEAREST) > 0
+            back = np.linalg.inv(np.vstack([turn, [0.0, 0.0, 1.0]]))
+        for r0, near, cols, share in _zebra_bands(turned, config):
+            c = np.flatnonzero(cols)
+            corners = np.array([[c[0], r0, 1], [c[-1] + 1, r0, 1], [c[-1] + 1, near, 1], [c[0], near, 1]], float)
+            found.append(((corners @ back.T)[:, :2], share, abs(angle)))
+    kept: list[tuple[np.ndarray, float, float]] = []
+    # the most seen first, the least turned of equals: a crossing found again at another turn (overlapping one
+    # kept) is dropped
+    for corners, share, angle in sorted(found, key=lambda f: (-f[1], f[2])):
+        if all(cv2.intersectConvexConvex(corners.astype(np.float32), k[0].astype(np.float32))[0] <= 0.0
+               for k in kept):
+            kept.append((corners, share, angle))
+    return [(corners, share) for corners, share, _ in kept]
+
+
+def _zebra_bands(paint: np.ndarray, config: RoadMarkConfig) -> list[tuple[int, int, np.ndarray, float]]:
+    """Zebra crossings whose bars run along the columns of ``paint``: each as its far row, past its near row,
+    its columns and the share of its pattern seen."""
+    bh, bw = paint.shape
     stripe_px = (config.stripe_width_m[0] * config.pixels_per_m, config.stripe_width_m[1] * config.pixels_per_m)
     stripes, outer = _regular_stripes(paint, stripe_px)
     # worn paint, a seam in the asphalt or a shadow breaks a few rows of a crossing's pattern
     bridge = max(1, round(0.25 * config.pixels_per_m))
-    zebras: list[tuple[int, int, np.ndarray, float]] = []  # far row, past the near row, columns, share
+    zebras: list[tuple[int, int, np.ndarray, float]] = []
     for r0, r1 in _bands(_bridged(stripes >= config.zebra_min_stripes, bridge)):
         if (r1 - r0) / config.pixels_per_m >= config.zebra_min_length_m:
             share = min(1.0, float(np.mean(stripes[r0:r1])) / (2 * config.zebra_min_stripes))
@@ -195,9 +245,7 @@ def detect_road_marks(image: Image, camera: PinholeCamera | None, config: RoadMa
                 r0, cols, share = zebras[-1][0], zebras[-1][2] | cols, max(share, zebras[-1][3])
                 zebras.pop()
             zebras.append((r0, near, cols, share))
-    out += [_detection("crosswalk", view, camera, (r0, near), cols, 0.5 + 0.5 * share, w, h, lateral)
-            for r0, near, cols, share in zebras]
-    return out
+    return zebras
 
 
 def _mark_boxes(mask: np.ndarray, boxes: Sequence[tuple[float, float, float, float]], value: int) -> None:
@@ -315,17 +363,15 @@ def _bands(flags: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
-def _detection(label: str, view: BirdseyeView, camera: PinholeCamera, rows: tuple[int, int], cols: np.ndarray,
-               confidence: float, w: int, h: int, lateral: np.ndarray) -> Detection:
-    """The mark's box in the image (its ground rectangle's corners projected) and its near edge's distance."""
-    c = np.flatnonzero(cols)
-    corners = np.array([[c[0], rows[0]], [c[-1] + 1, rows[0]], [c[-1] + 1, rows[1]], [c[0], rows[1]]], np.float64)
+def _detection(label: str, view: BirdseyeView, camera: PinholeCamera, corners: np.ndarray, confidence: float,
+               w: int, h: int) -> Detection:
+    """The mark's box in the image (its ground rectangle's corners, the view's pixels, projected), its near
+    edge's distance and its middle's lateral offset."""
     ground = np.column_stack([corners, np.ones(4)]) @ view.ground_from_pixels().T
     cam_body = np.linalg.inv(camera.pose_body_cam_array)
     pts = np.column_stack([ground[:, :2], np.zeros(4)]) @ cam_body[:3, :3].T + cam_body[:3, 3]
     px = camera.project(pts)
     box = (float(np.clip(px[:, 0].min(), 0, w - 1)), float(np.clip(px[:, 1].min(), 0, h - 1)),
            float(np.clip(px[:, 0].max(), 0, w - 1)), float(np.clip(px[:, 1].max(), 0, h - 1)))
-    near_x = float(ground[:, 0].min())
-    return Detection(label, box, float(min(max(confidence, 0.0), 1.0)), distance_m=near_x,
-                     lateral_m=float(np.mean(lateral[cols])) if cols.any() else 0.0)
+    return Detection(label, box, float(min(max(confidence, 0.0), 1.0)), distance_m=float(ground[:, 0].min()),
+                     lateral_m=float(ground[:, 1].mean()))
