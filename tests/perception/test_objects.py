@@ -10,7 +10,7 @@ import pytest
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.perception.detect import DetectorConfig, ObjectDetector, crossing_states
-from kartpilot.perception.objects import Detection, ObjectTracker, place_on_ground
+from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, place_on_ground
 from kartpilot.perception.obstacles import detect_barriers, detect_car, detect_standing_people
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
 from kartpilot.perception.signals import detect_speed_signs, detect_traffic_lights
@@ -97,6 +97,30 @@ def test_track_ids_persist_over_frames_and_restart_after_a_reset():
     assert other[0].track_id not in {d.track_id for d in first}
     tracker.reset()
     assert tracker.update([a])[0].track_id not in {d.track_id for d in first}
+
+
+def test_a_person_lost_for_a_while_or_whose_box_jumps_keeps_their_id_where_they_stand():
+    """Pedestrian seed 7: the person merged with the barrier beside the crossing for a second and came back as a
+    new track, whose history did not show they had crossed, and the kart waited for them for good."""
+    tracker = ObjectTracker(TrackerConfig(max_missed=5, rejoin_frames=30, rejoin_m=2.0))
+
+    def person(left: float, ahead: float, side: float) -> Detection:
+        return Detection("person", (left, 100, left + 30, 200), 0.9, distance_m=ahead, lateral_m=side)
+
+    first = tracker.update([person(100, 9.0, 3.5)])[0].track_id
+    for _ in range(15):  # lost for a second at 15 frames a second
+        assert tracker.update([]) == []
+    back = tracker.update([person(300, 7.6, 3.8)])  # its box elsewhere (the kart came on), 1.4 m from where it was
+    assert back[0].track_id == first
+    jumped = tracker.update([person(200, 7.5, 3.2), person(600, 4.0, -3.0)])  # a jump, and someone else
+    assert jumped[0].track_id == first and jumped[1].track_id != first
+    # too far from where it was, another class, or lost too long: a new one
+    assert tracker.update([person(500, 11.0, 3.2)])[0].track_id not in (first, jumped[1].track_id)
+    assert tracker.update([Detection("car", (200, 100, 230, 200), 0.9, distance_m=7.5, lateral_m=3.2)]
+                          )[0].track_id != first
+    for _ in range(31):
+        tracker.update([])
+    assert tracker.update([person(200, 7.5, 3.2)])[0].track_id != first
 
 
 def test_a_box_standing_on_the_ground_is_placed_where_it_stands():

@@ -102,14 +102,24 @@ class TrackerConfig:
     """Attributes:
         min_iou: a detection continues a track of its class when their boxes overlap at least this much.
         max_missed: frames a track is kept without a detection before it is dropped.
+        rejoin_frames, rejoin_m: a detection that continues no track by its box takes up a track of its class
+            that found nothing this frame, or was lost at most this many frames ago, where that track was last
+            seen within this distance of it on the ground (nearest first). A person who merges with the barrier
+            beside them for a second, or whose box jumps as they step out of it, keeps their id, and with it the
+            history the rules read (whether they have crossed). 2 m: a walking person's second and the kart's
+            creep toward them; two people closer than that may swap ids.
     """
 
     min_iou: float = 0.2
     max_missed: int = 5
+    rejoin_frames: int = 30
+    rejoin_m: float = 2.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_iou <= 1.0 or self.max_missed < 0:
             raise ConfigError("tracker: min_iou must be in (0, 1] and max_missed not negative")
+        if self.rejoin_frames < 0 or self.rejoin_m < 0:
+            raise ConfigError("tracker: rejoin_frames and rejoin_m must not be negative")
 
 
 @dataclass
@@ -117,14 +127,17 @@ class _Track:
     track_id: int
     label: str
     box: tuple[float, float, float, float]
+    ground_m: tuple[float, float] = (math.nan, math.nan)
     missed: int = 0
 
 
 @dataclass
 class ObjectTracker:
     """Ids that persist over frames: each detection continues the overlapping track of its class (greedy, best
-    overlap first), or starts a new one; a track unseen for ``max_missed`` frames ends. Call :meth:`reset` where
-    a frame does not follow from the one before (a new scene)."""
+    overlap first); one that overlaps none takes up the nearest track of its class on the ground that found
+    nothing this frame (within ``rejoin_m``, lost at most ``rejoin_frames`` ago), or starts a new one. A track
+    unseen for ``max_missed`` frames no longer continues by its box. Call :meth:`reset` where a frame does not
+    follow from the one before (a new scene)."""
 
     config: TrackerConfig = field(default_factory=TrackerConfig)
     _tracks: list[_Track] = field(default_factory=list)
@@ -135,7 +148,8 @@ class ObjectTracker:
 
     def update(self, detections: list[Detection]) -> list[Detection]:
         pairs = sorted(((box_iou(d.box_px, t.box), i, k) for i, d in enumerate(detections)
-                        for k, t in enumerate(self._tracks) if d.label == t.label), reverse=True)
+                        for k, t in enumerate(self._tracks)
+                        if d.label == t.label and t.missed <= self.config.max_missed), reverse=True)
         taken_d: set[int] = set()
         taken_t: set[int] = set()
         ids = [0] * len(detections)
@@ -144,16 +158,28 @@ class ObjectTracker:
                 continue
             taken_d.add(i)
             taken_t.add(k)
-            track = self._tracks[k]
-            track.box, track.missed = detections[i].box_px, 0
-            ids[i] = track.track_id
+            ids[i] = self._tracks[k].track_id
+        # the rest by where they stand: a box that jumped, or a thing lost for a moment
+        near = sorted((math.hypot(d.distance_m - t.ground_m[0], d.lateral_m - t.ground_m[1]), i, k)
+                      for i, d in enumerate(detections) if i not in taken_d
+                      for k, t in enumerate(self._tracks) if k not in taken_t and d.label == t.label)
+        for gap, i, k in near:
+            if gap <= self.config.rejoin_m and i not in taken_d and k not in taken_t:  # NaN: never
+                taken_d.add(i)
+                taken_t.add(k)
+                ids[i] = self._tracks[k].track_id
         for k, track in enumerate(self._tracks):
             if k not in taken_t:
                 track.missed += 1
-        self._tracks = [t for t in self._tracks if t.missed <= self.config.max_missed]
+        for i, d in enumerate(detections):
+            if i in taken_d:
+                track = next(t for t in self._tracks if t.track_id == ids[i])
+                track.box, track.ground_m, track.missed = d.box_px, (d.distance_m, d.lateral_m), 0
+        self._tracks = [t for t in self._tracks
+                        if t.missed <= max(self.config.max_missed, self.config.rejoin_frames)]
         for i, d in enumerate(detections):
             if i not in taken_d:
-                self._tracks.append(_Track(self._next_id, d.label, d.box_px))
+                self._tracks.append(_Track(self._next_id, d.label, d.box_px, (d.distance_m, d.lateral_m)))
                 ids[i] = self._next_id
                 self._next_id += 1
         return [replace(d, track_id=t) for d, t in zip(detections, ids, strict=True)]
