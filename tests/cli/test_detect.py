@@ -51,6 +51,10 @@ def test_images_of_another_camera_s_shape_are_refused_until_its_rig_is_given(tmp
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "160x120" in err and "848x480" in err and "--rig" in err
     assert not out.exists()
+    # a large image is named at its own size (the detectors that halve it first named the half: 621x187)
+    cv2.imwrite(str(image), np.full((375, 1242, 3), 120, np.uint8))
+    assert main(["detect", str(image), "--out", str(out), "--no-people"]) == 1
+    assert "1242x375" in capsys.readouterr().err and not out.exists()
     # the kart's own camera at another resolution of the same shape is scaled, as before
     cv2.imwrite(str(image), np.full((240, 424, 3), 120, np.uint8))
     assert main(["detect", str(image), "--out", str(out), "--no-people"]) == 0 and out.exists()

@@ -35,7 +35,7 @@ from kartpilot.perception.obstacles import (
     upright_things,
 )
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
-from kartpilot.perception.road_marks import RoadMarkConfig, detect_road_marks
+from kartpilot.perception.road_marks import RoadMarkConfig, camera_for_image, detect_road_marks
 from kartpilot.perception.signals import SignalConfig, detect_speed_signs, detect_traffic_lights, place_by_size
 from kartpilot.sensors.base import MIN_IMAGE_PX
 
@@ -90,7 +90,11 @@ def detect_classical(image: Image, camera: PinholeCamera | None, config: Detecto
         raise PerceptionError(f"an image of {image.shape} is too small to look for objects in (at least "
                               f"{MIN_IMAGE_PX} px a side)")
     signals = config.signals
-    if camera is not None:  # the horizon and the camera's height from its mount, not the defaults' kart
+    if camera is not None:
+        # a camera of another shape is refused here, naming the image's own size (the detectors that work at a
+        # reduced size would name theirs)
+        camera_for_image(camera, image.shape[1], image.shape[0])
+        # the horizon and the camera's height from its mount, not the defaults' kart
         signals = replace(signals, camera_height_m=float(camera.pose_body_cam_array[2, 3]),
                           horizon=min(max(horizon_row(camera) / camera.height_px, 0.0), 1.0))
     out = detect_traffic_lights(image, signals, camera) + detect_speed_signs(image, signals, camera)

@@ -160,11 +160,11 @@ class ObjectTracker:
             taken_t.add(k)
             ids[i] = self._tracks[k].track_id
         # the rest by where they stand: a box that jumped, or a thing lost for a moment
-        near = sorted((math.hypot(d.distance_m - t.ground_m[0], d.lateral_m - t.ground_m[1]), i, k)
-                      for i, d in enumerate(detections) if i not in taken_d
-                      for k, t in enumerate(self._tracks) if k not in taken_t and d.label == t.label)
-        for gap, i, k in near:
-            if gap <= self.config.rejoin_m and i not in taken_d and k not in taken_t:  # NaN: never
+        gaps = ((math.hypot(d.distance_m - t.ground_m[0], d.lateral_m - t.ground_m[1]), i, k)
+                for i, d in enumerate(detections) if i not in taken_d
+                for k, t in enumerate(self._tracks) if k not in taken_t and d.label == t.label)
+        for _, i, k in sorted(g for g in gaps if g[0] <= self.config.rejoin_m):  # not where unplaced (NaN)
+            if i not in taken_d and k not in taken_t:
                 taken_d.add(i)
                 taken_t.add(k)
                 ids[i] = self._tracks[k].track_id
