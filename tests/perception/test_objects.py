@@ -279,46 +279,43 @@ def test_the_new_detector_settings_refuse_values_that_make_no_sense():
         BehaviourConfig(line_refine_m=-1.0)
     with pytest.raises(ConfigError, match="crossing_margin_m"):
         BehaviourConfig(crossing_margin_m=-0.5)
-    with pytest.raises(ConfigError, match="zebra_angles_deg"):
-        RoadMarkConfig(zebra_angles_deg=(20.0, 40.0))
+    with pytest.raises(ConfigError, match="sunlit_percentile"):
+        RoadMarkConfig(sunlit_percentile=150.0)
 
 
-def _painted_ground(bars_xy_m: list[np.ndarray]) -> np.ndarray:
-    """A camera image of grey, grainy asphalt with white polygons (ground metres, body frame) painted on it,
-    drawn on a fine bird's-eye canvas and seen through the camera's mount."""
+def _painted_ground(patches: list[tuple[np.ndarray, int]], asphalt: int = 110) -> np.ndarray:
+    """A camera image of grainy asphalt with polygons (ground metres, body frame) of the given grey painted on
+    it in turn, drawn on a fine bird's-eye canvas and seen through the camera's mount."""
     from kartpilot.calibration.ground import BirdseyeView, birdseye_homography
 
     view = BirdseyeView((1.0, 30.0), (-12.0, 12.0), 50.0)
     rng = np.random.default_rng(0)
-    ground = rng.normal(110, 6, (view.size_wh[1], view.size_wh[0])).clip(0, 255).astype(np.uint8)
+    ground = np.full((view.size_wh[1], view.size_wh[0]), asphalt, np.uint8)
     to_pixels = np.linalg.inv(view.ground_from_pixels())
-    for bar in bars_xy_m:
-        px = (np.column_stack([bar, np.ones(len(bar))]) @ to_pixels.T)[:, :2]
-        cv2.fillPoly(ground, [np.round(px).astype(np.int32)], 235)
+    for polygon, grey in patches:
+        px = (np.column_stack([polygon, np.ones(len(polygon))]) @ to_pixels.T)[:, :2]
+        cv2.fillPoly(ground, [np.round(px).astype(np.int32)], grey)
+    ground = (ground + rng.normal(0, 6, ground.shape)).clip(0, 255).astype(np.uint8)
     image = cv2.warpPerspective(ground, birdseye_homography(CAMERA, view), (CAMERA.width_px, CAMERA.height_px))
     image[:170] = 230  # the sky
     return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
 
 
-def test_a_zebra_turned_in_a_bend_is_found_where_it_lies():
-    """Three 3 m bars across a lane that, 9 m ahead in a bend, heads 50 degrees left of the kart: no row of the
-    kart's own view crosses all three over a metre, so the crossing is found only by the search turned to it."""
-    from kartpilot.perception.road_marks import RoadMarkConfig, detect_road_marks
+def _across(near_m: float, far_m: float, half_width_m: float = 12.0) -> np.ndarray:
+    return np.array([[near_m, half_width_m], [far_m, half_width_m], [far_m, -half_width_m], [near_m, -half_width_m]])
 
-    heading = math.radians(50.0)
-    along, across = np.array([math.cos(heading), math.sin(heading)]), np.array([-math.sin(heading), math.cos(heading)])
-    middle = np.array([9.0, 2.5])
-    bars = []
-    for k in (-1, 0, 1):  # 0.5 m bars, 0.5 m apart, 3 m long, along the road
-        c = middle + k * 1.0 * across
-        bars.append(np.array([c + sa * 1.5 * along + sc * 0.25 * across for sa, sc in ((-1, -1), (1, -1), (1, 1),
-                                                                                     (-1, 1))]))
-    image = _painted_ground(bars)
-    near_m = min(float(b[:, 0].min()) for b in bars)
-    found = detect_road_marks(image, CAMERA)
-    print("near edge", round(near_m, 2), "found", [(d.label, round(d.distance_m, 2), round(d.lateral_m, 2))
-                                                   for d in found])
-    assert [d.label for d in found] == ["crosswalk"]
-    assert found[0].distance_m == pytest.approx(near_m, abs=0.5)
-    assert found[0].lateral_m == pytest.approx(middle[1], abs=0.75)
-    assert detect_road_marks(image, CAMERA, RoadMarkConfig(zebra_angles_deg=(0.0,))) == []
+
+def test_sunlit_asphalt_between_two_shadows_is_not_a_stop_line_and_paint_is():
+    """A sunny road under trees (KITTI's city drive): a strip of sun 0.5 m deep between two shadows across the
+    road is brighter than the asphalt before and behind it, as a stop line is, but no brighter than the sunlit
+    road elsewhere; a white line is."""
+    from kartpilot.perception.road_marks import detect_road_marks
+
+    shadows = [(_across(5.0, 7.7), 45), (_across(8.2, 10.0), 45)]
+    strip = detect_road_marks(_painted_ground(shadows, asphalt=150), CAMERA)
+    line = detect_road_marks(_painted_ground([*shadows, (_across(12.0, 12.3, 1.6), 235)], asphalt=150), CAMERA)
+    print("strip", [(d.label, round(d.distance_m, 2)) for d in strip], "line",
+          [(d.label, round(d.distance_m, 2)) for d in line])
+    assert strip == []
+    assert [d.label for d in line] == ["stop_line"]
+    assert line[0].distance_m == pytest.approx(12.0, abs=0.3)

@@ -51,8 +51,8 @@ class RoadMarkConfig:
         stop_depth_m: a stop line's depth along the road (least, most).
         stripe_width_m: a zebra stripe's width across the road (least, most).
         zebra_min_stripes, zebra_min_length_m: the fewest stripes side by side, over at least this length.
-        zebra_angles_deg: a zebra is sought with its bars along the kart's line and turned by each of these
-            (a crossing in a bend lies askew); 0 must be one of them.
+        sunlit_percentile: a stop line is brighter than this percentile of the road's own asphalt in the view
+            (paint is brighter than sunlit asphalt; a sunlit strip between two shadows is not).
         stats_half_window_m: each row's paint threshold comes from the rows this far either side of it (a
             running median of the rows' own statistics; wider than half a zebra's length, so a zebra's rows,
             a third paint, do not raise their own threshold).
@@ -71,15 +71,15 @@ class RoadMarkConfig:
     zebra_min_stripes: int = 3
     zebra_min_length_m: float = 1.0
     stats_half_window_m: float = 4.0
-    zebra_angles_deg: tuple[float, ...] = (0.0, -20.0, 20.0, -40.0, 40.0)
+    sunlit_percentile: float = 90.0
 
     def __post_init__(self) -> None:
         if not 0 < self.near_m < self.far_m or self.pixels_per_m <= 0:
             raise ConfigError("road_marks: need 0 < near_m < far_m and a positive pixels_per_m")
         if not 0 < self.lane_half_width_m <= self.search_half_width_m:
             raise ConfigError("road_marks: need 0 < lane_half_width_m <= search_half_width_m")
-        if 0.0 not in self.zebra_angles_deg or any(not abs(a) < 90.0 for a in self.zebra_angles_deg):
-            raise ConfigError("road_marks: zebra_angles_deg must hold 0 and angles between -90 and 90")
+        if not 0.0 <= self.sunlit_percentile <= 100.0:
+            raise ConfigError("road_marks: sunlit_percentile must be between 0 and 100")
 
 
 MAX_ASPECT_CHANGE = 0.03
@@ -162,6 +162,16 @@ def detect_road_marks(image: Image, camera: PinholeCamera | None, config: RoadMa
     width = bare.sum(axis=1)
     line = (width >= 0.6 * lane_px) & (length >= config.stop_cover * np.minimum(width, lane_px))
     smear = _row_length_m(view, camera)  # the ground one image row spans, per ground row: a far line's blur
+    # sunlit asphalt between two shadows across the road (a tree's, a post's) is brighter than the ground just
+    # before and behind it, as a line is, but no brighter than the sunlit asphalt elsewhere; paint is
+    road = ground[bare & ~paint]
+    sunlit = 0.0
+    if road.size >= 50:
+        # where shadows lie on the road its asphalt is two levels, shaded and sunlit (Otsu's split between them);
+        # overcast, one, split in two halves
+        split, _ = cv2.threshold(road.reshape(1, -1), 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+        upper = road[road > split]  # none where the ground is one grey (a black frame)
+        sunlit = float(np.percentile(upper if upper.size else road, config.sunlit_percentile))
     for r0, r1 in _bands(line):
         depth = (r1 - r0) / config.pixels_per_m
         # far away, one image row spans more ground than the line is deep: the line is seen as deep as a row or
@@ -180,47 +190,19 @@ def detect_road_marks(image: Image, camera: PinholeCamera | None, config: RoadMa
         asphalt = [float(np.mean((bare & ~paint)[a:b][:, cols])) if b > a else 0.0 for a, b in sides]
         if common >= 0.75 * float(np.median(length[r0:r1])) and min(asphalt) >= 0.5:
             c = np.flatnonzero(cols)
+            level = float(np.median(ground[r0:r1, c[0]:c[-1] + 1]))
+            # and brighter than the ground before and behind it, by as much as paint is: a band of a bright
+            # patch beside the road (white gravel, a sunlit pavement, overexposed) has its like all round
+            around = max(float(np.median(ground[a:b, c[0]:c[-1] + 1])) for a, b in sides if b > a)
+            if level <= sunlit or level - around < config.min_contrast:
+                continue
             corners = np.array([[c[0], r0], [c[-1] + 1, r0], [c[-1] + 1, r1], [c[0], r1]], np.float64)
             out.append(_detection("stop_line", view, camera, corners, float(np.mean(length[r0:r1]) / lane_px), w, h))
-    out += [_detection("crosswalk", view, camera, corners, 0.5 + 0.5 * share, w, h)
-            for corners, share in _zebras(paint, config)]
+    for r0, near, cols, share in _zebra_bands(paint, config):
+        c = np.flatnonzero(cols)
+        corners = np.array([[c[0], r0], [c[-1] + 1, r0], [c[-1] + 1, near], [c[0], near]], np.float64)
+        out.append(_detection("crosswalk", view, camera, corners, 0.5 + 0.5 * share, w, h))
     return out
-
-
-def _zebras(paint: np.ndarray, config: RoadMarkConfig) -> list[tuple[np.ndarray, float]]:
-    """Zebra crossings in the paint, each as its ground rectangle's corners (the view's pixels) and the share of
-    its pattern seen.
-
-    A crossing lies square to its road, and the road ahead may turn: 15 m into a bend of 20 m radius the
-    crossing is turned 40 degrees from the kart's line, where few rows of the view cross all of its bars. So the
-    pattern is sought in the paint turned by each of ``zebra_angles_deg`` as well, and of a crossing found at
-    several turns the one that saw the most of it is kept. (Which way a far crossing's bars run cannot be told from
-    the kart's low camera: 15 m ahead the crossing is five image rows deep, and its bars are found at every turn.
-    So a crossing is not told from a pattern on a road beside the course by its bars' heading.)"""
-    bh, bw = paint.shape
-    found: list[tuple[np.ndarray, float, float]] = []  # corners, share, turn
-    for angle in config.zebra_angles_deg:
-        if angle == 0:
-            turned, back = paint, np.eye(3)
-        else:
-            # turned about the view's middle, onto a canvas that holds all of it
-            side = int(np.ceil(np.hypot(bw, bh))) + 2
-            turn = cv2.getRotationMatrix2D((bw / 2, bh / 2), angle, 1.0)
-            turn[:, 2] += (side / 2 - bw / 2, side / 2 - bh / 2)
-            turned = cv2.warpAffine(paint.astype(np.uint8), turn, (side, side), flags=cv2.INTER_NEAREST) > 0
-            back = np.linalg.inv(np.vstack([turn, [0.0, 0.0, 1.0]]))
-        for r0, near, cols, share in _zebra_bands(turned, config):
-            c = np.flatnonzero(cols)
-            corners = np.array([[c[0], r0, 1], [c[-1] + 1, r0, 1], [c[-1] + 1, near, 1], [c[0], near, 1]], float)
-            found.append(((corners @ back.T)[:, :2], share, abs(angle)))
-    kept: list[tuple[np.ndarray, float, float]] = []
-    # the most seen first, the least turned of equals: a crossing found again at another turn (overlapping one
-    # kept) is dropped
-    for corners, share, angle in sorted(found, key=lambda f: (-f[1], f[2])):
-        if all(cv2.intersectConvexConvex(corners.astype(np.float32), k[0].astype(np.float32))[0] <= 0.0
-               for k in kept):
-            kept.append((corners, share, angle))
-    return [(corners, share) for corners, share, _ in kept]
 
 
 def _zebra_bands(paint: np.ndarray, config: RoadMarkConfig) -> list[tuple[int, int, np.ndarray, float]]:
@@ -231,7 +213,7 @@ def _zebra_bands(paint: np.ndarray, config: RoadMarkConfig) -> list[tuple[int, i
     stripes, outer = _regular_stripes(paint, stripe_px)
     # worn paint, a seam in the asphalt or a shadow breaks a few rows of a crossing's pattern
     bridge = max(1, round(0.25 * config.pixels_per_m))
-    zebras: list[tuple[int, int, np.ndarray, float]] = []
+    zebras: list[tuple[int, int, np.ndarray, float]] = []  # far row, past the near row, columns, share
     for r0, r1 in _bands(_bridged(stripes >= config.zebra_min_stripes, bridge)):
         if (r1 - r0) / config.pixels_per_m >= config.zebra_min_length_m:
             share = min(1.0, float(np.mean(stripes[r0:r1])) / (2 * config.zebra_min_stripes))
