@@ -251,6 +251,15 @@ def test_the_classical_detectors_report_nothing_on_empty_asphalt():
     assert not any(math.isnan(d.confidence) for d in found)
 
 
+@pytest.mark.parametrize("grey", [0, 255])
+def test_a_black_or_a_blown_out_frame_gives_nothing_and_no_error(grey):
+    """A camera that sends black, or white in the sun, is one grey: the road's statistics have no spread and no
+    upper level (a uniform ground once made the sunlit-asphalt level an empty percentile)."""
+    detector = ObjectDetector(DetectorConfig(), CAMERA)
+    for _ in range(3):
+        assert detector(np.full((480, 848, 3), grey, np.uint8)) == []
+
+
 def test_a_people_detector_box_counts_only_over_an_upright_thing_reaching_its_head():
     from kartpilot.perception.detect import _stands_under
     from kartpilot.perception.obstacles import Upright
