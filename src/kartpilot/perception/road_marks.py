@@ -8,7 +8,9 @@ whatever their distance. Paint is what is brighter than the asphalt around it by
 ``noise_sigmas`` robust standard deviations of the ground within a few metres of each row), on the road: not on
 grass, and not on what stands on the ground. A lane boundary, which runs along the road, covers little of any row
 across the lane; a stop line's rows are one run of paint over most of a lane's width (``stop_cover``), the same
-columns in each, over a depth of ``stop_depth_m``, with bare asphalt before and behind it; a zebra's rows hold at
+columns in each, over a depth of ``stop_depth_m``, with bare asphalt before and behind it, brighter than that
+asphalt by as much as paint is and brighter than the road's sunlit asphalt anywhere in the view (a strip of sun
+between two shadows across the road is brighter than what lies before and behind it too); a zebra's rows hold at
 least ``zebra_min_stripes`` bars side by side in a regular pattern over ``zebra_min_length_m`` along the road.
 Both are sought across ``search_half_width_m`` either side of the kart's line, not only straight ahead: 14 m into a
 bend the lane lies metres to the side. Each is reported with the lateral offset of its middle.
