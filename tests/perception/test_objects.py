@@ -328,3 +328,7 @@ def test_sunlit_asphalt_between_two_shadows_is_not_a_stop_line_and_paint_is():
     assert strip == []
     assert [d.label for d in line] == ["stop_line"]
     assert line[0].distance_m == pytest.approx(12.0, abs=0.3)
+    # white paint in a tree's shade is still brighter than the sunlit road (worn paint there may not be)
+    shaded = detect_road_marks(_painted_ground([(_across(6.0, 10.0), 45), (_across(8.0, 8.3, 1.6), 200)],
+                                               asphalt=150), CAMERA)
+    assert [d.label for d in shaded] == ["stop_line"] and shaded[0].distance_m == pytest.approx(8.0, abs=0.3)
