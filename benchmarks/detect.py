@@ -191,6 +191,8 @@ def pasted(data: Path, every: int = 10) -> dict[str, Any]:
     to_view = np.linalg.inv(view.ground_from_pixels())
     venue = data / "rdw-kart" / "lelystad-2024"
     paths = sorted((venue / "frames").glob("*.jpg"))[::every] + sorted((venue / "scenes").glob("*.jpg"))
+    if not paths:
+        return {}
     shapes = {"stop_line": lambda x: [np.array([[x, 1.4], [x + 0.3, 1.4], [x + 0.3, -1.4], [x, -1.4]])],
               "crosswalk": lambda x: [np.array([[x, c + 0.25], [x + 3.0, c + 0.25], [x + 3.0, c - 0.25],
                                                 [x, c - 0.25]]) for c in (-1.0, 0.0, 1.0)]}
