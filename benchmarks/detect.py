@@ -183,12 +183,9 @@ def pasted(data: Path, every: int = 10) -> dict[str, Any]:
     0.5 m bars 3 m long, 0.5 m apart, straight ahead of the kart at each of :data:`PASTED_AHEAD_M` (in a bend the
     real lane line runs through it, which a real mark's paint does not). Found: a detection of the class with its
     near edge within 10 % of the mark's; other: any other stop line or zebra (scene 8 holds a real zebra)."""
-    from kartpilot.calibration.ground import BirdseyeView, birdseye_homography
+    from kartpilot.calibration.ground import ground_coverage
 
     camera = get_vehicle("sdc-kart").camera("center")
-    view = BirdseyeView((1.0, 25.0), (-6.0, 6.0), 50.0)
-    to_image = birdseye_homography(camera, view)
-    to_view = np.linalg.inv(view.ground_from_pixels())
     venue = data / "rdw-kart" / "lelystad-2024"
     paths = sorted((venue / "frames").glob("*.jpg"))[::every] + sorted((venue / "scenes").glob("*.jpg"))
     if not paths:
@@ -200,12 +197,7 @@ def pasted(data: Path, every: int = 10) -> dict[str, Any]:
     for path in paths:
         image = cv2.imread(str(path)).astype(np.float32)
         for (label, shape), ahead in itertools.product(shapes.items(), PASTED_AHEAD_M):
-            mask = np.zeros((view.size_wh[1], view.size_wh[0]), np.float32)
-            for polygon in shape(ahead):
-                px = (np.column_stack([polygon, np.ones(len(polygon))]) @ to_view.T)[:, :2]
-                cv2.fillPoly(mask, [np.round(px).astype(np.int32)], 1.0)
-            alpha = 0.9 * cv2.GaussianBlur(cv2.warpPerspective(mask, to_image, (image.shape[1], image.shape[0])),
-                                           (0, 0), 0.8)[..., None]
+            alpha = 0.9 * cv2.GaussianBlur(ground_coverage(camera, shape(ahead)), (0, 0), 0.8)[..., None]
             frame = (image * (1.0 - alpha) + 225.0 * alpha).astype(np.uint8)
             marks = [d for d in detect_classical(frame, camera, DetectorConfig(people=False))
                      if d.label in shapes]

@@ -12,6 +12,7 @@ from kartpilot.calibration.board import BoardConfig, find_board
 from kartpilot.calibration.ground import (
     BirdseyeView,
     calibrate_ground,
+    ground_coverage,
     ground_points,
     mount_angles,
     stitch_birdseye,
@@ -115,3 +116,17 @@ def test_the_real_kart_s_three_cameras_measure_the_board_s_squares_in_the_birdse
         gap = np.linalg.norm(a - b, axis=1)
         print(f"{name} and center: the same corners {np.median(gap) * 100:.1f} cm apart on the ground (median)")
         assert np.median(gap) < 0.03
+
+
+def test_ground_coverage_paints_a_polygon_where_the_mount_sees_it():
+    """A 1 m square 6 to 7 m ahead and 0.5 m either side: the pixels it covers are those whose ground point lies in
+    it (within the view's 2 cm grain), and nothing else is covered."""
+    from kartpilot.core.vehicle import get_vehicle
+
+    camera = get_vehicle("sdc-kart").camera("center")
+    cover = ground_coverage(camera, [np.array([[6.0, 0.5], [7.0, 0.5], [7.0, -0.5], [6.0, -0.5]])])
+    assert cover.shape == (camera.height_px, camera.width_px) and cover.max() == pytest.approx(1.0)
+    rows, cols = np.nonzero(cover > 0.5)
+    ground = ground_points(camera, np.column_stack([cols, rows]).astype(np.float64))
+    assert ground[:, 0].min() > 5.95 and ground[:, 0].max() < 7.05 and np.abs(ground[:, 1]).max() < 0.55
+    assert cover[: camera.height_px // 3].max() == 0.0  # the sky and the far ground hold none of it

@@ -294,20 +294,16 @@ def test_the_new_detector_settings_refuse_values_that_make_no_sense():
 
 def _painted_ground(patches: list[tuple[np.ndarray, int]], asphalt: int = 110) -> np.ndarray:
     """A camera image of grainy asphalt with polygons (ground metres, body frame) of the given grey painted on
-    it in turn, drawn on a fine bird's-eye canvas and seen through the camera's mount."""
-    from kartpilot.calibration.ground import BirdseyeView, birdseye_homography
+    it in turn, seen through the camera's mount, under an overcast sky."""
+    from kartpilot.calibration.ground import ground_coverage
 
-    view = BirdseyeView((1.0, 30.0), (-12.0, 12.0), 50.0)
-    rng = np.random.default_rng(0)
-    ground = np.full((view.size_wh[1], view.size_wh[0]), asphalt, np.uint8)
-    to_pixels = np.linalg.inv(view.ground_from_pixels())
+    image = np.full((CAMERA.height_px, CAMERA.width_px), float(asphalt), np.float32)
     for polygon, grey in patches:
-        px = (np.column_stack([polygon, np.ones(len(polygon))]) @ to_pixels.T)[:, :2]
-        cv2.fillPoly(ground, [np.round(px).astype(np.int32)], grey)
-    ground = (ground + rng.normal(0, 6, ground.shape)).clip(0, 255).astype(np.uint8)
-    image = cv2.warpPerspective(ground, birdseye_homography(CAMERA, view), (CAMERA.width_px, CAMERA.height_px))
+        cover = ground_coverage(CAMERA, [polygon])
+        image = image * (1.0 - cover) + grey * cover
+    image += np.random.default_rng(0).normal(0, 6, image.shape)
     image[:170] = 230  # the sky
-    return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    return cv2.cvtColor(image.clip(0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
 
 
 def _across(near_m: float, far_m: float, half_width_m: float = 12.0) -> np.ndarray:

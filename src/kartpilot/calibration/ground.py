@@ -21,7 +21,7 @@ through its pose; with all three cameras it is the stitched view of the ground a
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -34,7 +34,7 @@ from kartpilot.core.geometry import Array, invert_pose
 from kartpilot.core.types import Image
 
 __all__ = ["BirdseyeView", "GroundMount", "birdseye_homography", "board_pose", "calibrate_ground",
-           "ground_points", "mount_angles", "single_view_intrinsics", "stitch_birdseye"]
+           "ground_coverage", "ground_points", "mount_angles", "single_view_intrinsics", "stitch_birdseye"]
 
 # the board's own frame (OpenCV: z into the board, so down for a board lying face up) to a ground frame with z up
 _BOARD_TO_GROUND = np.diag([1.0, -1.0, -1.0])
@@ -207,6 +207,19 @@ def birdseye_homography(camera: PinholeCamera, view: BirdseyeView) -> Array:
     cam_body = invert_pose(camera.pose_body_cam_array)
     ground_to_image = camera.matrix @ np.column_stack([cam_body[:3, 0], cam_body[:3, 1], cam_body[:3, 3]])
     return ground_to_image @ view.ground_from_pixels()
+
+
+def ground_coverage(camera: PinholeCamera, polygons_m: Sequence[Array],
+                    view: BirdseyeView = BirdseyeView((1.0, 30.0), (-12.0, 12.0), 50.0)) -> np.ndarray:
+    """How much of each pixel of the camera's image the polygons lying on the ground (N x 2, metres in the body
+    frame) cover, 0 to 1 (float32, the camera's image size): drawn on a fine bird's-eye ``view`` and seen through
+    the camera's mount. Paint whose place is known exactly, to lay onto a real frame or a synthetic one."""
+    canvas = np.zeros((view.size_wh[1], view.size_wh[0]), np.float32)
+    to_view = np.linalg.inv(view.ground_from_pixels())
+    for polygon in polygons_m:
+        px = (np.column_stack([polygon, np.ones(len(polygon))]) @ to_view.T)[:, :2]
+        cv2.fillPoly(canvas, [np.round(px).astype(np.int32)], 1.0)
+    return cv2.warpPerspective(canvas, birdseye_homography(camera, view), (camera.width_px, camera.height_px))
 
 
 def stitch_birdseye(images: Mapping[str, Image], cameras: Mapping[str, PinholeCamera], view: BirdseyeView,
