@@ -150,35 +150,27 @@ class ObjectTracker:
         pairs = sorted(((box_iou(d.box_px, t.box), i, k) for i, d in enumerate(detections)
                         for k, t in enumerate(self._tracks)
                         if d.label == t.label and t.missed <= self.config.max_missed), reverse=True)
-        taken_d: set[int] = set()
-        taken_t: set[int] = set()
-        ids = [0] * len(detections)
+        match: dict[int, int] = {}  # a detection's index: the index of the track it continues
         for iou, i, k in pairs:
-            if iou < self.config.min_iou or i in taken_d or k in taken_t:
-                continue
-            taken_d.add(i)
-            taken_t.add(k)
-            ids[i] = self._tracks[k].track_id
+            if iou >= self.config.min_iou and i not in match and k not in match.values():
+                match[i] = k
         # the rest by where they stand: a box that jumped, or a thing lost for a moment
         gaps = ((math.hypot(d.distance_m - t.ground_m[0], d.lateral_m - t.ground_m[1]), i, k)
-                for i, d in enumerate(detections) if i not in taken_d
-                for k, t in enumerate(self._tracks) if k not in taken_t and d.label == t.label)
+                for i, d in enumerate(detections) if i not in match
+                for k, t in enumerate(self._tracks) if k not in match.values() and d.label == t.label)
         for _, i, k in sorted(g for g in gaps if g[0] <= self.config.rejoin_m):  # not where unplaced (NaN)
-            if i not in taken_d and k not in taken_t:
-                taken_d.add(i)
-                taken_t.add(k)
-                ids[i] = self._tracks[k].track_id
-        for k, track in enumerate(self._tracks):
-            if k not in taken_t:
-                track.missed += 1
-        for i, d in enumerate(detections):
-            if i in taken_d:
-                track = next(t for t in self._tracks if t.track_id == ids[i])
-                track.box, track.ground_m, track.missed = d.box_px, (d.distance_m, d.lateral_m), 0
+            if i not in match and k not in match.values():
+                match[i] = k
+        for track in self._tracks:
+            track.missed += 1  # and back to 0 where continued
+        for i, k in match.items():
+            track, d = self._tracks[k], detections[i]
+            track.box, track.ground_m, track.missed = d.box_px, (d.distance_m, d.lateral_m), 0
+        ids = [self._tracks[match[i]].track_id if i in match else 0 for i in range(len(detections))]
         self._tracks = [t for t in self._tracks
                         if t.missed <= max(self.config.max_missed, self.config.rejoin_frames)]
         for i, d in enumerate(detections):
-            if i not in taken_d:
+            if i not in match:
                 self._tracks.append(_Track(self._next_id, d.label, d.box_px, (d.distance_m, d.lateral_m)))
                 ids[i] = self._next_id
                 self._next_id += 1
