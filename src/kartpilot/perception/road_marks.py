@@ -164,16 +164,7 @@ def detect_road_marks(image: Image, camera: PinholeCamera | None, config: RoadMa
     width = bare.sum(axis=1)
     line = (width >= 0.6 * lane_px) & (length >= config.stop_cover * np.minimum(width, lane_px))
     smear = _row_length_m(view, camera)  # the ground one image row spans, per ground row: a far line's blur
-    # sunlit asphalt between two shadows across the road (a tree's, a post's) is brighter than the ground just
-    # before and behind it, as a line is, but no brighter than the sunlit asphalt elsewhere; paint is
-    road = ground[bare & ~paint]
-    sunlit = 0.0
-    if road.size >= 50:
-        # where shadows lie on the road its asphalt is two levels, shaded and sunlit (Otsu's split between them);
-        # overcast, one, split in two halves
-        split, _ = cv2.threshold(road.reshape(1, -1), 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
-        upper = road[road > split]  # none where the ground is one grey (a black frame)
-        sunlit = float(np.percentile(upper if upper.size else road, config.sunlit_percentile))
+    sunlit: float | None = None  # the road's sunlit level, found once a candidate needs it (most frames: none)
     for r0, r1 in _bands(line):
         depth = (r1 - r0) / config.pixels_per_m
         # far away, one image row spans more ground than the line is deep: the line is seen as deep as a row or
@@ -196,7 +187,11 @@ def detect_road_marks(image: Image, camera: PinholeCamera | None, config: RoadMa
             # and brighter than the ground before and behind it, by as much as paint is: a band of a bright
             # patch beside the road (white gravel, a sunlit pavement, overexposed) has its like all round
             around = max(float(np.median(ground[a:b, c[0]:c[-1] + 1])) for a, b in sides if b > a)
-            if level <= sunlit or level - around < config.min_contrast:
+            if level - around < config.min_contrast:
+                continue
+            if sunlit is None:
+                sunlit = _sunlit_level(ground[bare & ~paint], config.sunlit_percentile)
+            if level <= sunlit:
                 continue
             corners = np.array([[c[0], r0], [c[-1] + 1, r0], [c[-1] + 1, r1], [c[0], r1]], np.float64)
             out.append(_detection("stop_line", view, camera, corners, float(np.mean(length[r0:r1]) / lane_px), w, h))
@@ -205,6 +200,18 @@ def detect_road_marks(image: Image, camera: PinholeCamera | None, config: RoadMa
         corners = np.array([[c[0], r0], [c[-1] + 1, r0], [c[-1] + 1, near], [c[0], near]], np.float64)
         out.append(_detection("crosswalk", view, camera, corners, 0.5 + 0.5 * share, w, h))
     return out
+
+
+def _sunlit_level(road: np.ndarray, percentile: float) -> float:
+    """The brightness of the road's sunlit asphalt (its pixels, not paint): sunlit asphalt between two shadows
+    across the road (a tree's, a post's) is brighter than the ground just before and behind it, as a line is, but
+    no brighter than this; paint is. Where shadows lie on the road its asphalt is two levels, shaded and sunlit
+    (Otsu's split between them); overcast, one, split in two halves."""
+    if road.size < 50:
+        return 0.0
+    split, _ = cv2.threshold(road.reshape(1, -1), 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+    upper = road[road > split]  # none where the ground is one grey (a black frame)
+    return float(np.percentile(upper if upper.size else road, percentile))
 
 
 def _zebra_bands(paint: np.ndarray, config: RoadMarkConfig) -> list[tuple[int, int, np.ndarray, float]]:
