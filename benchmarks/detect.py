@@ -152,24 +152,21 @@ def city_drive(data: Path) -> dict[str, Any]:
     up and level, grayscale: no colour to tell grass by), which holds neither: each is a false alarm. Its sunlit
     strips between tree shadows and a white gravel bed beside the road were taken for stop lines before the checks
     against them, which were made looking at these frames."""
-    from kartpilot.core.camera import PinholeCamera
-    from kartpilot.core.vehicle import camera_pose_on_body
-    from kartpilot.sensors.kitti import read_kitti_calib
+    from kartpilot.core.geometry import mount_pose
+    from kartpilot.sensors.kitti import KittiOdometrySource
 
-    sequence = data / "kitti-raw-city" / "sequences" / "91"
-    paths = sorted((sequence / "image_0").glob("*.png"))
-    if not paths:
+    root = data / "kitti-raw-city"
+    if not (root / "sequences" / "91").is_dir():
         return {}
-    p0 = read_kitti_calib(sequence / "calib.txt")["P0"]
-    first = cv2.imread(str(paths[0]), cv2.IMREAD_GRAYSCALE)
-    camera = PinholeCamera(float(p0[0, 0]), float(p0[1, 1]), float(p0[0, 2]), float(p0[1, 2]), first.shape[1],
-                           first.shape[0], (), camera_pose_on_body(0.0, 0.0, 1.65))
+    source = KittiOdometrySource(root, "91")
+    camera = source.rig.camera.on_body(mount_pose(z_m=1.65))
     counts = {"stop_line": 0, "crosswalk": 0}
-    for path in paths:
-        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        for d in detect_road_marks(cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR), camera):
+    frames = 0
+    for frame in source:
+        frames += 1
+        for d in detect_road_marks(cv2.cvtColor(frame.left, cv2.COLOR_GRAY2BGR), camera):
             counts[d.label] += 1
-    return {"frames": len(paths), "false_alarms": counts}
+    return {"frames": frames, "false_alarms": counts}
 
 
 PASTED_AHEAD_M = (5.0, 8.0, 11.0, 14.0)
