@@ -292,14 +292,16 @@ def test_the_new_detector_settings_refuse_values_that_make_no_sense():
         RoadMarkConfig(sunlit_percentile=150.0)
 
 
-def _painted_ground(patches: list[tuple[np.ndarray, int]], asphalt: int = 110) -> np.ndarray:
+def _painted_ground(patches: list[tuple[np.ndarray, int]], asphalt: int = 110, camera=CAMERA) -> np.ndarray:
     """A camera image of grainy asphalt with polygons (ground metres, body frame) of the given grey painted on
     it in turn, seen through the camera's mount, under an overcast sky."""
-    from kartpilot.calibration.ground import ground_coverage
+    from kartpilot.calibration.ground import BirdseyeView, ground_coverage
 
-    image = np.full((CAMERA.height_px, CAMERA.width_px), float(asphalt), np.float32)
+    foot = float(camera.pose_body_cam_array[0, 3])
+    view = BirdseyeView((foot - 0.2, foot + 28.8), (-12.0, 12.0), 50.0)
+    image = np.full((camera.height_px, camera.width_px), float(asphalt), np.float32)
     for polygon, grey in patches:
-        cover = ground_coverage(CAMERA, [polygon])
+        cover = ground_coverage(camera, [polygon], view)
         image = image * (1.0 - cover) + grey * cover
     image += np.random.default_rng(0).normal(0, 6, image.shape)
     image[:170] = 230  # the sky
@@ -328,3 +330,38 @@ def test_sunlit_asphalt_between_two_shadows_is_not_a_stop_line_and_paint_is():
     shaded = detect_road_marks(_painted_ground([(_across(6.0, 10.0), 45), (_across(8.0, 8.3, 1.6), 200)],
                                                asphalt=150), CAMERA)
     assert [d.label for d in shaded] == ["stop_line"] and shaded[0].distance_m == pytest.approx(8.0, abs=0.3)
+
+
+def test_a_stop_line_is_sought_from_the_ground_under_the_camera_whatever_the_rig_s_body_origin():
+    """The same camera on rigs whose body frame starts at the rear axle 1.2 m behind it (the SDC kart), under it
+    (the Hanze kart's calibration) or 1.2 m ahead of it: a stop line 1.5 m ahead of the camera is found on each
+    (measured from the body origin, the search began 2.4 m ahead of the camera on the last)."""
+    from kartpilot.perception.road_marks import detect_road_marks
+
+    for behind in (float(CAMERA.pose_body_cam_array[0, 3]), 0.0, -1.2):
+        pose = CAMERA.pose_body_cam_array.copy()
+        pose[0, 3] = behind
+        camera = CAMERA.on_body(pose)
+        found = detect_road_marks(_painted_ground([(_across(behind + 1.5, behind + 1.8, 1.6), 235)], camera=camera),
+                                  camera)
+        print(f"camera {behind:.1f} m ahead of the body origin:", [(d.label, round(d.distance_m, 2)) for d in found])
+        assert [d.label for d in found] == ["stop_line"]
+        assert found[0].distance_m == pytest.approx(behind + 1.5, abs=0.15)
+
+
+def test_rows_at_the_near_edge_of_the_ground_view_take_their_paint_threshold_from_the_asphalt_around_them():
+    """A textured thing lying across the near edge of the ground view (a calibration board, a mat) fills those
+    rows; each row's paint threshold comes from the rows around it, and the rows at the edge weigh no more than
+    any other: repeated to fill the window, they set the threshold of every near row to the thing's texture,
+    and paint beside the thing in those rows (a stop line under the board) was lost."""
+    from kartpilot.perception.road_marks import RoadMarkConfig, _row_thresholds
+
+    rng = np.random.default_rng(1)
+    tophat = rng.normal(10.0, 3.0, (200, 60)).clip(0, 255)
+    tophat[180:, ::2] = 200.0  # the thing's bright squares, the last 20 rows (1 m at 20 px/m)
+    tophat[180:, 1::2] = 0.0
+    valid = np.ones(tophat.shape, bool)
+    valid[:, 50:] = False
+    thresholds = _row_thresholds(tophat.astype(np.uint8), valid, RoadMarkConfig())
+    print("asphalt rows", thresholds[100].round(1), "the thing's rows", thresholds[180:].round(1))
+    assert np.all(thresholds[180:] <= thresholds[100] + 1.0)

@@ -42,7 +42,9 @@ __all__ = ["RoadMarkConfig", "camera_for_image", "detect_road_marks", "grass"]
 @dataclass(frozen=True)
 class RoadMarkConfig:
     """Attributes:
-        near_m, far_m: the stretch of ground ahead that is searched.
+        near_m, far_m: the stretch of ground ahead that is searched, from the ground under the camera (not the
+            body frame's origin, which one rig puts at the rear axle and another under the camera: the SDC
+            kart's centre camera is 1.2 m ahead of its rear axle, so the defaults search 1.2 to 19 m there).
         search_half_width_m: the marks are sought this far either side of the kart's line (14 m into a bend of
             25 m radius the lane lies 4 m to the side, and a crossing reaches 2.5 m either side of it).
         lane_half_width_m: half the lane's width: a stop line covers most of a stretch this wide (wherever it
@@ -60,8 +62,8 @@ class RoadMarkConfig:
             a third paint, do not raise their own threshold).
     """
 
-    near_m: float = 1.2
-    far_m: float = 19.0
+    near_m: float = 0.0
+    far_m: float = 17.8
     search_half_width_m: float = 8.0
     lane_half_width_m: float = 1.4
     pixels_per_m: float = 20.0
@@ -76,8 +78,8 @@ class RoadMarkConfig:
     sunlit_percentile: float = 90.0
 
     def __post_init__(self) -> None:
-        if not 0 < self.near_m < self.far_m or self.pixels_per_m <= 0:
-            raise ConfigError("road_marks: need 0 < near_m < far_m and a positive pixels_per_m")
+        if not 0 <= self.near_m < self.far_m or self.pixels_per_m <= 0:
+            raise ConfigError("road_marks: need 0 <= near_m < far_m and a positive pixels_per_m")
         if not 0 < self.lane_half_width_m <= self.search_half_width_m:
             raise ConfigError("road_marks: need 0 < lane_half_width_m <= search_half_width_m")
         if not 0.0 <= self.sunlit_percentile <= 100.0:
@@ -125,7 +127,8 @@ def detect_road_marks(image: Image, camera: PinholeCamera | None, config: RoadMa
     h, w = image.shape[:2]
     camera = camera_for_image(camera, w, h)
     half = config.search_half_width_m
-    view = BirdseyeView((config.near_m, config.far_m), (-half, half), config.pixels_per_m)
+    foot = float(camera.pose_body_cam_array[0, 3])
+    view = BirdseyeView((foot + config.near_m, foot + config.far_m), (-half, half), config.pixels_per_m)
     bw, bh = view.size_wh
     homography = birdseye_homography(camera, view)
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
@@ -318,22 +321,23 @@ def _row_thresholds(tophat: np.ndarray, valid: np.ndarray, config: RoadMarkConfi
     """Each row's paint threshold from the ground within ``stats_half_window_m`` of it (a running median of the
     rows' own median and spread): near ground is seen sharp (its grain stands out), far ground blurred, so one
     threshold for all rows takes the near grain for paint. A stop line or a zebra fills fewer than half the rows
-    of the window, so it does not raise its own threshold."""
+    of the window, so it does not raise its own threshold. The window runs over the rows the camera sees, mirrored
+    at their ends: a row at the view's edge weighs as much as any other (repeated to fill the window, as it was,
+    a thing lying at the near edge, a board or a shadow, set the threshold of every near row)."""
     values = np.where(valid, tophat.astype(np.float32), np.nan)
     seen = valid.sum(axis=1) >= 10
+    out = np.full(tophat.shape[0], np.inf)
+    if not seen.any():
+        return out
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        median = np.nanmedian(values, axis=1)
-        mad = np.nanmedian(np.abs(values - median[:, None]), axis=1)
+        median = np.nanmedian(values[seen], axis=1)
+        mad = np.nanmedian(np.abs(values[seen] - median[:, None]), axis=1)
     size = 2 * max(1, round(config.stats_half_window_m * config.pixels_per_m)) + 1
-    if seen.any():
-        rows = np.flatnonzero(seen)
-        median[~seen] = np.interp(np.flatnonzero(~seen), rows, median[rows])
-        mad[~seen] = np.interp(np.flatnonzero(~seen), rows, mad[rows])
-        median = median_filter(median, size=size, mode="nearest")
-        mad = median_filter(mad, size=size, mode="nearest")
-    out = np.maximum(median + config.noise_sigmas * 1.4826 * np.maximum(mad, 1.0), config.min_contrast)
-    return np.where(seen, out, np.inf)
+    median = median_filter(median, size=size, mode="mirror")
+    mad = median_filter(mad, size=size, mode="mirror")
+    out[seen] = np.maximum(median + config.noise_sigmas * 1.4826 * np.maximum(mad, 1.0), config.min_contrast)
+    return out
 
 
 def _in_front(view: BirdseyeView, camera: PinholeCamera) -> np.ndarray:
