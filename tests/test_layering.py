@@ -39,6 +39,51 @@ def test_no_import_runs_back_up():
     assert not upward, "\n".join(upward)
 
 
+def _module_graph() -> dict[str, set[str]]:
+    """Each kartpilot module and the kartpilot modules it imports, at its top or inside a function."""
+    root = Path(kartpilot.__file__).parent
+    modules = {}
+    for path in root.rglob("*.py"):
+        parts = path.relative_to(root.parent).with_suffix("").parts
+        modules[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    graph = {}
+    for name, path in modules.items():
+        found = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("kartpilot."):
+                found |= {node.module} | {f"{node.module}.{a.name}" for a in node.names}
+            elif isinstance(node, ast.Import):
+                found |= {a.name for a in node.names}
+        graph[name] = (found & set(modules)) - {name, "kartpilot"}
+    return graph
+
+
+def test_no_two_modules_import_each_other():
+    """No circle of imports between modules, within a package too (``study/spec`` and ``study/jobs`` were one,
+    the import hidden inside a function): a module's place in the stack is where its imports put it."""
+    graph = _module_graph()
+    assert "kartpilot.study.spec" in graph["kartpilot.study.jobs"]
+    circles = []
+    for start in sorted(graph):
+        seen, todo = set(), list(graph[start])
+        while todo:
+            module = todo.pop()
+            if module == start:
+                circles.append(start)
+                break
+            if module not in seen:
+                seen.add(module)
+                todo.extend(graph[module])
+    assert not circles, f"modules on a circle of imports: {circles}"
+
+
+def test_the_study_spec_names_the_jobs_the_registry_runs():
+    from kartpilot.study.jobs import JOBS
+    from kartpilot.study.spec import JOB_NAMES
+
+    assert tuple(JOBS) == JOB_NAMES
+
+
 def test_the_runtime_layer_stays_small_functions():
     """runtime/ is where the stack is put together, and where it got hard to carry on: no function there over 60
     lines or 8 parameters (issue 18's bound)."""

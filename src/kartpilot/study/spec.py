@@ -9,7 +9,7 @@ A study spec is a YAML file (the built-in ones are in ``study/specs/``)::
       RQ3: Which noise and outlier filters matter for stereo VO?
     parts:
       - name: open loop
-        job: stereo_vo             # a job in ``study.jobs.JOBS``
+        job: stereo_vo             # one of ``JOB_NAMES`` (each run by ``study.jobs.JOBS``)
         sources: [straight20, utrack, kitti-06]
         seeds: [1, 2, 3, 4, 5]     # simulated sources only; a real dataset is one cell per variant
         params: {speed_mps: 1.0}   # the job's own settings (``JobParams``)
@@ -44,12 +44,16 @@ from kartpilot.core.config import config_to_dict, load_yaml_mapping, merge_confi
 from kartpilot.core.errors import ConfigError
 from kartpilot.runtime.config import StackConfig
 
-__all__ = ["BUILT_IN", "Cell", "JobParams", "Part", "StudySpec", "Variant", "code_version", "dotted_overrides",
-           "expand_cells", "load_spec", "nested_override", "part_cells"]
+__all__ = ["BUILT_IN", "JOB_NAMES", "Cell", "JobParams", "Part", "StudySpec", "Variant", "code_version",
+           "dotted_overrides", "expand_cells", "load_spec", "nested_override", "part_cells"]
 
 BUILT_IN = ("features", "filters", "detectors", "robustness", "lanes", "controllers")
 
 REAL_SOURCES = ("kitti-06", "kitti-raw-city")
+
+JOB_NAMES = ("stereo_vo", "two_view", "lanes", "path_follow", "teach_repeat")
+"""The jobs a part may name: a spec is checked against these without importing the jobs (which import the
+whole stack, and this module: ``study.jobs.JOBS`` runs exactly these)."""
 
 
 @dataclass(frozen=True)
@@ -233,11 +237,9 @@ def _part(data: Any, index: int) -> Part:
     where = f"parts[{index}]."
     data = _mapping(data, f"parts[{index}]")
     _check_keys(data, {"name", "job", "sources", "seeds", "params", "base", "variants", "sweep", "quick"}, where)
-    from kartpilot.study.jobs import JOBS  # the registry imports the pipelines; the spec only needs its names
-
     job = data.get("job")
-    if job not in JOBS:
-        raise ConfigError(f"study key '{where}job' must be one of {', '.join(sorted(JOBS))}, got {job!r}")
+    if job not in JOB_NAMES:
+        raise ConfigError(f"study key '{where}job' must be one of {', '.join(sorted(JOB_NAMES))}, got {job!r}")
     sources = _strings(data.get("sources"), f"{where}sources")
     seeds = _ints(data.get("seeds", [1]), f"{where}seeds")
     params = _params(data.get("params"), f"{where}params")
