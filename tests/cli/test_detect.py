@@ -58,3 +58,34 @@ def test_images_of_another_camera_s_shape_are_refused_until_its_rig_is_given(tmp
     # the kart's own camera at another resolution of the same shape is scaled, as before
     cv2.imwrite(str(image), np.full((240, 424, 3), 120, np.uint8))
     assert main(["detect", str(image), "--out", str(out), "--no-people"]) == 0 and out.exists()
+
+
+def test_a_folder_s_images_that_cannot_be_used_are_left_out_and_named_and_the_rest_are_kept(tmp_path, capsys):
+    """One bad file among a folder's photos (cut off in copying, empty, not an image, another camera's) does not
+    lose the others: each is named on one line, the CSV holds the rest under their own frame numbers, and the exit
+    status says something was left out. A folder with nothing usable writes nothing."""
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    with_sign = scene()
+    _sign(with_sign, (700, 90), 40, "20")
+    cv2.imwrite(str(folder / "a.png"), with_sign)
+    good = cv2.imencode(".jpg", scene())[1].tobytes()
+    (folder / "b_cut.jpg").write_bytes(good[: len(good) // 2])
+    (folder / "c_empty.jpg").write_bytes(b"")
+    (folder / "d_text.png").write_text("not an image")
+    cv2.imwrite(str(folder / "e_small.png"), np.full((120, 160, 3), 120, np.uint8))
+    (folder / "f.jpg").write_bytes(good)
+    out = tmp_path / "objects.csv"
+    assert main(["detect", str(folder), "--out", str(out), "--no-people"]) == 1
+    err = capsys.readouterr().err.splitlines()
+    print("\n".join(err))
+    assert [line.split(":")[1].strip() for line in err[:-1]] == ["left out b_cut.jpg", "left out c_empty.jpg",
+                                                                 "left out d_text.png", "left out e_small.png"]
+    assert "cut off" in err[0] and "empty" in err[1] and "160x120" in err[3] and "4 image(s)" in err[-1]
+    rows = list(csv.DictReader(out.open()))
+    assert [(r["frame"], r["file"], r["class"]) for r in rows] == [("0", "a.png", "speed_sign"), ("5", "f.jpg", "")]
+    for name in ("a.png", "f.jpg"):
+        (folder / name).unlink()
+    out.unlink()
+    assert main(["detect", str(folder), "--out", str(out), "--no-people"]) == 1
+    assert "no image" in capsys.readouterr().err and not out.exists()

@@ -56,6 +56,9 @@ def test_corrupt_image_is_a_data_error(tmp_path) -> None:
         read_gray(path)
     with pytest.raises(DataError, match="not found"):
         read_gray(tmp_path / "absent.png")
+    (tmp_path / "empty.jpg").write_bytes(b"")  # OpenCV 4.14 asserts on an empty buffer: it was a traceback
+    with pytest.raises(DataError, match="empty"):
+        read_gray(tmp_path / "empty.jpg")
 
 
 @pytest.mark.parametrize("suffix", [".jpg", ".png"])

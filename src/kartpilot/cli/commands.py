@@ -18,7 +18,15 @@ from tqdm import tqdm
 
 from kartpilot.calibration.rig import load_rig
 from kartpilot.cli.drive_commands import with_default_speed_mode
-from kartpilot.cli.values import VIEW_HELP, file_or_new_folder, new_folder, number, output_file, view_target
+from kartpilot.cli.values import (
+    VIEW_HELP,
+    file_or_new_folder,
+    new_folder,
+    number,
+    output_file,
+    report_left_out,
+    view_target,
+)
 from kartpilot.control.lane_follow import LaneFollowState, heading_follow_step, lane_follow_step
 from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import write_csv_atomic, write_json_atomic, write_text_atomic
@@ -333,7 +341,8 @@ def lanes(args: argparse.Namespace) -> int:
     stack = load_stack_config(args.config, args.preset)
     policy = stack.lane_policy
     body_mask = _centre_body_mask(args.rig) if args.rig else None
-    kind, frames = open_frames(args.input)
+    left_out: list[str] = []
+    kind, frames = open_frames(args.input, left_out=left_out)
     tub = DonkeyTub(args.input) if kind == "donkeycar-tub" else None
     rate_hz = tub.rate_hz if tub is not None else 30.0
     state = LaneFollowState()
@@ -383,7 +392,7 @@ def lanes(args: argparse.Namespace) -> int:
         print(f"steer vs the human's user/angle smoothed over 0.5 s: correlation {report.correlation:.3f}, sign "
               f"agreement {100 * report.sign_agreement:.1f} % over the {report.turning_frames} frames where the "
               "human clearly turns (smoothed beyond 0.3)")
-    return 0
+    return report_left_out(left_out, args.out)
 
 
 class _Overlay:

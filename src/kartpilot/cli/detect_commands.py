@@ -11,13 +11,15 @@ import cv2
 import numpy as np
 
 from kartpilot.calibration.rig import load_rig
-from kartpilot.cli.values import file_or_new_folder, output_file
+from kartpilot.cli.values import file_or_new_folder, output_file, report_left_out
 from kartpilot.core.camera import PinholeCamera
+from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import write_csv_atomic
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.perception.continuity import with_scene_starts
 from kartpilot.perception.detect import DetectorConfig, ObjectDetector
 from kartpilot.perception.objects import Detection
+from kartpilot.perception.road_marks import camera_for_image
 from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
 
 __all__ = ["DETECT_COLUMNS", "add_parsers", "draw_detections"]
@@ -58,8 +60,10 @@ def _camera(args: argparse.Namespace) -> PinholeCamera:
 def detect(args: argparse.Namespace) -> int:
     """Objects per frame to CSV, one row per object (a frame with none has one row with an empty label)."""
     config = DetectorConfig(detector=args.detector, classes=args.classes or "", people=not args.no_people)
-    detector = ObjectDetector(config, _camera(args))
-    kind, frames = open_frames(args.input)
+    camera = _camera(args)
+    detector = ObjectDetector(config, camera)
+    left_out: list[str] = []
+    kind, frames = open_frames(args.input, left_out=left_out)
     overlay = Path(args.overlay) if args.overlay else None
     video = None
     if overlay is not None and overlay.suffix.lower() not in VIDEO_SUFFIXES:
@@ -70,6 +74,12 @@ def detect(args: argparse.Namespace) -> int:
     try:
         for frame_set, new_scene in with_scene_starts(frames, args.independent):
             image = frame_set.images["center"]
+            if kind == "folder":  # another camera's photo among a folder's is left out as an unreadable one is
+                try:
+                    camera_for_image(camera, image.shape[1], image.shape[0])
+                except ConfigError as exc:
+                    left_out.append(f"{frame_set.name}: {exc}")
+                    continue
             if new_scene:
                 detector.reset()
             found = detector(image)
@@ -96,10 +106,12 @@ def detect(args: argparse.Namespace) -> int:
     finally:
         if video is not None:
             video.close()
+    if frames_seen == 0 and left_out:
+        raise DataError(f"no image in {args.input} could be used (the first: {left_out[0]})")
     write_csv_atomic(args.out, DETECT_COLUMNS, rows)
     summary = ", ".join(f"{n} {label}" for label, n in sorted(counts.items())) or "nothing"
     print(f"{frames_seen} frames ({kind}): {summary} -> {args.out}")
-    return 0
+    return report_left_out(left_out, args.out)
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:

@@ -1,6 +1,7 @@
 """Where the command line's values are checked, for every command: numbers (finite, in range), output paths
 (they can be written, before any work is done), and usage errors (one line). Inputs are checked by the
-readers that open them, which name the file.
+readers that open them, which name the file; a command that read a folder reports the images it left out
+(:func:`report_left_out`).
 
 A value that fails is a usage error: one line starting with ``kartpilot:``, naming the option, exit code 2.
 Config files are checked where they are merged (:mod:`kartpilot.core.config`).
@@ -199,3 +200,14 @@ def _same(a: Path, b: Path) -> bool:
         return os.path.samefile(a, b)
     except OSError:
         return False
+
+
+def report_left_out(left_out: list[str], out: Path | str) -> int:
+    """The exit status of a command that read a folder: each image it left out (:func:`open_frames`'s
+    ``left_out``) on one line of stderr, and 1 if any was, though ``out`` holds every other image's rows."""
+    for entry in left_out:
+        print(f"kartpilot: left out {entry}", file=sys.stderr)
+    if left_out:
+        print(f"kartpilot: error: {len(left_out)} image(s) could not be used; {out} holds the others",
+              file=sys.stderr)
+    return 1 if left_out else 0

@@ -26,8 +26,14 @@ IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".webm"}
 
 
-def open_frames(path: str | Path, camera: str = "center") -> tuple[str, Iterator[FrameSet]]:
-    """(kind, frames) for whatever ``path`` holds. A recording gives its ``camera`` (or its first one)."""
+def open_frames(path: str | Path, camera: str = "center", left_out: list[str] | None = None
+                ) -> tuple[str, Iterator[FrameSet]]:
+    """(kind, frames) for whatever ``path`` holds. A recording gives its ``camera`` (or its first one).
+
+    ``left_out``: where given, an image of a folder that cannot be read (cut off, empty, not an image) is left
+    out and named there with the reason, and the folder's other images are read (one bad photo among hundreds
+    does not lose the rest); the frame indices stay the images' places in the folder. Where not given, it
+    raises :class:`DataError`, as a single image that cannot be read always does."""
     path = Path(path)
     if not path.exists():
         raise DataError(f"input not found: {path}")
@@ -45,13 +51,25 @@ def open_frames(path: str | Path, camera: str = "center") -> tuple[str, Iterator
         images = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         if not images:
             raise DataError(f"no images in {path}")
-        return "folder", _images(images)
+        return "folder", _images(images, left_out)
     raise DataError(f"cannot read {path}: not an image, a video, a recording, a tub or a folder of images")
 
 
-def _images(paths: list[Path]) -> Iterator[FrameSet]:
+def _images(paths: list[Path], left_out: list[str] | None = None) -> Iterator[FrameSet]:
+    read = 0
     for k, path in enumerate(paths):
-        yield FrameSet(k, k, {"center": read_image(path)}, name=path.name)
+        try:
+            image = read_image(path)
+        except DataError as exc:
+            if left_out is None:
+                raise
+            left_out.append(f"{path.name}: {exc}")
+            continue
+        read += 1
+        yield FrameSet(k, k, {"center": image}, name=path.name)
+    if read == 0 and left_out:
+        raise DataError(f"none of the {len(paths)} images in {paths[0].parent} can be read (the first: "
+                        f"{left_out[0]})")
 
 
 def _video(path: Path) -> Iterator[FrameSet]:

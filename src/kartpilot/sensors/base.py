@@ -76,6 +76,8 @@ def read_image(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> Image:
     path = Path(path)
     if not path.is_file():
         raise DataError(f"image not found: {path}")
+    if path.stat().st_size == 0:  # OpenCV asserts on an empty buffer rather than returning None
+        raise DataError(f"the image {path} is empty (0 bytes)")
     _check_complete(path)
     # decoded from its bytes: OpenCV's own reader fails on a file name that is not valid UTF-8
     image = cv2.imdecode(np.fromfile(path, np.uint8), flags)
