@@ -12,7 +12,7 @@ columns in each, over a depth of ``stop_depth_m``, with bare asphalt before and 
 asphalt by as much as paint is and brighter than the road's sunlit asphalt anywhere in the view (a strip of sun
 between two shadows across the road is brighter than what lies before and behind it too); a zebra's rows hold at
 least ``zebra_min_stripes`` bars side by side in a regular pattern over ``zebra_min_length_m`` along the road.
-Both are sought across ``search_half_width_m`` either side of the kart's line, not only straight ahead: 14 m into a
+Both are sought across ``search_half_width_m`` either side of the kart's line, not only straight ahead: 15 m into a
 bend the lane lies metres to the side. Each is reported with the lateral offset of its middle.
 
 Without a camera mount there is no ground and nothing is reported: these marks are told apart by their size on the
@@ -45,8 +45,11 @@ class RoadMarkConfig:
         near_m, far_m: the stretch of ground ahead that is searched, from the ground under the camera (not the
             body frame's origin, which one rig puts at the rear axle and another under the camera: the SDC
             kart's centre camera is 1.2 m ahead of its rear axle, so the defaults search 1.2 to 19 m there).
-        search_half_width_m: the marks are sought this far either side of the kart's line (14 m into a bend of
-            25 m radius the lane lies 4 m to the side, and a crossing reaches 2.5 m either side of it).
+        search_half_width_m: the marks are sought this far either side of the kart's line: in the venue's
+            S-bend (10 m radius, 45 degrees each way) a crossing 15 m ahead, the far end of where the kart must
+            see one, has its middle 5 to 7 m to the side and reaches 3 m beyond it. At 8 m, a crossing there was
+            cut to fewer than three bars and missed: on the real frames, the venue's own crossing as the kart
+            leaves the S-bend (taken then for white blocks beside the course, which they are not).
         lane_half_width_m: half the lane's width: a stop line covers most of a stretch this wide (wherever it
             lies in the search).
         pixels_per_m: the ground view's resolution.
@@ -64,7 +67,7 @@ class RoadMarkConfig:
 
     near_m: float = 0.0
     far_m: float = 17.8
-    search_half_width_m: float = 8.0
+    search_half_width_m: float = 10.5
     lane_half_width_m: float = 1.4
     pixels_per_m: float = 20.0
     noise_sigmas: float = 5.0
