@@ -233,7 +233,8 @@ def act_window(label: str, behaviour: BehaviourConfig | None = None) -> tuple[fl
     behind a car), or for a bay, where the bay passes under its front; nearer, the kart has acted already (the
     stop point is kept by the metres driven, a manoeuvre's path is planned once). Far end: where it must have seen
     it: for a light, a sign, a stop line, a crossing or a person, the near end plus the stopping distance from the
-    highest limit posted (20 km/h) with the planned braking after the brake's delay; for a car, where the overtake
+    highest limit posted (20 km/h) with the planned braking after the brake's delay (for a light and its stop
+    line, after the light has been seen for the rules' ``light_confirm_s`` too); for a car, where the overtake
     is planned; for a parking bay and its barriers, where parking starts."""
     b = behaviour or BehaviourConfig()
     if label == "car":
@@ -242,7 +243,8 @@ def act_window(label: str, behaviour: BehaviourConfig | None = None) -> tuple[fl
         return b.front_m, b.bay_range_m
     margin = {"crosswalk": b.crossing_margin_m, "person": b.person_clearance_m}.get(label, b.stop_margin_m)
     v = b.limit_kmh / 3.6
-    return b.front_m + margin, b.front_m + margin + v * b.brake_delay_s + v * v / (2 * b.decel_mps2)
+    confirm = b.light_confirm_s if label in ("traffic_light", "stop_line") else 0.0
+    return b.front_m + margin, b.front_m + margin + v * (confirm + b.brake_delay_s) + v * v / (2 * b.decel_mps2)
 
 
 def rendered(seed: int, count: int = 40) -> dict[str, Any]:
@@ -408,7 +410,8 @@ def over_seeds(seeds: tuple[int, ...] = (23, 24, 25), count: int = 50) -> dict[s
         row["precision"] = row["found"] / reported if reported else float("nan")
     b = BehaviourConfig()
     return {"frames": count * len(seeds), "seeds": list(seeds), "classes": rows,
-            "behaviour": {"limit_kmh": b.limit_kmh, "decel_mps2": b.decel_mps2, "brake_delay_s": b.brake_delay_s}}
+            "behaviour": {"limit_kmh": b.limit_kmh, "decel_mps2": b.decel_mps2, "brake_delay_s": b.brake_delay_s,
+                          "light_confirm_s": b.light_confirm_s}}
 
 
 def timing(data: Path) -> dict[str, float]:
@@ -497,6 +500,8 @@ def render(results: dict[str, Any]) -> str:
     r = results["rendered"]
     b = r["behaviour"]
     z = results["labelled"]["zones_m"]
+    confirm = (f", a light and its line once the light has been seen for {b['light_confirm_s']} s"
+               if b.get("light_confirm_s") else "")
     lines = ["Measured by `benchmarks/detect.py`. Real frames: development data (the thresholds were set looking "
              "at them); rendered frames: seeds not looked at.", "",
              "Where the kart acts on each class (metres down the road from its rear axle, from the event's rules as "
@@ -507,10 +512,10 @@ def render(results: dict[str, Any]) -> str:
              "front: nearer, it has acted already. The far end is where it must have seen the thing: for a light, "
              "a sign, a stop line, a crossing or a person, far enough to stop at the near end from "
              f"{b['limit_kmh']:.0f} km/h (braking at {b['decel_mps2']} m/s² after the brake's "
-             f"{b['brake_delay_s']} s delay); for a car, where the overtake is planned; for a parking bay and its "
-             "barriers, where parking starts. On the rendered frames the distance is the road's (in a bend it is "
-             "longer than the distance straight ahead); on the real frames, with no map of the road, it is straight "
-             "ahead.",
+             f"{b['brake_delay_s']} s delay{confirm}); for a car, where the overtake is planned; for a parking "
+             "bay and its barriers, where parking starts. On the rendered frames the distance is the road's (in a "
+             "bend it is longer than the distance straight ahead); on the real frames, with no map of the road, it "
+             "is straight ahead.",
              "",
              f"Rendered venue frames ({r['frames']}: seeds {', '.join(map(str, r['seeds']))}, held out; seeds 3 "
              "to 22 were looked at while building the detectors) against the renderer's exact truth: the "

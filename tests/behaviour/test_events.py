@@ -39,8 +39,29 @@ def test_the_kart_waits_for_green_at_the_start():
     config = BehaviourConfig(start_on_green=True)
     log = drive(config, lambda x, t: [_at("traffic_light", 10 - x, "red" if t < 5 else "green")], seconds=8)
     moved = next(t for t, x, v, s in log if x > 0.01)
-    assert 5.0 <= moved <= 5.2
+    # green is acted on once seen for light_confirm_s without a break
+    assert 5.0 + config.light_confirm_s <= moved <= 5.2 + config.light_confirm_s
     assert all(s == "wait_start" for t, x, v, s in log if t < 4.9)
+
+
+@pytest.mark.parametrize("colour", ["red", "green"])
+def test_a_light_seen_for_a_moment_is_not_acted_on_and_one_seen_steadily_is(colour):
+    """A lamp found in one frame (a person's face at the image's edge was one) held the kart at a red light for
+    good; a light is acted on once seen for light_confirm_s without a break."""
+    config = BehaviourConfig(start_on_green=colour == "green", limit_kmh=15.0, front_m=0.0)
+
+    def flash(until_s):
+        return lambda x, t: [_at("traffic_light", 20.0 - x, colour)] if 1.0 <= t < until_s else []
+
+    moment = drive(config, flash(1.0 + 0.05), seconds=6, speed=0.0 if colour == "green" else 15 / 3.6 * 0.9)
+    steady = drive(config, flash(1.0 + 2 * config.light_confirm_s), seconds=6,
+                   speed=0.0 if colour == "green" else 15 / 3.6 * 0.9)
+    if colour == "red":
+        assert all(s == "drive" for *_, s in moment) and moment[-1][2] > 3.0
+        assert steady[-1][3] in ("stop_red", "wait_red")
+    else:
+        assert all(s == "wait_start" for *_, s in moment) and moment[-1][1] == 0.0
+        assert steady[-1][3] == "drive" and steady[-1][1] > 0.5
 
 
 def test_the_posted_limit_caps_the_speed_until_another_sign():

@@ -43,6 +43,18 @@ def test_a_lit_lamp_counts_inside_its_housing_and_not_outside_one():
     assert [d.state for d in detect_traffic_lights(green)] == ["green"]
 
 
+def test_a_lamp_cut_by_the_image_s_edge_is_not_a_light():
+    """Its housing cannot be checked: a person's face at the image's top in a dark hood, cut off by the edge, was
+    taken for a red lamp for one frame of a rendered pedestrian drive (the kart then waited for green for good).
+    The same head wholly in the image is still a light."""
+    cut, whole = scene(), scene()
+    for image, top in ((cut, -10), (whole, 40)):
+        cv2.rectangle(image, (640, max(top, 0)), (676, top + 72), (25, 25, 25), -1)
+        cv2.circle(image, (658, top + 18), 12, (30, 30, 235), -1)
+    assert detect_traffic_lights(cut, camera=CAMERA) == []
+    assert [d.state for d in detect_traffic_lights(whole, camera=CAMERA)] == ["red"]
+
+
 def test_a_red_barrier_on_the_ground_is_a_barrier_not_a_light():
     image = scene()
     for k in range(11):  # red and white stripes, 2 m of barrier about 8 m ahead
