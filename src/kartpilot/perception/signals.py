@@ -184,13 +184,13 @@ def _ring_dark_share(gray: Image, centre: tuple[float, float], d: float, dark: i
     """The share of dark pixels in the housing's ring around a lamp: the square of side 1.8 d about it, less the
     lamp's disc (0.65 d in radius); 0 where the image's edge cuts the ring, whose housing cannot be checked (a
     person's face at the image's top, in a dark hood cut off by the edge, was taken for a red lamp for a frame; a
-    real lamp is cut off by the edge only once the kart has passed its stop line's distance)."""
+    real lamp reaches the edge only a few metres from the kart, which has acted on it by then)."""
     h, w = gray.shape
     r = 0.9 * d
     if not (r <= centre[0] <= w - 1 - r and r <= centre[1] <= h - 1 - r):
         return 0.0
-    x0, x1 = int(centre[0] - 0.9 * d), int(centre[0] + 0.9 * d) + 1
-    y0, y1 = int(centre[1] - 0.9 * d), int(centre[1] + 0.9 * d) + 1
+    x0, x1 = int(centre[0] - r), int(centre[0] + r) + 1
+    y0, y1 = int(centre[1] - r), int(centre[1] + r) + 1
     if x1 - x0 < 3 or y1 - y0 < 3:
         return 0.0
     yy, xx = np.mgrid[y0:y1, x0:x1]
