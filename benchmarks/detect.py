@@ -205,11 +205,13 @@ def pasted(data: Path, every: int = 10) -> dict[str, Any]:
     shapes = {"stop_line": lambda x: [np.array([[x, 1.4], [x + 0.3, 1.4], [x + 0.3, -1.4], [x, -1.4]])],
               "crosswalk": lambda x: [np.array([[x, c + 0.25], [x + 3.0, c + 0.25], [x + 3.0, c - 0.25],
                                                 [x, c - 0.25]]) for c in (-1.0, 0.0, 1.0)]}
+    # each mark's cover of the image, the same on every frame
+    alphas = {(label, ahead): 0.9 * cv2.GaussianBlur(ground_coverage(camera, shape(ahead)), (0, 0), 0.8)[..., None]
+              for (label, shape), ahead in itertools.product(shapes.items(), PASTED_AHEAD_M)}
     rows: dict[str, dict[str, Any]] = {}
     for path in paths:
         image = cv2.imread(str(path)).astype(np.float32)
-        for (label, shape), ahead in itertools.product(shapes.items(), PASTED_AHEAD_M):
-            alpha = 0.9 * cv2.GaussianBlur(ground_coverage(camera, shape(ahead)), (0, 0), 0.8)[..., None]
+        for (label, ahead), alpha in alphas.items():
             frame = (image * (1.0 - alpha) + 225.0 * alpha).astype(np.uint8)
             marks = [d for d in detect_classical(frame, camera, DetectorConfig(people=False))
                      if d.label in shapes]
