@@ -55,6 +55,25 @@ def test_a_lamp_cut_by_the_image_s_edge_is_not_a_light():
     assert [d.state for d in detect_traffic_lights(whole, camera=CAMERA)] == ["red"]
 
 
+def test_a_head_shows_one_colour_its_brighter_lamp_even_where_the_unlit_one_looks_lit():
+    """In a bright frame the unlit lamp's dark red (or green) passes the lit colour's test: the real venue's green
+    light, its frame brightened by 1.4, was also a red light. One head, one light: the brighter lamp's."""
+    for state, lit, unlit in (("green", (90, 240, 40), (40, 40, 130)), ("red", (30, 30, 235), (30, 110, 30))):
+        image = scene()
+        cv2.rectangle(image, (640, 10), (676, 82), (25, 25, 25), -1)
+        lit_at, unlit_at = ((658, 64), (658, 28)) if state == "green" else ((658, 28), (658, 64))
+        cv2.circle(image, lit_at, 12, lit, -1)
+        cv2.circle(image, unlit_at, 12, tuple(c // 2 for c in unlit), -1)  # the unlit lamp, dark
+        cv2.circle(image, unlit_at, 4, unlit, -1)  # its middle catching the light: its colour, a lamp's size
+        assert [d.state for d in detect_traffic_lights(image, camera=CAMERA)] == [state]
+    # two heads side by side are two lights
+    image = scene()
+    for left, colour in ((560, (30, 30, 235)), (700, (90, 240, 40))):
+        cv2.rectangle(image, (left, 10), (left + 36, 82), (25, 25, 25), -1)
+        cv2.circle(image, (left + 18, 28 if colour[2] > 200 else 64), 12, colour, -1)
+    assert sorted(d.state for d in detect_traffic_lights(image, camera=CAMERA)) == ["green", "red"]
+
+
 def test_a_red_barrier_on_the_ground_is_a_barrier_not_a_light():
     image = scene()
     for k in range(11):  # red and white stripes, 2 m of barrier about 8 m ahead

@@ -137,13 +137,13 @@ def detect_traffic_lights(image: Image, config: SignalConfig = SignalConfig(), c
     gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     horizon = config.horizon * h
     lo, hi = config.min_lamp_px * h, config.max_lamp_px * h
-    out = []
+    lamps: list[tuple[float, float, float, Detection]] = []  # (lamp's brightness, centre column, row, light)
     for state, mask in (("red", _red(hsv, config.lamp_saturation, config.lamp_value)),
                         ("green", _green(hsv, config.lamp_saturation, config.lamp_value))):
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
-        count, _, stats, centroids = cv2.connectedComponentsWithStats(mask[: int(horizon)], connectivity=8)
+        count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask[: int(horizon)], connectivity=8)
         for k in range(1, count):
-            _, _, bw, bh, area = (int(v) for v in stats[k])
+            x, y, bw, bh, area = (int(v) for v in stats[k])
             if not lo <= max(bw, bh) <= hi or not 0.6 <= bw / max(bh, 1) <= 1.6 or area < 0.45 * bw * bh:
                 continue
             # the lamp's diameter: a thresholded disc's box is about a pixel wider than the disc (a partly covered
@@ -167,8 +167,22 @@ def detect_traffic_lights(image: Image, config: SignalConfig = SignalConfig(), c
             det = Detection("traffic_light", _clip(box, w, h), float(confidence), state)
             det = place_by_size(det, camera, w, config.lamp_diameter_m, size_px=d)
             if not det.distance_m > config.max_distance_m:
-                out.append(det)
-    return out
+                level = float(np.mean(hsv[y:y + bh, x:x + bw, 2][labels[y:y + bh, x:x + bw] == k]))
+                lamps.append((level, float(cx), float(cy), det))
+    return _one_lamp_per_head(lamps)
+
+
+def _one_lamp_per_head(lamps: list[tuple[float, float, float, Detection]]) -> list[Detection]:
+    """The lights, one per signal head: a head shows one colour at a time, so of two lamps in one head (each
+    one's centre inside the other's head box) the brighter is the lit one. The unlit one passes for lit where
+    the image is bright: the real green light at the venue, its frame brightened by 1.4, was also a red light 27 m
+    away (its dark red lamp, small, as its own head)."""
+    kept: list[int] = []
+    for k in sorted(range(len(lamps)), key=lambda k: -lamps[k][0]):
+        _, cx, cy, _ = lamps[k]
+        if not any(b[0] <= cx <= b[2] and b[1] <= cy <= b[3] for b in (lamps[j][3].box_px for j in kept)):
+            kept.append(k)
+    return [lamps[k][3] for k in sorted(kept)]
 
 
 def _dark_share(gray: Image, box: tuple[float, float, float, float], dark: int) -> float:
