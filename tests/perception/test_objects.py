@@ -193,6 +193,25 @@ def test_an_upright_thing_is_a_car_or_a_person_by_its_size_and_paint_is_neither(
     assert people[0].lateral_m == pytest.approx(-3.0, rel=within)
 
 
+def test_a_car_whose_top_breaks_is_still_one_car_and_a_person_beside_it_stays_apart():
+    """The real inflatable car, its frame darkened, lost its roof's middle against the sky: its columns split
+    where the top jumped, into things too narrow for a car."""
+    image = scene()
+    u0, v0, u1, v1 = _standing(image, 8.0, 0.0, 1.7, 1.2, (220, 215, 200))
+    third = (u1 - u0) / 3
+    cv2.rectangle(image, (round(u0 + third), round(v0)), (round(u1 - third), round(v0 + 0.35 * (v1 - v0))),
+                  (235, 232, 230), -1)  # the roof's middle, as pale as the sky
+    cars = detect_car(image, CAMERA)
+    assert len(cars) == 1 and cars[0].distance_m == pytest.approx(8.0, rel=0.1)
+    assert cars[0].box_px[0] <= u0 + 4 and cars[0].box_px[2] >= u1 - 4
+    # a person standing at the car's side, as far ahead, is a person and not part of the car
+    p0, _, p1, _ = _standing(image, 8.0, 1.1, 0.5, 1.75, (120, 40, 30))
+    people = detect_standing_people(image, CAMERA)
+    cars = detect_car(image, CAMERA)
+    assert len(people) == 1 and people[0].box_px[0] == pytest.approx(p0, abs=4)
+    assert len(cars) == 1 and cars[0].box_px[0] >= p1 - 4
+
+
 def test_a_barrier_across_the_lane_is_not_a_car():
     image = scene()
     _standing(image, 8.0, 0.0, 2.0, 1.0, (30, 30, 200))
