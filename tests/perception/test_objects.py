@@ -55,6 +55,17 @@ def test_a_lamp_cut_by_the_image_s_edge_is_not_a_light():
     assert [d.state for d in detect_traffic_lights(whole, camera=CAMERA)] == ["red"]
 
 
+def test_a_lamp_too_small_for_its_housing_to_be_seen_is_not_a_light():
+    """A lamp 5 px across (27 m away; its thresholded box 6 px) has a housing ring a pixel wide: a speck of a
+    lamp's colour in dark trees passed for one in noisy frames. From 6 px on it is a light (22 m: the kart acts
+    within 16 m)."""
+    for box_px, found in ((6, False), (7, True)):
+        image = scene()
+        cv2.rectangle(image, (650, 60), (662, 84), (25, 25, 25), -1)
+        cv2.rectangle(image, (653, 63), (652 + box_px, 62 + box_px), (30, 30, 235), -1)
+        assert bool(detect_traffic_lights(image, camera=CAMERA)) is found, box_px
+
+
 def test_a_head_shows_one_colour_its_brighter_lamp_even_where_the_unlit_one_looks_lit():
     """In a bright frame the unlit lamp's dark red (or green) passes the lit colour's test: the real venue's green
     light, its frame brightened by 1.4, was also a red light. One head, one light: the brighter lamp's."""
@@ -112,6 +123,14 @@ def test_a_speed_sign_and_its_value_on_the_right_only(value):
     left = scene()
     _sign(left, (150, 90), 40, value)  # the other direction's sign
     assert detect_speed_signs(left, camera=CAMERA) == []
+
+
+def test_a_sign_s_likeness_on_the_ground_is_no_sign():
+    """A sign on its pole stands higher than the camera; a red ring round a pale disc with dark strokes below
+    the horizon (tyre marks on asphalt a warm white balance makes reddish, in a rendered frame) is on the road."""
+    image = scene()
+    _sign(image, (700, 260), 20, "20")
+    assert detect_speed_signs(image, camera=CAMERA) == []
 
 
 def test_track_ids_persist_over_frames_and_restart_after_a_reset():

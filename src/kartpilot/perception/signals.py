@@ -9,7 +9,9 @@ horizon row.
 
 **Speed sign** (a Dutch round sign: a red ring around a white disc with a black number). The ring is found as a red
 region with a hole; the hole must be mostly white with a few dark strokes (the digits), which a red light, a barrier
-or a car's rear light do not have. The number is read by comparing the digits, cut out and scaled, with each value
+or a car's rear light do not have. On its pole a sign stands higher than the camera, so its middle lies above
+the horizon row (with a warm white balance, dark tyre marks on reddish asphalt made a ring with dark strokes on
+the road). The number is read by comparing the digits, cut out and scaled, with each value
 of ``values_kmh`` drawn in a plain font (normalised correlation): a small classifier with no training data and
 nothing to download. Signs stand on the right of the road in the Netherlands; one on the left (``sign_side``)
 belongs to the other direction.
@@ -41,7 +43,10 @@ __all__ = ["SignalConfig", "detect_speed_signs", "detect_traffic_lights", "place
 class SignalConfig:
     """Attributes:
         horizon: the horizon's row as a fraction of the height (from the camera's mount; a lamp lies above it).
-        min_lamp_px, max_lamp_px: a lit lamp's diameter in pixels, as a fraction of the image's height.
+        min_lamp_px, max_lamp_px: a lit lamp's diameter in pixels, as a fraction of the image's height (the
+            least: 7 px at 480, a lamp 6 px across inside it, whose housing ring, a quarter of that wide, is still
+            a pixel or two: a lamp of 5 px, 27 m away, is at the grain of noise, and a speck in dark trees with a
+            lamp's colour passed for one, in altered real and rendered frames).
         lamp_saturation, lamp_value: a lit lamp's least HSV saturation and value (0-255).
         housing_dark: the housing's brightest grey level (the dark box and the unlit lamp).
         housing_share: the least share of the housing's pixels (beside the lamp) that are that dark.
@@ -63,7 +68,7 @@ class SignalConfig:
     """
 
     horizon: float = 0.34
-    min_lamp_px: float = 0.012
+    min_lamp_px: float = 0.0145
     max_lamp_px: float = 0.15
     lamp_saturation: int = 110
     lamp_value: int = 100
@@ -246,6 +251,8 @@ def detect_speed_signs(image: Image, config: SignalConfig = SignalConfig(), came
             continue
         if config.sign_side == "right" and ex < (w - 1) / 2:
             continue
+        if ey >= config.horizon * h:
+            continue  # on its pole a sign stands higher than the camera: this is on the ground, not one
         disc = np.zeros((h, w), np.uint8)
         cv2.ellipse(disc, ((ex, ey), (0.62 * ma, 0.62 * mb), 0.0), 255, -1)
         inside = gray[disc > 0]
