@@ -9,7 +9,7 @@ import pytest
 
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.vehicle import get_vehicle
-from kartpilot.perception.detect import DetectorConfig, ObjectDetector, crossing_states
+from kartpilot.perception.detect import DetectorConfig, ObjectDetector, crossing_states, merge_people
 from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, place_on_ground
 from kartpilot.perception.obstacles import detect_barriers, detect_car, detect_standing_people
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
@@ -235,6 +235,13 @@ def test_a_barrier_across_the_lane_is_not_a_car():
     image = scene()
     _standing(image, 8.0, 0.0, 2.0, 1.0, (30, 30, 200))
     assert detect_car(image, CAMERA) == []
+
+
+def test_one_person_seen_by_hog_and_by_shape_is_one_person():
+    hog = [Detection("person", (569, 34, 658, 230), 0.8, distance_m=6.5)]  # HOG's box, with its margin
+    inside = Detection("person", (600, 44, 628, 217), 0.9, distance_m=7.8)  # the shape's, narrow, within it
+    beside = Detection("person", (700, 44, 728, 217), 0.9, distance_m=7.8)  # another person beside them
+    assert merge_people(hog, [inside, beside]) == [*hog, beside]
 
 
 def test_a_person_on_or_beside_the_crossing():

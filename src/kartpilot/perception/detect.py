@@ -39,7 +39,7 @@ from kartpilot.perception.road_marks import RoadMarkConfig, camera_for_image, de
 from kartpilot.perception.signals import SignalConfig, detect_speed_signs, detect_traffic_lights, place_by_size
 from kartpilot.sensors.base import MIN_IMAGE_PX
 
-__all__ = ["DetectorConfig", "ObjectDetector", "crossing_states", "detect_classical"]
+__all__ = ["DetectorConfig", "ObjectDetector", "crossing_states", "detect_classical", "merge_people"]
 
 
 @dataclass(frozen=True)
@@ -105,7 +105,7 @@ def detect_classical(image: Image, camera: PinholeCamera | None, config: Detecto
         hog = detect_people(image, camera, config.obstacles, things)
         if camera is not None and image.ndim == 3:
             hog = [p for p in hog if _stands_under(p.box_px, things)]
-        people = hog + [p for p in people if not any(box_iou(p.box_px, q.box_px) > 0.3 for q in hog)]
+        people = merge_people(hog, people)
     # a barrier in the corridor stands upright too: it is not a car
     cars = [c for c in detect_car(image, camera, config.obstacles, things)
             if not any(_covered(c.box_px, b.box_px) for b in barriers)]
@@ -121,6 +121,14 @@ def detect_classical(image: Image, camera: PinholeCamera | None, config: Detecto
                              [t.box_px for t in things])
     out += people + cars + barriers + find_parking_bay(barriers, camera)
     return out
+
+
+def merge_people(hog: list[Detection], shaped: list[Detection]) -> list[Detection]:
+    """HOG's people and the upright shapes it did not find: a shape is the same person as a HOG box that
+    overlaps it by a third, or holds half of it (HOG's box has a margin round the person, so round a narrow
+    shape the two overlap by less than a third: a rendered person, its frame compressed, was two people)."""
+    return hog + [p for p in shaped if not any(box_iou(p.box_px, q.box_px) > 0.3 or _covered(p.box_px, q.box_px)
+                                               for q in hog)]
 
 
 def _stands_under(box: tuple[float, float, float, float], things: list[Upright]) -> bool:
