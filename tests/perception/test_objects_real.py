@@ -64,3 +64,19 @@ def test_people_are_looked_for_where_they_stand_and_only_as_far_as_the_kart_acts
     assert mine and all(16.0 <= d.distance_m <= 23.0 for d in mine)
     assert detect_people(image, CAMERA, ObstacleConfig(), things) == []
     assert detect_people(_scene("scene_1.jpg"), CAMERA) == []
+
+
+def test_another_day_s_exposure_neither_adds_a_light_nor_loses_the_car():
+    """Brightened by 1.4, the unlit red lamp of the venue's green light passed for lit and was a second light;
+    darkened to 0.6, the inflatable car 7 m ahead split where its roof met the sky and was no car."""
+    import numpy as np
+
+    def gain(image, factor):
+        return np.clip(image.astype(np.float32) * factor, 0, 255).astype(np.uint8)
+
+    lights = [d for d in ObjectDetector(DetectorConfig(), CAMERA)(gain(_scene("scene_1.jpg"), 1.4))
+              if d.label == "traffic_light"]
+    assert [d.state for d in lights] == ["green"]
+    cars = [d for d in ObjectDetector(DetectorConfig(), CAMERA)(gain(_scene("scene_0.jpg"), 0.6)) if d.label == "car"]
+    print("darkened car at", [round(d.distance_m, 1) for d in cars])
+    assert len(cars) == 1 and 6.0 <= cars[0].distance_m <= 7.5
