@@ -178,10 +178,10 @@ def detect_traffic_lights(image: Image, config: SignalConfig = SignalConfig(), c
 
 
 def _one_lamp_per_head(lamps: list[tuple[float, float, float, Detection]]) -> list[Detection]:
-    """The lights, one per signal head: a head shows one colour at a time, so of two lamps in one head (each
-    one's centre inside the other's head box) the brighter is the lit one. The unlit one passes for lit where
-    the image is bright: the real green light at the venue, its frame brightened by 1.4, was also a red light 27 m
-    away (its dark red lamp, small, as its own head)."""
+    """The lights, one per signal head: a head shows one colour at a time, so of two lamps in one head (the
+    dimmer one's centre inside the brighter one's head box) the brighter is the lit one. The unlit one passes for
+    lit where the image is bright: the real green light at the venue, its frame brightened by 1.4, was also a red
+    light 27 m away (its dark red lamp, small, as its own head)."""
     kept: list[int] = []
     for k in sorted(range(len(lamps)), key=lambda k: -lamps[k][0]):
         _, cx, cy, _ = lamps[k]
