@@ -231,6 +231,17 @@ def test_a_car_whose_top_breaks_is_still_one_car_and_a_person_beside_it_stays_ap
     assert len(cars) == 1 and cars[0].box_px[0] >= p1 - 4
 
 
+def test_a_piece_of_a_barrier_inside_it_is_not_another_barrier():
+    """A barrier behind a nearer one is hidden where the nearer one's box is: what is found wholly inside it is a
+    piece of it (in a rendered frame at gamma 0.7, a second barrier 12 m away and a parking bay between the two)."""
+    from kartpilot.perception.obstacles import _not_within_another
+
+    near = Detection("barrier", (647, 103, 848, 238), 1.0, distance_m=6.0, lateral_m=-2.5)
+    piece = Detection("barrier", (691, 103, 794, 196), 1.0, distance_m=12.6, lateral_m=-3.0)
+    behind = Detection("barrier", (560, 130, 640, 190), 1.0, distance_m=13.0, lateral_m=-2.5)  # beside it, seen
+    assert _not_within_another([near, piece, behind]) == [near, behind]
+
+
 def test_a_barrier_across_the_lane_is_not_a_car():
     image = scene()
     _standing(image, 8.0, 0.0, 2.0, 1.0, (30, 30, 200))
