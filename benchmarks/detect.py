@@ -748,7 +748,7 @@ def _render_altered(results: dict[str, Any]) -> list[str]:
     frames = results["frames"]
     lines = ["", "The same real frames altered as another day's camera would make them (`altered` in "
                  "`benchmarks/detect.py`: exposure, its curve, focus, compression, sensor noise, white balance, a "
-                 "smaller image of the same field of view). These alterations showed five faults, mended since "
+                 "smaller image of the same field of view). These alterations showed six faults, mended since "
                  "(the text above says which): they are development data now, not held out.", "",
              "| frames | labelled things concerning the kart, found | false alarms, labelled images | "
              "false alarms, 119 venue frames | far zebra found (frames) |", "|---|---|---|---|---|",
