@@ -2,6 +2,7 @@
 barrier, track ids over frames, places on the ground, and a team's ONNX model through the seam."""
 
 import math
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -13,7 +14,7 @@ from kartpilot.perception.detect import DetectorConfig, ObjectDetector, crossing
 from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, place_on_ground
 from kartpilot.perception.obstacles import detect_barriers, detect_car, detect_standing_people
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
-from kartpilot.perception.signals import detect_speed_signs, detect_traffic_lights
+from kartpilot.perception.signals import SignalConfig, detect_speed_signs, detect_traffic_lights, exposure
 
 CAMERA = get_vehicle("sdc-kart").camera("center")  # 848x480, 0.56 m up, 6.8 deg down: horizon near row 163
 
@@ -83,6 +84,44 @@ def test_a_head_shows_one_colour_its_brighter_lamp_even_where_the_unlit_one_look
         cv2.rectangle(image, (left, 10), (left + 36, 82), (25, 25, 25), -1)
         cv2.circle(image, (left + 18, 28 if colour[2] > 200 else 64), 12, colour, -1)
     assert sorted(d.state for d in detect_traffic_lights(image, camera=CAMERA)) == ["green", "red"]
+
+
+def test_a_light_in_an_underexposed_frame_is_still_a_light_by_its_sky():
+    """A camera exposing for the sun makes the whole frame darker, a lamp with it: the real venue's green lamp,
+    about 160 bright, was lost darkened by 0.6. Its thresholds scale with the sky's bright end; a frame exposed for
+    daylight (its sky bright) keeps them, so a dim lamp there is still no light."""
+    def frame(gain: float, lamp: int) -> np.ndarray:
+        image = scene()
+        cv2.rectangle(image, (640, 10), (676, 82), (55, 55, 55), -1)
+        cv2.circle(image, (658, 64), 12, (lamp // 3, lamp, lamp // 6), -1)  # green, lit
+        return np.clip(image.astype(np.float32) * gain, 0, 255).astype(np.uint8)
+
+    assert [d.state for d in detect_traffic_lights(frame(1.0, 160), camera=CAMERA)] == ["green"]
+    assert [d.state for d in detect_traffic_lights(frame(0.6, 160), camera=CAMERA)] == ["green"]
+    assert detect_traffic_lights(frame(1.0, 96), camera=CAMERA) == []  # the same dim lamp under a bright sky
+    assert exposure(cv2.cvtColor(frame(0.6, 160), cv2.COLOR_BGR2GRAY), 163, 200, 0.5) == pytest.approx(
+        0.6 * 235 / 200, abs=0.02)
+    assert exposure(np.zeros((480, 848), np.uint8), 163, 200, 0.5) == 0.5  # no sky: no darker than the least
+    with pytest.raises(ConfigError, match="min_exposure"):
+        SignalConfig(min_exposure=0.0)
+
+
+def test_a_lamp_that_does_not_glow_is_not_a_light():
+    """A dark red shirt above black trousers is its own dark housing: in a darkened rendered frame it passed the
+    housing tests as a red lamp. A lit lamp is brighter than the housing around it; the shirt is as bright as its
+    own ring."""
+    image = scene()
+    cv2.rectangle(image, (640, 10), (676, 82), (25, 25, 25), -1)
+    cv2.circle(image, (658, 28), 12, (30, 30, 235), -1)
+    assert [d.state for d in detect_traffic_lights(image, camera=CAMERA)] == ["red"]
+    shirt = scene()
+    cv2.rectangle(shirt, (630, 10), (686, 90), (60, 60, 85), -1)  # a dark red shirt, dull
+    cv2.rectangle(shirt, (652, 22), (664, 34), (35, 35, 88), -1)  # a fold of it, strongly red, no brighter
+    lenient = SignalConfig(lamp_value=60, housing_dark=100, lamp_contrast=1.0)
+    assert detect_traffic_lights(shirt, lenient, camera=CAMERA)  # the housing tests alone take it for a lamp
+    assert detect_traffic_lights(shirt, replace(lenient, lamp_contrast=1.3), camera=CAMERA) == []
+    with pytest.raises(ConfigError, match="lamp_contrast"):
+        SignalConfig(lamp_contrast=0.9)
 
 
 def test_a_red_barrier_on_the_ground_is_a_barrier_not_a_light():

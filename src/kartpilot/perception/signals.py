@@ -36,7 +36,8 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import Image
 from kartpilot.perception.objects import Detection
 
-__all__ = ["SignalConfig", "detect_speed_signs", "detect_traffic_lights", "place_by_size", "read_speed_value"]
+__all__ = ["SignalConfig", "detect_speed_signs", "detect_traffic_lights", "exposure", "place_by_size",
+           "read_speed_value"]
 
 
 @dataclass(frozen=True)
@@ -47,9 +48,19 @@ class SignalConfig:
             least: 7 px at 480, a lamp 6 px across inside it, whose housing ring, a quarter of that wide, is still
             a pixel or two: a lamp of 5 px, 27 m away, is at the grain of noise, and a speck in dark trees with a
             lamp's colour passed for one, in altered real and rendered frames).
-        lamp_saturation, lamp_value: a lit lamp's least HSV saturation and value (0-255).
-        housing_dark: the housing's brightest grey level (the dark box and the unlit lamp).
+        lamp_saturation, lamp_value: a lit lamp's least HSV saturation and value (0-255; the value in a frame
+            exposed for daylight, scaled by :func:`exposure` in a darker one).
+        housing_dark: the housing's brightest grey level (the dark box and the unlit lamp; scaled as lamp_value).
+        sky_level, min_exposure: a frame whose sky's bright end (its 99th percentile grey level) reaches
+            sky_level is exposed for daylight; a darker one's brightness thresholds are scaled by its sky over
+            sky_level, down to min_exposure (a frame with no bright sky is not taken for one darker than that).
+            The rendered overcast sky is 220 to 235, the real venue's 253.
         housing_share: the least share of the housing's pixels (beside the lamp) that are that dark.
+        lamp_contrast: a lit lamp glows: its mean HSV value is at least this many times the median value of the
+            dark housing around it (the ring's pixels that count as dark; a far head's ring reaches past its
+            housing into the sky). The real lights: 1.65 or more under every alteration of their frames (the
+            venue's green, the Hanze red 5.2); a dark red shirt, which passes for a lamp in its own dark housing:
+            about 1.0.
         lamp_diameter_m, sign_diameter_m: real sizes, for the distance.
         min_lamp_height_m, camera_height_m: a lit lamp is at least this high above the ground, seen from a
             camera this high (the real kart's centre camera: 0.56 m).
@@ -73,7 +84,10 @@ class SignalConfig:
     lamp_saturation: int = 110
     lamp_value: int = 100
     housing_dark: int = 90
+    sky_level: int = 200
+    min_exposure: float = 0.5
     housing_share: float = 0.45
+    lamp_contrast: float = 1.3
     lamp_diameter_m: float = 0.2
     min_lamp_height_m: float = 1.2
     camera_height_m: float = 0.56
@@ -92,6 +106,10 @@ class SignalConfig:
     def __post_init__(self) -> None:
         if not 0.0 < self.min_lamp_px < self.max_lamp_px <= 1.0:
             raise ConfigError("signals: need 0 < min_lamp_px < max_lamp_px <= 1")
+        if self.lamp_contrast < 1.0:
+            raise ConfigError("signals: lamp_contrast must be at least 1 (a lamp is brighter than its housing)")
+        if not 0.0 < self.min_exposure <= 1.0 or not 0 < self.sky_level <= 255:
+            raise ConfigError("signals: min_exposure must be in (0, 1] and sky_level in (0, 255]")
         if not 0.0 <= self.min_hole_share < 1.0:
             raise ConfigError("signals: min_hole_share must be in [0, 1)")
         if min(self.lamp_diameter_m, self.sign_diameter_m, self.max_distance_m) <= 0 or not self.values_kmh:
@@ -123,6 +141,15 @@ def _hsv(image: Image) -> Image:
     return cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
 
 
+def exposure(gray: Image, horizon_row: int, sky_level: float, least: float) -> float:
+    """The frame's exposure against one exposed for daylight: the sky's bright end (the 99th percentile of the
+    grey levels above the horizon row) over ``sky_level``, between ``least`` and 1. A lit lamp and its dark
+    housing scale with it: the venue's real green light, a daylight lamp about 160 bright, was lost in the same
+    frame darkened by 0.6 (as a camera exposing for the sun makes it) under the fixed threshold of 100."""
+    top = gray[: max(horizon_row, 1)]
+    return float(np.clip(np.percentile(top, 99) / sky_level, least, 1.0))
+
+
 def _red(hsv: Image, s_min: int, v_min: int) -> Image:
     h, s, v = cv2.split(hsv)
     return (((h <= 10) | (h >= 165)) & (s >= s_min) & (v >= v_min)).astype(np.uint8) * 255
@@ -142,9 +169,11 @@ def detect_traffic_lights(image: Image, config: SignalConfig = SignalConfig(), c
     gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     horizon = config.horizon * h
     lo, hi = config.min_lamp_px * h, config.max_lamp_px * h
+    scale = exposure(gray, int(horizon), config.sky_level, config.min_exposure)
+    lit, dark = round(config.lamp_value * scale), round(config.housing_dark * scale)
     lamps: list[tuple[float, float, float, Detection]] = []  # (lamp's brightness, centre column, row, light)
-    for state, mask in (("red", _red(hsv, config.lamp_saturation, config.lamp_value)),
-                        ("green", _green(hsv, config.lamp_saturation, config.lamp_value))):
+    for state, mask in (("red", _red(hsv, config.lamp_saturation, lit)),
+                        ("green", _green(hsv, config.lamp_saturation, lit))):
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
         count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask[: int(horizon)], connectivity=8)
         for k in range(1, count):
@@ -164,15 +193,18 @@ def detect_traffic_lights(image: Image, config: SignalConfig = SignalConfig(), c
             # the housing: the lamp's own width beside it, and the other lamp's place (below red, above green)
             other = (cy + 0.9 * d, cy + 2.0 * d) if state == "red" else (cy - 2.0 * d, cy - 0.9 * d)
             box = (cx - 0.8 * d, min(other[0], cy - 0.7 * d), cx + 0.8 * d, max(other[1], cy + 0.7 * d))
-            share = _dark_share(gray, (cx - 0.5 * d, other[0], cx + 0.5 * d, other[1]), config.housing_dark)
-            ring = _ring_dark_share(gray, (cx, cy), d, config.housing_dark)
-            if min(share, ring) < config.housing_share:
+            share = _dark_share(gray, (cx - 0.5 * d, other[0], cx + 0.5 * d, other[1]), dark)
+            ring_gray, ring_value = _ring(gray, (cx, cy), d), _ring(hsv[..., 2], (cx, cy), d)
+            if ring_gray is None or ring_value is None or min(share, float(np.mean(ring_gray <= dark))) < \
+                    config.housing_share:
                 continue  # no dark box around it: a red jacket, a barrier, a leaf in the sun
+            level = float(np.mean(hsv[y:y + bh, x:x + bw, 2][labels[y:y + bh, x:x + bw] == k]))
+            if level < config.lamp_contrast * max(float(np.median(ring_value[ring_gray <= dark])), 1.0):
+                continue  # it does not glow: a dark red shirt is its own dark housing
             confidence = min(1.0, share) * min(1.0, area / (0.75 * bw * bh))
             det = Detection("traffic_light", _clip(box, w, h), float(confidence), state)
             det = place_by_size(det, camera, w, config.lamp_diameter_m, size_px=d)
             if not det.distance_m > config.max_distance_m:
-                level = float(np.mean(hsv[y:y + bh, x:x + bw, 2][labels[y:y + bh, x:x + bw] == k]))
                 lamps.append((level, float(cx), float(cy), det))
     return _one_lamp_per_head(lamps)
 
@@ -199,22 +231,21 @@ def _dark_share(gray: Image, box: tuple[float, float, float, float], dark: int) 
     return float(np.mean(gray[y0:y1, x0:x1] <= dark))
 
 
-def _ring_dark_share(gray: Image, centre: tuple[float, float], d: float, dark: int) -> float:
-    """The share of dark pixels in the housing's ring around a lamp: the square of side 1.8 d about it, less the
-    lamp's disc (0.65 d in radius); 0 where the image's edge cuts the ring, whose housing cannot be checked (a
-    person's face at the image's top, in a dark hood cut off by the edge, was taken for a red lamp for a frame; a
-    real lamp reaches the edge only a few metres from the kart, which has acted on it by then)."""
-    h, w = gray.shape
+def _ring(channel: Image, centre: tuple[float, float], d: float) -> np.ndarray | None:
+    """The pixels of the housing's ring around a lamp: the square of side 1.8 d about it, less the lamp's disc
+    (0.65 d in radius); None where the image's edge cuts the ring, whose housing cannot be checked (a person's
+    face at the image's top, in a dark hood cut off by the edge, was taken for a red lamp for a frame; a real lamp
+    reaches the edge only a few metres from the kart, which has acted on it by then)."""
+    h, w = channel.shape[:2]
     r = 0.9 * d
     if not (r <= centre[0] <= w - 1 - r and r <= centre[1] <= h - 1 - r):
-        return 0.0
+        return None
     x0, x1 = int(centre[0] - r), int(centre[0] + r) + 1
     y0, y1 = int(centre[1] - r), int(centre[1] + r) + 1
     if x1 - x0 < 3 or y1 - y0 < 3:
-        return 0.0
+        return None
     yy, xx = np.mgrid[y0:y1, x0:x1]
-    ring = (xx - centre[0]) ** 2 + (yy - centre[1]) ** 2 > (0.65 * d) ** 2
-    return float(np.mean(gray[y0:y1, x0:x1][ring] <= dark))
+    return channel[y0:y1, x0:x1][(xx - centre[0]) ** 2 + (yy - centre[1]) ** 2 > (0.65 * d) ** 2]
 
 
 def _clip(box: tuple[float, float, float, float], w: int, h: int) -> tuple[float, float, float, float]:
