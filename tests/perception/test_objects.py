@@ -15,6 +15,7 @@ from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig
 from kartpilot.perception.obstacles import detect_barriers, detect_car, detect_standing_people
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
 from kartpilot.perception.signals import SignalConfig, detect_speed_signs, detect_traffic_lights, exposure
+from kartpilot.sim.textures import speed_sign_texture
 
 CAMERA = get_vehicle("sdc-kart").camera("center")  # 848x480, 0.56 m up, 6.8 deg down: horizon near row 163
 
@@ -162,6 +163,24 @@ def test_a_speed_sign_and_its_value_on_the_right_only(value):
     left = scene()
     _sign(left, (150, 90), 40, value)  # the other direction's sign
     assert detect_speed_signs(left, camera=CAMERA) == []
+
+
+@pytest.mark.parametrize("value", [10, 15, 20])
+def test_a_sign_in_a_font_the_reader_has_no_template_of_is_read_or_left_unread_never_misread(value):
+    """The reader compares with two fonts (a stroke font and DejaVu Sans); a real sign's font is neither. Drawn in
+    a third (DejaVu Sans Bold, narrowed, as the renderer draws them), a sign is read from about 16 m in (37 px and
+    more across), and farther away it is read right or reported with no value, never as another limit."""
+    texture = speed_sign_texture(value)
+    read = []
+    for size in (24, 28, 32, 37, 44, 56, 70):
+        image = scene()
+        sign = cv2.resize(texture, (size, size), interpolation=cv2.INTER_AREA)
+        disc = np.hypot(*np.mgrid[:size, :size] - (size - 1) / 2) <= size / 2
+        image[80:80 + size, 680:680 + size][disc] = sign[disc]
+        found = detect_speed_signs(image, camera=CAMERA)
+        assert len(found) == 1 and found[0].state in ("", str(value)), (size, found)
+        read.append(found[0].state == str(value))
+    assert all(read[3:]), read
 
 
 def test_a_sign_s_likeness_on_the_ground_is_no_sign():

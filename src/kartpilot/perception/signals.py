@@ -12,8 +12,8 @@ region with a hole; the hole must be mostly white with a few dark strokes (the d
 or a car's rear light do not have. On its pole a sign stands higher than the camera, so its middle lies above
 the horizon row (with a warm white balance, dark tyre marks on reddish asphalt made a ring with dark strokes on
 the road). The number is read by comparing the digits, cut out and scaled, with each value
-of ``values_kmh`` drawn in a plain font (normalised correlation): a small classifier with no training data and
-nothing to download. Signs stand on the right of the road in the Netherlands; one on the left (``sign_side``)
+of ``values_kmh`` drawn in two unlike fonts (normalised correlation, smoothed): a small classifier with no training
+data and nothing to download. Signs stand on the right of the road in the Netherlands; one on the left (``sign_side``)
 belongs to the other direction.
 
 Distances: neither stands on the ground where the camera sees it (a tripod's head, a sign on a pole), so each is
@@ -33,6 +33,7 @@ import numpy as np
 
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
+from kartpilot.core.glyphs import text_mask
 from kartpilot.core.types import Image
 from kartpilot.perception.objects import Detection
 
@@ -306,23 +307,35 @@ def detect_speed_signs(image: Image, config: SignalConfig = SignalConfig(), came
 
 
 _TEMPLATE = (24, 32)  # (width, height) the digits are compared at
+_SMOOTH_PX = 1.2
+"""The probe and the templates are compared smoothed by a Gaussian of this many pixels (of the 24x32 grid): a far
+sign's strokes are a pixel wide, a font's several; unsmoothed, their correlation measured the strokes' width more
+than the digits' shapes (the real 20 at 26 px read 0.41 as 20 and 0.42 as 30)."""
+_FONTS = ("hershey-simplex", "dejavu-sans")
+"""The fonts the digits are compared in, the best of them per value: OpenCV's stroke font and a filled sans-serif
+(:mod:`kartpilot.core.glyphs`). A real sign's font is neither (the Dutch signs': narrow and heavy); two unlike
+fonts teach the reader what a digit's shape is rather than one font's. The renderer draws its signs in a third
+(DejaVu Sans Bold, narrowed), which the reader has no template of."""
 
 
 def read_speed_value(gray: Image, disc_mask: Image, values_kmh: tuple[int, ...]) -> tuple[int, float]:
     """(value, score) of the number inside a sign's disc: its dark strokes, cut out and scaled, against each
-    value drawn in a plain font; score is the normalised correlation (-1 to 1), or -1 where the best value does
-    not stand out from the next (a far sign's digits are a few pixels tall: 2 and 3 look alike)."""
+    value drawn in each of :data:`_FONTS`; score is the normalised correlation (-1 to 1) of the value's best
+    font, or -1 where the best value does not stand out from the next (a far sign's digits are a few pixels
+    tall: 2 and 3 look alike). The strokes are taken as how dark each pixel is between the disc's white and its
+    darkest ink, not as a threshold's yes or no: a far or blurred digit's edge pixels carry its shape."""
     ys, xs = np.nonzero(disc_mask)
-    region = gray[ys.min():ys.max() + 1, xs.min():xs.max() + 1]
+    region = gray[ys.min():ys.max() + 1, xs.min():xs.max() + 1].astype(np.float32)
     inside = disc_mask[ys.min():ys.max() + 1, xs.min():xs.max() + 1] > 0
-    threshold = 0.5 * float(np.percentile(region[inside], 90)) + 0.5 * float(np.percentile(region[inside], 5))
-    ink = ((region < threshold) & inside).astype(np.uint8)
-    rows, cols = np.nonzero(ink)
+    white, ink_level = float(np.percentile(region[inside], 90)), float(np.percentile(region[inside], 5))
+    rows, cols = np.nonzero((region < 0.5 * white + 0.5 * ink_level) & inside)
     if len(rows) < 6:
         return values_kmh[0], -1.0
-    digits = ink[rows.min():rows.max() + 1, cols.min():cols.max() + 1].astype(np.float32)
-    probe = cv2.resize(digits, _TEMPLATE, interpolation=cv2.INTER_AREA)
-    scores = sorted(((_correlation(probe, _digits_template(v)), v) for v in values_kmh), reverse=True)
+    darkness = np.clip((white - region) / max(white - ink_level, 1.0), 0.0, 1.0) * inside
+    probe = _smooth(cv2.resize(darkness[rows.min():rows.max() + 1, cols.min():cols.max() + 1], _TEMPLATE,
+                               interpolation=cv2.INTER_AREA))
+    scores = sorted(((max(_correlation(probe, t) for t in _digits_templates(v)), v) for v in values_kmh),
+                    reverse=True)
     best, score = scores[0][1], scores[0][0]
     if len(scores) > 1 and score - scores[1][0] < _MARGIN:
         return best, -1.0  # two values read about as well: too small or blurred to tell
@@ -332,6 +345,10 @@ def read_speed_value(gray: Image, disc_mask: Image, values_kmh: tuple[int, ...])
 _MARGIN = 0.05  # the best value's correlation must beat the next one's by this much
 
 
+def _smooth(image: np.ndarray) -> np.ndarray:
+    return cv2.GaussianBlur(image.astype(np.float32), (0, 0), _SMOOTH_PX)
+
+
 def _correlation(a: np.ndarray, b: np.ndarray) -> float:
     a, b = a - a.mean(), b - b.mean()
     norm = math.sqrt(float((a * a).sum()) * float((b * b).sum()))
@@ -339,10 +356,12 @@ def _correlation(a: np.ndarray, b: np.ndarray) -> float:
 
 
 @lru_cache(maxsize=32)
-def _digits_template(value: int) -> np.ndarray:
-    """The number drawn in a plain, narrow font (as road signs' digits are), cut to its ink and scaled."""
+def _digits_templates(value: int) -> tuple[np.ndarray, ...]:
+    """The number in each of :data:`_FONTS` (a plain, upright face, as road signs' digits are), cut to its ink,
+    scaled to the comparison grid and smoothed."""
     canvas = np.zeros((120, 60 * len(str(value)) + 40), np.uint8)
     cv2.putText(canvas, str(value), (10, 100), cv2.FONT_HERSHEY_SIMPLEX, 3.2, 255, 11, cv2.LINE_AA)
     rows, cols = np.nonzero(canvas > 127)
-    ink = (canvas[rows.min():rows.max() + 1, cols.min():cols.max() + 1] > 127).astype(np.float32)
-    return cv2.resize(ink, _TEMPLATE, interpolation=cv2.INTER_AREA)
+    stroke = (canvas[rows.min():rows.max() + 1, cols.min():cols.max() + 1] > 127).astype(np.float32)
+    filled = text_mask(str(value), "dejavu-sans", 120).astype(np.float32) / 255.0
+    return tuple(_smooth(cv2.resize(ink, _TEMPLATE, interpolation=cv2.INTER_AREA)) for ink in (stroke, filled))

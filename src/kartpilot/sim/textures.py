@@ -14,6 +14,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from kartpilot.core import glyphs
 from kartpilot.core.types import Image
 
 __all__ = ["HAZE_BGR", "HORIZON_BAND_DEG", "SURFACE_TILE_M", "barrier_texture", "car_texture", "facade_texture",
@@ -96,19 +97,22 @@ def barrier_texture(stripes: int = 4) -> Image:
 @lru_cache(maxsize=8)
 def speed_sign_texture(value_kmh: int, size_px: int = 256) -> Image:
     """A round Dutch speed-limit sign (a red ring, a white disc, the number in black) on a square; the disc
-    touches the square's sides (BGR)."""
+    touches the square's sides (BGR). The digits are a heavy, narrow sans-serif, as a real sign's are: DejaVu Sans
+    Bold narrowed to 0.85 (:mod:`kartpilot.core.glyphs`), a font the sign reader has no template of, so the
+    rendered frames measure its reading of a font it does not know."""
     image = np.full((size_px, size_px, 3), 235, np.uint8)
     centre, radius = (size_px // 2, size_px // 2), size_px // 2 - 1
     cv2.circle(image, centre, radius, (35, 30, 200), -1, cv2.LINE_AA)
     cv2.circle(image, centre, int(radius * 0.78), (240, 240, 240), -1, cv2.LINE_AA)
-    text = str(value_kmh)
-    thickness = max(2, size_px // 24)
     # the digits as a real sign has them: about a third of the disc high, well inside the ring
-    (w1, h1), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 1.0, thickness)
-    scale = min(0.36 * size_px / h1, 0.55 * size_px / w1)
-    (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness)
-    cv2.putText(image, text, (centre[0] - tw // 2, centre[1] + th // 2), cv2.FONT_HERSHEY_SIMPLEX, scale,
-                (20, 20, 20), thickness, cv2.LINE_AA)
+    ink = glyphs.text_mask(str(value_kmh), "dejavu-sans-bold", round(0.36 * size_px), 0.85)
+    if ink.shape[1] > 0.55 * size_px:
+        ink = cv2.resize(ink, (round(0.55 * size_px), ink.shape[0]), interpolation=cv2.INTER_AREA)
+    h, w = ink.shape
+    y0, x0 = centre[1] - h // 2, centre[0] - w // 2
+    alpha = ink[..., None].astype(np.float32) / 255.0
+    patch = image[y0:y0 + h, x0:x0 + w].astype(np.float32)
+    image[y0:y0 + h, x0:x0 + w] = np.round(patch * (1.0 - alpha) + 20.0 * alpha).astype(np.uint8)
     return image
 
 
