@@ -337,9 +337,14 @@ def act_window(label: str, behaviour: BehaviourConfig | None = None) -> tuple[fl
     return b.front_m + margin, b.front_m + margin + v * (confirm + b.brake_delay_s) + v * v / (2 * b.decel_mps2)
 
 
+SIGN_VALUES = (10, 15, 20)
+"""The speed limits the rendered sign shows, one per seed in turn (the event's signs; seeds 23, 24, 25: 20, 10, 15)."""
+
+
 def rendered(seed: int, count: int = 40, alter: Alter | None = None) -> dict[str, Any]:
     """Every class on rendered frames of the venue track with exact truth (``Simulator.object_truth``): its
-    stop line and zebra, its barriers, and the scenario's props (a signal head red then green, a 20 km/h sign, a
+    stop line and zebra, its barriers, and the scenario's props (a signal head red then green, a 10, 15 or 20 km/h
+    sign by seed (:data:`SIGN_VALUES`), a
     person beside the zebra, the car in the lane, a parking bay between two barriers); the kart 4 to 25 m before
     one of them in turn, a little off the lane's centre and askew. Per class: in view (nearer than 25 m, whole in
     the image), found (the same class, the boxes matching), within :func:`act_window` and found there, the state right,
@@ -350,7 +355,7 @@ def rendered(seed: int, count: int = 40, alter: Alter | None = None) -> dict[str
     from kartpilot.sim.track import BarrierBlock, Prop, build_track, load_track_spec
 
     props = (Prop(kind="traffic_light", s_m=30.5, offset_m=-2.0, phases=(("red", count / 4), ("green", 1e6))),
-             Prop(kind="speed_sign", s_m=70.0, offset_m=-2.3, value_kmh=20),
+             Prop(kind="speed_sign", s_m=70.0, offset_m=-2.3, value_kmh=SIGN_VALUES[seed % len(SIGN_VALUES)]),
              Prop(kind="person", s_m=148.0, offset_m=-2.4),
              Prop(kind="car", s_m=190.0, offset_m=0.0))
     bay_s, free = BAY
@@ -651,7 +656,8 @@ def render(results: dict[str, Any]) -> str:
              f"Rendered venue frames ({r['frames']}: seeds {', '.join(map(str, r['seeds']))}, held out; seeds 3 "
              "to 22 were looked at while building the detectors) against the renderer's exact truth: the "
              "track's stop line, zebra and barriers, and the scenario's props (a signal head red then green, a "
-             "20 km/h sign, a person beside the zebra, the car in the lane, a parking bay between two barriers), "
+             "10, 15 or 20 km/h sign by seed, a person beside the zebra, the car in the lane, a parking bay between "
+             "two barriers), "
              "the kart 4 to 25 m before one of them in turn, up to 0.3 m off the lane's centre and 2 degrees "
              "askew. A light or sign counts when it is wholly in the image, a thing on the ground when its foot "
              "and sides are. Recall where the kart acts, down the road (and, beside it, with the window measured "
@@ -748,7 +754,7 @@ def _render_altered(results: dict[str, Any]) -> list[str]:
     frames = results["frames"]
     lines = ["", "The same real frames altered as another day's camera would make them (`altered` in "
                  "`benchmarks/detect.py`: exposure, its curve, focus, compression, sensor noise, white balance, a "
-                 "smaller image of the same field of view). These alterations showed six faults, mended since "
+                 "smaller image of the same field of view). These alterations showed eight faults, mended since "
                  "(the text above says which): they are development data now, not held out.", "",
              "| frames | labelled things concerning the kart, found | false alarms, labelled images | "
              "false alarms, 119 venue frames | far zebra found (frames) |", "|---|---|---|---|---|",
