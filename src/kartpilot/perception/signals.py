@@ -359,9 +359,16 @@ def _correlation(a: np.ndarray, b: np.ndarray) -> float:
 def _digits_templates(value: int) -> tuple[np.ndarray, ...]:
     """The number in each of :data:`_FONTS` (a plain, upright face, as road signs' digits are), cut to its ink,
     scaled to the comparison grid and smoothed."""
-    canvas = np.zeros((120, 60 * len(str(value)) + 40), np.uint8)
-    cv2.putText(canvas, str(value), (10, 100), cv2.FONT_HERSHEY_SIMPLEX, 3.2, 255, 11, cv2.LINE_AA)
+    return tuple(_smooth(cv2.resize(_digits_ink(str(value), font), _TEMPLATE, interpolation=cv2.INTER_AREA))
+                 for font in _FONTS)
+
+
+def _digits_ink(text: str, font: str) -> np.ndarray:
+    """``text`` in ``font`` (OpenCV's ``hershey-simplex`` or a :data:`kartpilot.core.glyphs.FONTS` name), 0 to 1,
+    cut to its ink, about 90 px tall (the stroke font) or 120 (an outline font)."""
+    if font != "hershey-simplex":
+        return text_mask(text, font, 120).astype(np.float32) / 255.0
+    canvas = np.zeros((120, 60 * len(text) + 40), np.uint8)
+    cv2.putText(canvas, text, (10, 100), cv2.FONT_HERSHEY_SIMPLEX, 3.2, 255, 11, cv2.LINE_AA)
     rows, cols = np.nonzero(canvas > 127)
-    stroke = (canvas[rows.min():rows.max() + 1, cols.min():cols.max() + 1] > 127).astype(np.float32)
-    filled = text_mask(str(value), "dejavu-sans", 120).astype(np.float32) / 255.0
-    return tuple(_smooth(cv2.resize(ink, _TEMPLATE, interpolation=cv2.INTER_AREA)) for ink in (stroke, filled))
+    return (canvas[rows.min():rows.max() + 1, cols.min():cols.max() + 1] > 127).astype(np.float32)
