@@ -108,9 +108,9 @@ def test_a_light_in_an_underexposed_frame_is_still_a_light_by_its_sky():
 
 
 def test_a_lamp_that_does_not_glow_is_not_a_light():
-    """A dark red shirt above black trousers is its own dark housing: in a darkened rendered frame it passed the
-    housing tests as a red lamp. A lit lamp is brighter than the housing around it; the shirt is as bright as its
-    own ring."""
+    """A dark red shirt is its own dark housing: in a rendered frame at gamma 1.5 (with the exposure first scaled
+    against too bright a sky) a person's shirt passed the housing tests as a red lamp. A lit lamp is brighter than
+    the dark housing around it; a fold of the shirt is as bright as the shirt round it."""
     image = scene()
     cv2.rectangle(image, (640, 10), (676, 82), (25, 25, 25), -1)
     cv2.circle(image, (658, 28), 12, (30, 30, 235), -1)
@@ -168,8 +168,9 @@ def test_a_speed_sign_and_its_value_on_the_right_only(value):
 @pytest.mark.parametrize("value", [10, 15, 20])
 def test_a_sign_in_a_font_the_reader_has_no_template_of_is_read_or_left_unread_never_misread(value):
     """The reader compares with two fonts (a stroke font and DejaVu Sans); a real sign's font is neither. Drawn in
-    a third (DejaVu Sans Bold, narrowed, as the renderer draws them), a sign is read from about 16 m in (37 px and
-    more across), and farther away it is read right or reported with no value, never as another limit."""
+    a third (DejaVu Sans Bold, narrowed, as the renderer draws them), a sign is read from 28 px across (15 m away,
+    the far end of where the kart acts on a sign) and nearer; farther away it is read right or reported with no
+    value, never as another limit."""
     texture = speed_sign_texture(value)
     read = []
     for size in (24, 28, 32, 37, 44, 56, 70):
@@ -180,7 +181,7 @@ def test_a_sign_in_a_font_the_reader_has_no_template_of_is_read_or_left_unread_n
         found = detect_speed_signs(image, camera=CAMERA)
         assert len(found) == 1 and found[0].state in ("", str(value)), (size, found)
         read.append(found[0].state == str(value))
-    assert all(read[3:]), read
+    assert all(read[1:]), read
 
 
 def test_a_sign_s_likeness_on_the_ground_is_no_sign():
