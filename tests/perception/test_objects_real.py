@@ -30,13 +30,13 @@ def _scene(name: str):
                                                       ("scene_1.jpg", "traffic_light", "green"),
                                                       ("scene_1.jpg", "speed_sign", "20")])
 def test_a_labelled_object_near_the_kart_is_found_with_its_state(name, label, state):
-    """The sign 15 m ahead is 26 px across: found, its value not read; it may be reported without a value but
-    never with a wrong one."""
+    """The sign 15 m ahead is 26 px across: found and its 20 read (its digits compared with two fonts, neither
+    the sign's own; with one, it scored 0.41 as 20 and 0.42 as 30 and was reported with no value)."""
     found = ObjectDetector(DetectorConfig(), CAMERA)(_scene(name))
     box = next(o["box"] for o in LABELS["images"][f"lelystad-2024/scenes/{name}"] if o["label"] == label)
     hits = [d for d in found if d.label == label and box_iou(d.box_px, tuple(box)) > 0.3]
     print(name, label, [(d.state, round(d.distance_m, 1)) for d in hits])
-    assert hits and hits[0].state in ((state, "") if label == "speed_sign" else (state,))
+    assert hits and hits[0].state == state
 
 
 def test_no_light_sign_or_stop_line_in_the_venue_frames_and_a_zebra_only_where_the_venue_s_crossing_is():
@@ -66,9 +66,10 @@ def test_people_are_looked_for_where_they_stand_and_only_as_far_as_the_kart_acts
     assert detect_people(_scene("scene_1.jpg"), CAMERA) == []
 
 
-def test_another_day_s_exposure_neither_adds_a_light_nor_loses_the_car():
+def test_another_day_s_exposure_neither_adds_a_light_nor_loses_one_or_the_car():
     """Brightened by 1.4, the unlit red lamp of the venue's green light passed for lit and was a second light;
-    darkened to 0.6, the inflatable car 7 m ahead split where its roof met the sky and was no car."""
+    darkened to 0.6, the green lamp fell under a fixed lit-lamp brightness and was lost, and the inflatable car
+    7 m ahead split where its roof met the sky and was no car."""
     import numpy as np
 
     def gain(image, factor):
@@ -77,6 +78,9 @@ def test_another_day_s_exposure_neither_adds_a_light_nor_loses_the_car():
     lights = [d for d in ObjectDetector(DetectorConfig(), CAMERA)(gain(_scene("scene_1.jpg"), 1.4))
               if d.label == "traffic_light"]
     assert [d.state for d in lights] == ["green"]
+    darkened = [d for d in ObjectDetector(DetectorConfig(), CAMERA)(gain(_scene("scene_1.jpg"), 0.6))
+                if d.label == "traffic_light"]
+    assert [d.state for d in darkened] == ["green"]
     cars = [d for d in ObjectDetector(DetectorConfig(), CAMERA)(gain(_scene("scene_0.jpg"), 0.6)) if d.label == "car"]
     print("darkened car at", [round(d.distance_m, 1) for d in cars])
     assert len(cars) == 1 and 6.0 <= cars[0].distance_m <= 7.5
