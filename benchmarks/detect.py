@@ -307,20 +307,30 @@ def altered(data: Path) -> dict[str, Any]:
     as :func:`labelled`, :func:`venue_frames` and :func:`over_seeds`."""
     out = {}
     for name, alter in ALTERATIONS.items():
-        lab, frames = labelled(data, alter), venue_frames(data, alter)
         rendered_rows = over_seeds(alter=alter)["classes"]
-        rows = lab["classes"].values()
         out[name] = {"rendered": {label: {key: row[key] for key in ("found_in_act", "in_act", "false_alarms",
                                                                    "false_alarms_at")}
                                   for label, row in rendered_rows.items()},
-                     "concerning": sum(r["concerning"] for r in rows),
-                     "found_concerning": sum(r["found_concerning"] for r in rows),
-                     "false_alarms_labelled": len(lab["false_alarms"]),
-                     "false_alarms": [f"{a['label']} ({a['state']}) in {a['image'].split('/')[-1]} at "
-                                      f"{a['distance_m']} m" for a in lab["false_alarms"]],
-                     "false_alarms_frames": frames["false_alarms_of_absent_classes"],
-                     "far_zebra_frames": frames["far_found"].get("crosswalk", 0)}
+                     **_real_summary(labelled(data, alter), venue_frames(data, alter))}
     return out
+
+
+def _alarm(a: dict[str, Any]) -> str:
+    state = f" ({a['state']})" if a["state"] else ""
+    return f"{a['label']}{state} in {a['image'].split('/')[-1]} at {a['distance_m']} m"
+
+
+def _real_summary(lab: dict[str, Any], frames: dict[str, Any]) -> dict[str, Any]:
+    """What :func:`labelled` and :func:`venue_frames` found, in the few numbers the altered and pitched tables
+    show."""
+    rows = lab["classes"].values()
+    return {"concerning": sum(r["concerning"] for r in rows),
+            "found_concerning": sum(r["found_concerning"] for r in rows),
+            "false_alarms_labelled": len(lab["false_alarms"]),
+            "false_alarms": [_alarm(a) for a in lab["false_alarms"]],
+            "false_alarms_frames": frames["false_alarms_of_absent_classes"],
+            "far_zebra_frames": frames["far_found"].get("crosswalk", 0),
+            "people_in_frames": frames["detections"].get("person", 0)}
 
 
 PITCH_ERRORS_DEG = (-0.5, -0.25, 0.25, 0.5)
@@ -337,20 +347,12 @@ def pitched(data: Path) -> dict[str, Any]:
     degree, seen from 0.56 m up."""
     out = {}
     for error in PITCH_ERRORS_DEG:
-        lab, frames = labelled(data, pitch_error_deg=error), venue_frames(data, pitch_error_deg=error)
         rendered_rows = over_seeds(pitch_error_deg=error)["classes"]
-        rows = lab["classes"].values()
         out[f"{error:+.2f}"] = {
             "rendered": {label: {key: row[key] for key in ("found_in_act", "in_act", "false_alarms",
                                                           "median_rel_error_10m")}
                          for label, row in rendered_rows.items()},
-            "concerning": sum(r["concerning"] for r in rows),
-            "found_concerning": sum(r["found_concerning"] for r in rows),
-            "false_alarms_labelled": len(lab["false_alarms"]),
-            "false_alarms": [f"{a['label']} in {a['image'].split('/')[-1]} at {a['distance_m']} m"
-                             for a in lab["false_alarms"]],
-            "false_alarms_frames": frames["false_alarms_of_absent_classes"],
-            "people_in_frames": frames["detections"].get("person", 0)}
+            **_real_summary(labelled(data, pitch_error_deg=error), venue_frames(data, pitch_error_deg=error))}
     return out
 
 
@@ -764,9 +766,8 @@ def render(results: dict[str, Any]) -> str:
                                                f"{'left' if m['left_m'] >= 0 else 'right'}")
                                             + ("" if m["concerns"] else ": not the kart's concern"))
                                          + ")" for m in results["labelled"]["misses"]) or "none") + ".",
-              "", "False alarms on the labelled images: " + ("; ".join(
-                  f"{a['label']} in {a['image'].split('/')[-1]} at {a['distance_m']} m"
-                  for a in results["labelled"]["false_alarms"]) or "none") + "."]
+              "", "False alarms on the labelled images: " + (
+                  "; ".join(_alarm(a) for a in results["labelled"]["false_alarms"]) or "none") + "."]
     view = results.get("light_in_view")
     if view:
         lamps = view["lamp_in_view_from_m"]
@@ -796,63 +797,56 @@ def _render_hanze_light(hanze: dict[str, Any]) -> str:
 
 
 def _render_altered(results: dict[str, Any]) -> list[str]:
-    rows = results["labelled"]["classes"].values()
-    frames = results["frames"]
     lines = ["", "The same real frames altered as another day's camera would make them (`altered` in "
                  "`benchmarks/detect.py`: exposure, its curve, focus, compression, sensor noise, white balance, a "
                  "smaller image of the same field of view). These alterations showed eight faults, mended since "
                  "(the text above says which): they are development data now, not held out.", "",
              "| frames | labelled things concerning the kart, found | false alarms, labelled images | "
              "false alarms, 119 venue frames | far zebra found (frames) |", "|---|---|---|---|---|",
-             f"| as they are | {sum(r['found_concerning'] for r in rows)}/{sum(r['concerning'] for r in rows)} | "
-             f"{len(results['labelled']['false_alarms'])} | {frames['false_alarms_of_absent_classes']} | "
-             f"{frames.get('far_found', {}).get('crosswalk', 0)} |"]
-    for name, row in results["altered"].items():
-        alarms = f" ({'; '.join(row['false_alarms'])})" if row["false_alarms"] else ""
-        lines.append(f"| {name} | {row['found_concerning']}/{row['concerning']} | "
-                     f"{row['false_alarms_labelled']}{alarms} | {row['false_alarms_frames']} | "
-                     f"{row['far_zebra_frames']} |")
-    classes = sorted(results["rendered"]["classes"])
-    lines += ["", "The held-out rendered frames (above) altered the same way: found where the kart acts, and false "
-                  "alarms in brackets:", "",
-              "| frames | " + " | ".join(classes) + " |", "|---|" + "---|" * len(classes),
-              "| as they are | " + " | ".join(f"{r['found_in_act']}/{r['in_act']} ({r['false_alarms']})"
-                                              for r in (results["rendered"]["classes"][c] for c in classes)) + " |"]
-    for name, row in results["altered"].items():
-        cells = [row["rendered"].get(c) for c in classes]
-        lines.append(f"| {name} | " + " | ".join("-" if r is None else
-                                                 f"{r['found_in_act']}/{r['in_act']} ({r['false_alarms']})"
-                                                 for r in cells) + " |")
+             *_real_rows(results, "altered", "as they are", "", "far_zebra_frames"),
+             "", "The held-out rendered frames (above) altered the same way: found where the kart acts, and false "
+                 "alarms in brackets:", "",
+             *_rendered_rows(results, "altered", "frames", "as they are", "",
+                             lambda r: f"{r['found_in_act']}/{r['in_act']} ({r['false_alarms']})")]
     where = [f"{name}: {label} ({at})" for name, row in results["altered"].items()
              for label, r in sorted(row["rendered"].items()) for at in r["false_alarms_at"]]
     lines += ["", "The rendered false alarms: " + ("; ".join(where) or "none") + "."]
     return lines
 
 
+def _real_rows(results: dict[str, Any], kind: str, first: str, suffix: str, last: str) -> list[str]:
+    """The real frames' rows of the ``kind`` table (``altered`` or ``pitched``): as they are (``first``), then
+    each variant, its name followed by ``suffix``; ``last``: the key of the last column."""
+    def line(name: str, row: dict[str, Any]) -> str:
+        alarms = f" ({'; '.join(row['false_alarms'])})" if row["false_alarms"] else ""
+        return (f"| {name} | {row['found_concerning']}/{row['concerning']} | {row['false_alarms_labelled']}{alarms} | "
+                f"{row['false_alarms_frames']} | {row[last]} |")
+    return [line(first, _real_summary(results["labelled"], results["frames"]))] + [
+        line(f"{name}{suffix}", row) for name, row in results[kind].items()]
+
+
+def _rendered_rows(results: dict[str, Any], kind: str, head: str, first: str, suffix: str,
+                   cell: Callable[[dict[str, Any]], str]) -> list[str]:
+    """The held-out rendered frames' table of ``kind`` (``altered`` or ``pitched``), a column per class: as they
+    are (``first``), then each variant, its name followed by ``suffix``."""
+    classes = sorted(results["rendered"]["classes"])
+    return ([f"| {head} | " + " | ".join(classes) + " |", "|---|" + "---|" * len(classes),
+             f"| {first} | " + " | ".join(cell(results["rendered"]["classes"][c]) for c in classes) + " |"]
+            + [f"| {name}{suffix} | " + " | ".join("-" if row["rendered"].get(c) is None else cell(row["rendered"][c])
+                                                   for c in classes) + " |"
+               for name, row in results[kind].items()])
+
+
 def _render_pitched(results: dict[str, Any]) -> list[str]:
-    rows = results["labelled"]["classes"].values()
-    frames = results["frames"]
     lines = ["", "The camera's pitch off by a quarter or half a degree (`pitched` in `benchmarks/detect.py`: the "
                  "images as they are, placed through a pose that much off; positive, the camera points more down "
                  "than calibrated, so what is far is placed farther). Real frames:", "",
              "| pitch error | labelled things concerning the kart, found | false alarms, labelled images | "
              "false alarms, 119 venue frames | people reported in the 119 frames |", "|---|---|---|---|---|",
-             f"| none | {sum(r['found_concerning'] for r in rows)}/{sum(r['concerning'] for r in rows)} | "
-             f"{len(results['labelled']['false_alarms'])} | {frames['false_alarms_of_absent_classes']} | "
-             f"{frames['detections'].get('person', 0)} |"]
-    for name, row in results["pitched"].items():
-        alarms = f" ({'; '.join(row['false_alarms'])})" if row["false_alarms"] else ""
-        lines.append(f"| {name} deg | {row['found_concerning']}/{row['concerning']} | "
-                     f"{row['false_alarms_labelled']}{alarms} | {row['false_alarms_frames']} | "
-                     f"{row['people_in_frames']} |")
-    classes = sorted(results["rendered"]["classes"])
-    lines += ["", "The held-out rendered frames with the pitch off: found where the kart acts, false alarms in "
-                  "brackets, and the median distance error at 8 to 12 m:", "",
-              "| pitch error | " + " | ".join(classes) + " |", "|---|" + "---|" * len(classes),
-              "| none | " + " | ".join(_pitched_cell(results["rendered"]["classes"][c]) for c in classes) + " |"]
-    for name, row in results["pitched"].items():
-        lines.append(f"| {name} deg | " + " | ".join("-" if row["rendered"].get(c) is None
-                                                     else _pitched_cell(row["rendered"][c]) for c in classes) + " |")
+             *_real_rows(results, "pitched", "none", " deg", "people_in_frames"),
+             "", "The held-out rendered frames with the pitch off: found where the kart acts, false alarms in "
+                 "brackets, and the median distance error at 8 to 12 m:", "",
+             *_rendered_rows(results, "pitched", "pitch error", "none", " deg", _pitched_cell)]
     return lines
 
 
