@@ -195,10 +195,10 @@ def detect_traffic_lights(image: Image, config: SignalConfig = SignalConfig(), c
             other = (cy + 0.9 * d, cy + 2.0 * d) if state == "red" else (cy - 2.0 * d, cy - 0.9 * d)
             box = (cx - 0.8 * d, min(other[0], cy - 0.7 * d), cx + 0.8 * d, max(other[1], cy + 0.7 * d))
             share = _dark_share(gray, (cx - 0.5 * d, other[0], cx + 0.5 * d, other[1]), dark)
-            ring_gray, ring_value = _ring(gray, (cx, cy), d), _ring(hsv[..., 2], (cx, cy), d)
-            if ring_gray is None or ring_value is None or min(share, float(np.mean(ring_gray <= dark))) < \
-                    config.housing_share:
+            ring = _ring((cx, cy), d, gray, hsv[..., 2])
+            if ring is None or min(share, float(np.mean(ring[0] <= dark))) < config.housing_share:
                 continue  # no dark box around it: a red jacket, a barrier, a leaf in the sun
+            ring_gray, ring_value = ring
             level = float(np.mean(hsv[y:y + bh, x:x + bw, 2][labels[y:y + bh, x:x + bw] == k]))
             if level < config.lamp_contrast * max(float(np.median(ring_value[ring_gray <= dark])), 1.0):
                 continue  # it does not glow: a dark red shirt is its own dark housing
@@ -232,12 +232,13 @@ def _dark_share(gray: Image, box: tuple[float, float, float, float], dark: int) 
     return float(np.mean(gray[y0:y1, x0:x1] <= dark))
 
 
-def _ring(channel: Image, centre: tuple[float, float], d: float) -> np.ndarray | None:
-    """The pixels of the housing's ring around a lamp: the square of side 1.8 d about it, less the lamp's disc
-    (0.65 d in radius); None where the image's edge cuts the ring, whose housing cannot be checked (a person's
-    face at the image's top, in a dark hood cut off by the edge, was taken for a red lamp for a frame; a real lamp
-    reaches the edge only a few metres from the kart, which has acted on it by then)."""
-    h, w = channel.shape[:2]
+def _ring(centre: tuple[float, float], d: float, *channels: Image) -> tuple[np.ndarray, ...] | None:
+    """The pixels of the housing's ring around a lamp, in each of ``channels`` (one image's planes): the square
+    of side 1.8 d about it, less the lamp's disc (0.65 d in radius); None where the image's edge cuts the ring,
+    whose housing cannot be checked (a person's face at the image's top, in a dark hood cut off by the edge, was
+    taken for a red lamp for a frame; a real lamp reaches the edge only a few metres from the kart, which has acted
+    on it by then)."""
+    h, w = channels[0].shape[:2]
     r = 0.9 * d
     if not (r <= centre[0] <= w - 1 - r and r <= centre[1] <= h - 1 - r):
         return None
@@ -246,7 +247,8 @@ def _ring(channel: Image, centre: tuple[float, float], d: float) -> np.ndarray |
     if x1 - x0 < 3 or y1 - y0 < 3:
         return None
     yy, xx = np.mgrid[y0:y1, x0:x1]
-    return channel[y0:y1, x0:x1][(xx - centre[0]) ** 2 + (yy - centre[1]) ** 2 > (0.65 * d) ** 2]
+    ring = (xx - centre[0]) ** 2 + (yy - centre[1]) ** 2 > (0.65 * d) ** 2
+    return tuple(channel[y0:y1, x0:x1][ring] for channel in channels)
 
 
 def _clip(box: tuple[float, float, float, float], w: int, h: int) -> tuple[float, float, float, float]:
