@@ -33,6 +33,7 @@ from common import write_json
 from kartpilot.behaviour.events import BehaviourConfig
 from kartpilot.calibration.board import BoardConfig, find_board
 from kartpilot.calibration.ground import calibrate_ground, ground_points
+from kartpilot.core.geometry import pose_from_rotvec
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.perception.detect import DetectorConfig, ObjectDetector, detect_classical
 from kartpilot.perception.objects import box_iou
@@ -114,9 +115,8 @@ def _pitched(camera: Any, error_deg: float) -> Any:
     calibrated): the same image, placed through a pose pitched up by that much."""
     if not error_deg:
         return camera
-    a = math.radians(error_deg)
-    tilt = np.array([[1, 0, 0, 0], [0, math.cos(a), -math.sin(a), 0], [0, math.sin(a), math.cos(a), 0],
-                     [0, 0, 0, 1]])  # about the camera's x axis (right; y down, z ahead): +a turns its view up
+    # about the camera's x axis (right; y down, z ahead): a positive angle turns its view up
+    tilt = pose_from_rotvec(np.array([math.radians(error_deg), 0.0, 0.0]), np.zeros(3))
     return camera.on_body(camera.pose_body_cam_array @ tilt)
 
 
