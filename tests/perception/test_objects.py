@@ -12,7 +12,7 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.perception.detect import DetectorConfig, ObjectDetector, crossing_states, merge_people
 from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, place_on_ground
-from kartpilot.perception.obstacles import detect_barriers, detect_car, detect_standing_people
+from kartpilot.perception.obstacles import ObstacleConfig, detect_barriers, detect_car, detect_standing_people
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
 from kartpilot.perception.signals import SignalConfig, detect_speed_signs, detect_traffic_lights, exposure
 from kartpilot.sim.textures import speed_sign_texture
@@ -421,13 +421,16 @@ def test_a_people_detector_box_counts_only_over_an_upright_thing_reaching_its_he
 
 def test_the_new_detector_settings_refuse_values_that_make_no_sense():
     from kartpilot.behaviour.events import BehaviourConfig
-    from kartpilot.perception.obstacles import ObstacleConfig
     from kartpilot.perception.road_marks import RoadMarkConfig
 
     with pytest.raises(ConfigError, match="barrier_height_m"):
         ObstacleConfig(barrier_height_m=(1.6, 0.4))
     with pytest.raises(ConfigError, match="person_max_distance_m"):
         ObstacleConfig(person_max_distance_m=0.0)
+    with pytest.raises(ConfigError, match="stixel_focal_px"):
+        ObstacleConfig(stixel_focal_px=0.0)
+    with pytest.raises(ConfigError, match="foot_row_share"):
+        ObstacleConfig(foot_row_share=1.5)
     with pytest.raises(ConfigError, match="search_half_width_m"):
         RoadMarkConfig(search_half_width_m=1.0)
     with pytest.raises(ConfigError, match="line_refine_m"):
@@ -511,3 +514,30 @@ def test_rows_at_the_near_edge_of_the_ground_view_take_their_paint_threshold_fro
     thresholds = _row_thresholds(tophat.astype(np.uint8), valid, RoadMarkConfig())
     print("asphalt rows", thresholds[100].round(1), "the thing's rows", thresholds[180:].round(1))
     assert np.all(thresholds[180:] <= thresholds[100] + 1.0)
+
+
+@pytest.mark.parametrize(("ahead_m", "within"), [(6.0, 0.1), (12.0, 0.1), (18.0, 0.15)])
+def test_a_smaller_image_of_the_same_camera_finds_the_same_car_and_person(ahead_m, within):
+    """The upright-thing finder works at a fixed focal length (``stixel_focal_px``), not at half of whatever
+    size comes in: halved, a 424x240 frame was 120 rows, a row of a foot 18 m away was several metres of
+    ground, and the real venue frames at that size showed cars and people that are not there."""
+    image = scene()
+    _standing(image, ahead_m, 0.0, 1.7, 1.45, (220, 215, 200))
+    _standing(image, ahead_m, -3.0, 0.5, 1.75, (120, 40, 30))
+    half = cv2.resize(image, (424, 240), interpolation=cv2.INTER_AREA)
+    cars, people = detect_car(half, CAMERA), detect_standing_people(half, CAMERA)
+    print(f"at {ahead_m} m, half size: car {[round(c.distance_m, 2) for c in cars]}, "
+          f"person {[round(p.distance_m, 2) for p in people]}")
+    assert len(cars) == 1 and cars[0].distance_m == pytest.approx(ahead_m, rel=within)
+    assert len(people) == 1 and people[0].distance_m == pytest.approx(ahead_m, rel=within)
+
+
+def test_a_car_is_reported_only_as_far_as_its_foot_places_it():
+    """Past ``foot_row_share`` of the distance per row of the finder's image (18 m for this camera), a car's
+    foot is a row or two off: the far end of a road, a fence across it, was a car 28 m away."""
+    near, far = scene(), scene()
+    _standing(near, 14.0, 0.0, 1.7, 1.45, (220, 215, 200))
+    _standing(far, 26.0, 0.0, 1.7, 1.45, (220, 215, 200))
+    assert len(detect_car(near, CAMERA)) == 1
+    assert detect_car(far, CAMERA) == []
+    assert len(detect_car(far, CAMERA, ObstacleConfig(foot_row_share=0.2))) == 1  # seen, and left out

@@ -56,8 +56,17 @@ class ObstacleConfig:
         min_car_width_m, max_car_width_m: the width on the ground of an upright thing in the corridor that is a
             car (wider: the far end of the venue, its barriers, cars and fences run together at the horizon).
         colour_sigmas: a pixel is not asphalt when its colour is this many robust deviations from the road's.
-        min_run_px: an upright thing's least run of pixels down from the horizon row, at half the image's size
-            (3 px: about 45 m away for the SDC kart's camera).
+        min_run_px: an upright thing's least run of pixels down from the horizon row, in the finder's own image
+            (``stixel_focal_px``; 3 px: about 45 m away for the SDC kart's camera).
+        stixel_focal_px: the upright-thing finder works on the image scaled down until the camera's focal length
+            is this (320 px: half the SDC kart's 848x480 centre camera), or on the image as it is where that is
+            smaller: its sizes in pixels (``min_run_px``, its smoothing) are then angles, the same for a camera
+            of any resolution. Halving every image, as it did before, left a 424x240 frame 120 rows, where a
+            row of a person's foot 27 m away is 10 m of ground.
+        foot_row_share: a car is reported only where one row of that image spans at most this share of its
+            distance from the camera (``share * height * focal``: 18 m for the SDC kart's camera 0.56 m up; the
+            kart acts on a car from 14 m): farther, its foot is a row or two off by blur, and the far end of a
+            road, a fence across it, was a car 28 m away (its foot two rows off).
         min_car_height_m: a car's least height (a low thing in the lane is not one).
         min_person_width_m, max_person_width_m: an upright thing this wide on the ground may be a person.
         shape_height_tolerance: how far an upright thing's height may be off a person's to be one (a share; tighter
@@ -84,6 +93,8 @@ class ObstacleConfig:
     barrier_min_px: float = 0.02
     barrier_height_m: tuple[float, float] = (0.4, 1.6)
     min_run_px: int = 3
+    stixel_focal_px: float = 320.0
+    foot_row_share: float = 0.1
     min_car_height_m: float = 0.5
     min_person_width_m: float = 0.2
     max_person_width_m: float = 1.0
@@ -96,6 +107,10 @@ class ObstacleConfig:
             raise ConfigError("obstacles: height_tolerance must be in (0, 1) and the sizes positive")
         if not self.person_max_distance_m > 0:
             raise ConfigError("obstacles: person_max_distance_m must be positive")
+        if not self.stixel_focal_px > 0:
+            raise ConfigError("obstacles: stixel_focal_px must be positive")
+        if not 0 < self.foot_row_share <= 1:
+            raise ConfigError("obstacles: foot_row_share must be in (0, 1]")
         if not 0 < self.barrier_height_m[0] < self.barrier_height_m[1]:
             raise ConfigError("obstacles: barrier_height_m must be (least, most) with 0 < least < most")
 
@@ -231,17 +246,19 @@ class Upright(NamedTuple):
 
 
 def upright_things(image: Image, camera: PinholeCamera, config: ObstacleConfig = ObstacleConfig()) -> list[Upright]:
-    """Things standing upright on the ground, found as columns (the "stixels" of road-scene vision): at half the
-    image's size, a pixel is part of a thing when its colour is far from its row's (the road below the horizon,
-    the sky and trees above it) and it is not grass; a column holds a thing when such pixels run down unbroken
+    """Things standing upright on the ground, found as columns (the "stixels" of road-scene vision): at the
+    image's size where the camera's focal length is ``stixel_focal_px`` (half the SDC kart's 848x480; a smaller
+    image as it is), a pixel is part of a thing when its colour is far from its row's (the road below the
+    horizon, the sky and trees above it) and it is not grass; a column holds a thing when such pixels run down unbroken
     from the horizon row (a thing taller than the camera: paint on the ground never reaches it), and its bottom
     is where the thing meets the ground. Neighbouring columns are one thing (a car's wheels and shadow make its
     bottom uneven: split there, one car would be several narrow things); its foot is their median bottom, its
-    height how far the pixels run up from the horizon, in metres at its distance. The half size's blur moves a
+    height how far the pixels run up from the horizon, in metres at its distance. The reduced size's blur moves a
     foot down by about a pixel: at 18 m that is 2 m on the ground (placed about 10 % short), at 10 m 3 %."""
     full_h, full_w = image.shape[:2]
-    if min(full_h, full_w) >= 240:
-        image = cv2.resize(image, (full_w // 2, full_h // 2), interpolation=cv2.INTER_AREA)
+    scale = config.stixel_focal_px / camera_for_image(camera, full_w, full_h).fy_px
+    if scale < 1.0:
+        image = cv2.resize(image, (round(full_w * scale), round(full_h * scale)), interpolation=cv2.INTER_AREA)
     h, w = image.shape[:2]
     sx, sy = full_w / w, full_h / h
     cam = camera_for_image(camera, w, h)
@@ -297,15 +314,19 @@ def _segments(standing: np.ndarray, top: np.ndarray, bottom: np.ndarray, min_px:
 
 def detect_car(image: Image, camera: PinholeCamera | None, config: ObstacleConfig = ObstacleConfig(),
                things: list[Upright] | None = None) -> list[Detection]:
-    """An upright thing in the kart's corridor, as wide on the ground as a car (:func:`upright_things`); needs
-    the camera's mount."""
+    """An upright thing in the kart's corridor, as wide on the ground as a car (:func:`upright_things`), where
+    its foot places it to a tenth of its distance (``foot_row_share``); needs the camera's mount."""
     if camera is None or image.ndim != 3:
         return []
     things = upright_things(image, camera, config) if things is None else things
     out = []
     corridor = config.corridor_half_width_m
+    cam = camera_for_image(camera, image.shape[1], image.shape[0])
+    ahead = float(cam.pose_body_cam_array[0, 3])
+    farthest = ahead + config.foot_row_share * float(cam.pose_body_cam_array[2, 3]) * min(
+        cam.fy_px, config.stixel_focal_px)
     for t in _side_by_side(things, config):
-        if not (0 < t.distance_m <= config.max_distance_m and config.min_car_width_m <= t.width_m
+        if not (0 < t.distance_m <= min(config.max_distance_m, farthest) and config.min_car_width_m <= t.width_m
                 <= config.max_car_width_m) or min(t.left_m, t.right_m) > corridor or max(t.left_m,
                                                                                       t.right_m) < -corridor:
             continue
