@@ -294,8 +294,9 @@ def detect_speed_signs(image: Image, config: SignalConfig = SignalConfig(), came
             continue
         # white: unsaturated and near the disc's brightest (a backlit sign's white is grey, not bright)
         pale = hsv[..., 1][disc > 0] < config.sign_white_saturation
-        white = float(np.mean(pale & (inside >= 0.75 * float(np.percentile(inside, 90)))))
-        dark = float(np.mean(inside < 0.5 * float(np.percentile(inside, 90))))
+        bright = float(np.percentile(inside, 90))
+        white = float(np.mean(pale & (inside >= 0.75 * bright)))
+        dark = float(np.mean(inside < 0.5 * bright))
         if white < config.sign_white_share or not 0.04 <= dark <= 0.5:
             continue
         value, score = read_speed_value(gray, disc, config.values_kmh)
