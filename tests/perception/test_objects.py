@@ -541,3 +541,15 @@ def test_a_car_is_reported_only_as_far_as_its_foot_places_it():
     assert len(detect_car(near, CAMERA)) == 1
     assert detect_car(far, CAMERA) == []
     assert len(detect_car(far, CAMERA, ObstacleConfig(foot_row_share=0.2))) == 1  # seen, and left out
+
+
+def test_in_a_small_image_a_person_is_reported_only_as_far_as_their_foot_places_them():
+    """At 320x180 a row of the SDC kart's camera spans twice the ground it does at 848x480's working size: the
+    people's reach (``foot_row_share``) comes nearer than ``person_max_distance_m`` with it."""
+    near, far = scene(), scene()
+    _standing(near, 10.0, -1.0, 0.5, 1.75, (120, 40, 30))
+    _standing(far, 17.0, -1.0, 0.5, 1.75, (120, 40, 30))
+    near, far = (cv2.resize(im, (320, 180), interpolation=cv2.INTER_AREA) for im in (near, far))
+    assert len(detect_standing_people(near, CAMERA)) == 1
+    assert detect_standing_people(far, CAMERA) == []
+    assert len(detect_standing_people(far, CAMERA, ObstacleConfig(foot_row_share=0.2))) == 1  # seen, left out

@@ -63,18 +63,19 @@ class ObstacleConfig:
             smaller: its sizes in pixels (``min_run_px``, its smoothing) are then angles, the same for a camera
             of any resolution. Halving every image, as it did before, left a 424x240 frame 120 rows, where a
             row of a person's foot 27 m away is 10 m of ground.
-        foot_row_share: a car is reported only where one row of that image spans at most this share of its
-            distance from the camera (``share * height * focal``: 18 m for the SDC kart's camera 0.56 m up; the
-            kart acts on a car from 14 m): farther, its foot is a row or two off by blur, and the far end of a
-            road, a fence across it, was a car 28 m away (its foot two rows off).
+        foot_row_share: a car (and a person) is reported only where one row of that image spans at most this
+            share of its distance from the camera (``share * height * focal``: 18 m for the SDC kart's camera
+            0.56 m up; the kart acts on a car from 14 m): farther, its foot is a row or two off by blur, and the
+            far end of a road, a fence across it, was a car 28 m away (its foot two rows off).
         min_car_height_m: a car's least height (a low thing in the lane is not one).
         min_person_width_m, max_person_width_m: an upright thing this wide on the ground may be a person.
         shape_height_tolerance: how far an upright thing's height may be off a person's to be one (a share; tighter
             than HOG's, as the shape says nothing else).
-        person_max_distance_m: people are found (by shape or by HOG) no farther than this: beyond it a pixel
-            of the foot's row is more than a metre on the ground, a far car's or barrier's column looks as tall as
-            a person, and spectators beside the course stand 5 to 6 m to the side (the kart acts on people within
-            15 m).
+        person_max_distance_m: people are found (by shape or by HOG) no farther than this, nor than
+            ``foot_row_share`` allows (nearer only for an image smaller than 400x225 on the SDC kart's camera):
+            beyond it a pixel of the foot's row is more than a metre on the ground, a far car's or barrier's
+            column looks as tall as a person, and spectators beside the course stand 5 to 6 m to the side (the
+            kart acts on people within 15 m).
         barrier_min_px: a barrier's least size (fraction of the image's height).
         barrier_height_m: a barrier's height (least, most), measured where its foot stands.
     """
@@ -176,11 +177,12 @@ def _hog_around(image: Image, cam: PinholeCamera, things: list[Upright], config:
     scores."""
     h, w = image.shape[:2]
     ahead = float(cam.pose_body_cam_array[0, 3])
+    farthest = min(config.person_max_distance_m, placed_reach_m(cam, config)) - ahead
     boxes: list[list[float]] = []
     weights: list[float] = []
     for t in things:
         depth = t.distance_m - ahead
-        if not 0.5 < depth <= config.person_max_distance_m - ahead:
+        if not 0.5 < depth <= farthest:
             continue
         person_px = cam.fy_px * config.person_height_m / depth
         foot = t.box_px[3]
@@ -321,10 +323,7 @@ def detect_car(image: Image, camera: PinholeCamera | None, config: ObstacleConfi
     things = upright_things(image, camera, config) if things is None else things
     out = []
     corridor = config.corridor_half_width_m
-    cam = camera_for_image(camera, image.shape[1], image.shape[0])
-    ahead = float(cam.pose_body_cam_array[0, 3])
-    farthest = ahead + config.foot_row_share * float(cam.pose_body_cam_array[2, 3]) * min(
-        cam.fy_px, config.stixel_focal_px)
+    farthest = placed_reach_m(camera_for_image(camera, image.shape[1], image.shape[0]), config)
     for t in _side_by_side(things, config):
         if not (0 < t.distance_m <= min(config.max_distance_m, farthest) and config.min_car_width_m <= t.width_m
                 <= config.max_car_width_m) or min(t.left_m, t.right_m) > corridor or max(t.left_m,
@@ -338,6 +337,14 @@ def detect_car(image: Image, camera: PinholeCamera | None, config: ObstacleConfi
         out.append(Detection("car", t.box_px, float(confidence), distance_m=t.distance_m,
                              lateral_m=(t.left_m + t.right_m) / 2))
     return out
+
+
+def placed_reach_m(cam: PinholeCamera, config: ObstacleConfig) -> float:
+    """How far ahead (body frame) a thing's foot is placed to ``foot_row_share`` of its distance from the camera
+    (``cam`` fits the image's size): one row of the upright-thing finder's image spans ``depth**2 / (height *
+    focal)`` of ground there."""
+    return float(cam.pose_body_cam_array[0, 3]) + config.foot_row_share * float(cam.pose_body_cam_array[2, 3]) * min(
+        cam.fy_px, config.stixel_focal_px)
 
 
 def _side_by_side(things: list[Upright], config: ObstacleConfig, foot_share: float = 0.1) -> list[Upright]:
@@ -380,19 +387,21 @@ def detect_standing_people(image: Image, camera: PinholeCamera | None, config: O
     if camera is None or image.ndim != 3:
         return []
     things = upright_things(image, camera, config) if things is None else things
+    reach = placed_reach_m(camera_for_image(camera, image.shape[1], image.shape[0]), config)
     out = []
     for t in things:
-        fit = _person_fit(t, config)
+        fit = _person_fit(t, config, reach)
         if fit is not None:
             out.append(Detection("person", t.box_px, float(1.0 - fit), distance_m=t.distance_m,
                                  lateral_m=(t.left_m + t.right_m) / 2))
     return out
 
 
-def _person_fit(t: Upright, config: ObstacleConfig) -> float | None:
+def _person_fit(t: Upright, config: ObstacleConfig, reach_m: float = math.inf) -> float | None:
     """How far an upright thing's height is off a person's (a share), where it has a person's width, stands
-    where people are reported and is within ``shape_height_tolerance`` of that height; else None."""
-    if not (0 < t.distance_m <= min(config.max_distance_m, config.person_max_distance_m)
+    where people are reported (and no farther than ``reach_m``, :func:`placed_reach_m`) and is within
+    ``shape_height_tolerance`` of that height; else None."""
+    if not (0 < t.distance_m <= min(config.max_distance_m, config.person_max_distance_m, reach_m)
             and abs((t.left_m + t.right_m) / 2) <= config.max_lateral_m
             and config.min_person_width_m <= t.width_m <= config.max_person_width_m):
         return None
