@@ -177,7 +177,7 @@ def _hog_around(image: Image, cam: PinholeCamera, things: list[Upright], config:
     scores."""
     h, w = image.shape[:2]
     ahead = float(cam.pose_body_cam_array[0, 3])
-    farthest = min(config.person_max_distance_m, placed_reach_m(cam, config)) - ahead
+    farthest = min(config.person_max_distance_m, _placed_reach_m(cam, config)) - ahead
     boxes: list[list[float]] = []
     weights: list[float] = []
     for t in things:
@@ -323,7 +323,7 @@ def detect_car(image: Image, camera: PinholeCamera | None, config: ObstacleConfi
     things = upright_things(image, camera, config) if things is None else things
     out = []
     corridor = config.corridor_half_width_m
-    farthest = placed_reach_m(camera_for_image(camera, image.shape[1], image.shape[0]), config)
+    farthest = _placed_reach_m(camera_for_image(camera, image.shape[1], image.shape[0]), config)
     for t in _side_by_side(things, config):
         if not (0 < t.distance_m <= min(config.max_distance_m, farthest) and config.min_car_width_m <= t.width_m
                 <= config.max_car_width_m) or min(t.left_m, t.right_m) > corridor or max(t.left_m,
@@ -339,7 +339,7 @@ def detect_car(image: Image, camera: PinholeCamera | None, config: ObstacleConfi
     return out
 
 
-def placed_reach_m(cam: PinholeCamera, config: ObstacleConfig) -> float:
+def _placed_reach_m(cam: PinholeCamera, config: ObstacleConfig) -> float:
     """How far ahead (body frame) a thing's foot is placed to ``foot_row_share`` of its distance from the camera
     (``cam`` fits the image's size): one row of the upright-thing finder's image spans ``depth**2 / (height *
     focal)`` of ground there."""
@@ -387,7 +387,7 @@ def detect_standing_people(image: Image, camera: PinholeCamera | None, config: O
     if camera is None or image.ndim != 3:
         return []
     things = upright_things(image, camera, config) if things is None else things
-    reach = placed_reach_m(camera_for_image(camera, image.shape[1], image.shape[0]), config)
+    reach = _placed_reach_m(camera_for_image(camera, image.shape[1], image.shape[0]), config)
     out = []
     for t in things:
         fit = _person_fit(t, config, reach)
@@ -399,7 +399,7 @@ def detect_standing_people(image: Image, camera: PinholeCamera | None, config: O
 
 def _person_fit(t: Upright, config: ObstacleConfig, reach_m: float = math.inf) -> float | None:
     """How far an upright thing's height is off a person's (a share), where it has a person's width, stands
-    where people are reported (and no farther than ``reach_m``, :func:`placed_reach_m`) and is within
+    where people are reported (and no farther than ``reach_m``, :func:`_placed_reach_m`) and is within
     ``shape_height_tolerance`` of that height; else None."""
     if not (0 < t.distance_m <= min(config.max_distance_m, config.person_max_distance_m, reach_m)
             and abs((t.left_m + t.right_m) / 2) <= config.max_lateral_m
