@@ -22,7 +22,6 @@ ground, not by how they look in the image.
 from __future__ import annotations
 
 import itertools
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -327,20 +326,27 @@ def _row_thresholds(tophat: np.ndarray, valid: np.ndarray, config: RoadMarkConfi
     of the window, so it does not raise its own threshold. The window runs over the rows the camera sees, mirrored
     at their ends: a row at the view's edge weighs as much as any other (repeated to fill the window, as it was,
     a thing lying at the near edge, a board or a shadow, set the threshold of every near row)."""
-    values = np.where(valid, tophat.astype(np.float32), np.nan)
     seen = valid.sum(axis=1) >= 10
     out = np.full(tophat.shape[0], np.inf)
     if not seen.any():
         return out
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        median = np.nanmedian(values[seen], axis=1)
-        mad = np.nanmedian(np.abs(values[seen] - median[:, None]), axis=1)
+    values = np.where(valid[seen], tophat[seen].astype(np.float32), np.nan)
+    median = _row_medians(values)
+    mad = _row_medians(np.abs(values - median[:, None]))
     size = 2 * max(1, round(config.stats_half_window_m * config.pixels_per_m)) + 1
     median = median_filter(median, size=size, mode="mirror")
     mad = median_filter(mad, size=size, mode="mirror")
     out[seen] = np.maximum(median + config.noise_sigmas * 1.4826 * np.maximum(mad, 1.0), config.min_contrast)
     return out
+
+
+def _row_medians(values: np.ndarray) -> np.ndarray:
+    """Each row's median of its values that are not NaN (each row holds some), as ``np.nanmedian(values,
+    axis=1)`` gives it, a tenth of the cost: sorted, NaN goes last, and the middle of a row's values is read off."""
+    ordered = np.sort(values, axis=1)
+    count = np.count_nonzero(~np.isnan(values), axis=1)
+    rows = np.arange(len(values))
+    return 0.5 * (ordered[rows, (count - 1) // 2] + ordered[rows, count // 2])
 
 
 def _in_front(view: BirdseyeView, camera: PinholeCamera) -> np.ndarray:
