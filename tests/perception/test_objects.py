@@ -544,8 +544,9 @@ def test_a_car_is_reported_only_as_far_as_its_foot_places_it():
 
 
 def test_in_a_small_image_a_person_is_reported_only_as_far_as_their_foot_places_them():
-    """At 320x180 a row of the SDC kart's camera spans twice the ground it does at 848x480's working size: the
-    people's reach (``foot_row_share``) comes nearer than ``person_max_distance_m`` with it."""
+    """At 320x180 (a focal length of 242 px) a row of the SDC kart's camera spans a third more ground than at
+    848x480's working size (320 px): the people's reach (``foot_row_share``, 14.7 m here) comes nearer than
+    ``person_max_distance_m`` (18 m) with it."""
     near, far = scene(), scene()
     _standing(near, 10.0, -1.0, 0.5, 1.75, (120, 40, 30))
     _standing(far, 17.0, -1.0, 0.5, 1.75, (120, 40, 30))
