@@ -36,6 +36,8 @@ from kartpilot.calibration.ground import calibrate_ground, ground_points
 from kartpilot.core.geometry import pose_from_rotvec
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.perception.detect import DetectorConfig, ObjectDetector, detect_classical
+from kartpilot.perception.features import FeatureConfig, Features, create_detector, detect_features
+from kartpilot.perception.matching import MatchConfig, match_descriptors
 from kartpilot.perception.objects import box_iou
 from kartpilot.perception.obstacles import ObstacleConfig, detect_barriers, detect_car, detect_people, horizon_row
 from kartpilot.perception.road_marks import RoadMarkConfig, camera_for_image, detect_road_marks
@@ -364,27 +366,28 @@ def pitch_motion(data: Path, band_px: tuple[int, int] = (75, 5)) -> dict[str, An
     """How much the camera's pitch changes over the 119 venue frames (12 s of a drive): the far background (the
     band ``band_px`` rows above to just above the horizon: trees and buildings hundreds of metres away, which the
     kart's own travel hardly moves) shifts up or down between frames as the kart pitches. Measured two ways, each
-    summed over the frames: OpenCV's phase correlation of the band, and the median vertical motion of ORB features
-    matched in it. A relative measure (it says nothing of the mount's calibration), and it takes in the roll too."""
+    summed over the frames: OpenCV's phase correlation of the band, and the median vertical motion of the stack's
+    own ORB features (``perception.features``) matched in it (``perception.matching``, ratio test and cross-check).
+    A relative measure (it says nothing of the mount's calibration), and it takes in the roll too."""
     camera = get_vehicle("sdc-kart").camera("center")
     horizon = int(horizon_row(camera))
     top, bottom = horizon - band_px[0], horizon - band_px[1]
     window = cv2.createHanningWindow((camera.width_px, bottom - top), cv2.CV_32F)
-    mask = np.zeros((camera.height_px, camera.width_px), np.uint8)
-    mask[top:bottom] = 255
-    orb, matcher = cv2.ORB_create(1500), cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
+    features = FeatureConfig(grid_rows=1)
+    detector, binary = create_detector(features)
+    matching = MatchConfig(cross_check=True)
     steps: dict[str, list[float]] = {"phase correlation": [], "matched ORB features": []}
-    previous = None
+    previous: tuple[np.ndarray, Features] | None = None
     for path in sorted((data / "rdw-kart" / "lelystad-2024" / "frames").glob("*.jpg")):
-        gray = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2GRAY)
-        band = gray[top:bottom].astype(np.float32)
-        points, descriptors = orb.detectAndCompute(gray, mask)
+        band = np.ascontiguousarray(cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2GRAY)[top:bottom])
+        found = detect_features(band, detector, binary, features)
         if previous is not None:
-            steps["phase correlation"].append(float(cv2.phaseCorrelate(previous[0], band, window)[0][1]))
-            moved = [points[m.trainIdx].pt[1] - previous[1][m.queryIdx].pt[1]
-                     for m in matcher.match(previous[2], descriptors)]
-            steps["matched ORB features"].append(float(np.median(moved)) if len(moved) >= 10 else 0.0)
-        previous = (band, points, descriptors)
+            steps["phase correlation"].append(float(cv2.phaseCorrelate(
+                previous[0].astype(np.float32), band.astype(np.float32), window)[0][1]))
+            pairs = match_descriptors(previous[1].descriptors, found.descriptors, binary, matching)
+            moved = found.points_px[pairs.index_b, 1] - previous[1].points_px[pairs.index_a, 1]
+            steps["matched ORB features"].append(float(np.median(moved)) if len(pairs) >= 10 else 0.0)
+        previous = (band, found)
 
     def degrees(px: float) -> float:
         return math.degrees(math.atan(px / camera.fy_px))
