@@ -165,6 +165,16 @@ def test_a_speed_sign_and_its_value_on_the_right_only(value):
     assert detect_speed_signs(left, camera=CAMERA) == []
 
 
+def test_the_values_a_sign_is_read_as_are_positive_and_each_given_once():
+    """A value given twice scores as well as itself, so no sign would ever stand out and be read."""
+    for values in ((20, 20), (0, 10), (10, -15)):
+        with pytest.raises(ConfigError, match="values_kmh"):
+            SignalConfig(values_kmh=values)
+    image = scene()
+    _sign(image, (700, 90), 40, "30")
+    assert [d.state for d in detect_speed_signs(image, SignalConfig(values_kmh=(10, 15, 20, 30)), CAMERA)] == ["30"]
+
+
 @pytest.mark.parametrize("value", [10, 15, 20])
 def test_a_sign_in_a_font_the_reader_has_no_template_of_is_read_or_left_unread_never_misread(value):
     """The reader compares with two fonts (a stroke font and DejaVu Sans); a real sign's font is neither. Drawn in
