@@ -41,7 +41,7 @@ from kartpilot.perception.matching import MatchConfig, match_descriptors
 from kartpilot.perception.objects import box_iou
 from kartpilot.perception.obstacles import ObstacleConfig, detect_barriers, detect_car, detect_people, horizon_row
 from kartpilot.perception.road_marks import RoadMarkConfig, camera_for_image, detect_road_marks
-from kartpilot.perception.signals import SignalConfig, detect_speed_signs, detect_traffic_lights
+from kartpilot.perception.signals import SignalConfig, detect_speed_signs, detect_traffic_lights, road_colour
 from vo_table import put_between_markers
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -292,7 +292,7 @@ def sign_reading(data: Path) -> dict[str, Any]:
         image = cv2.imread(str(data / "rdw-kart" / name))
         out["signs"][name.split("/")[-1]] = {"px": round(box[2] - box[0])}
         for size, encode, (key, values) in itertools.product(SIGN_SIZES, (None, _jpeg(90), _jpeg(75)), known.items()):
-            view, cam, where = _sign_view(image, camera, box, size)
+            view, cam, where = _object_view(image, camera, box, size)
             signals = replace(SignalConfig(), values_kmh=values)
             found = [d for d in detect_classical(view if encode is None else encode(view), cam,
                                                  DetectorConfig(signals=signals, people=False))
@@ -306,10 +306,53 @@ def sign_reading(data: Path) -> dict[str, Any]:
     return out
 
 
-def _sign_view(image: np.ndarray, camera: Any, box: list[float], size: float) -> tuple[np.ndarray, Any, list[float]]:
-    """The frame with its sign (``box``) ``size`` times as large, the camera that sees it so, and where the sign
-    lies in it: larger, enlarged about the sign's middle and cut back to the frame's size (a longer focal length);
-    smaller, the whole frame made smaller (the detectors scale the camera to it)."""
+SIGNAL_SIZES = (0.8, 1.0, 1.2, 1.4, 1.7, 2.0)
+"""The real lights' and signs' sizes in :func:`signals_altered`, as a share of their size in their frame."""
+
+
+def signals_altered(data: Path) -> dict[str, Any]:
+    """The real lights and signs (the venue's green light and 20 in scene 1, the Hanze practice set-up's red
+    light and 20) at :data:`SIGNAL_SIZES` of their size (as :func:`sign_reading` makes them) and altered as
+    another day's camera would make them (:data:`ALTERATIONS`, the smaller sizes left out: the sizes here are
+    that): per alteration and object, the views where it is found with its state (a light's colour, a sign's
+    20), and any other light or sign reported."""
+    labels = json.loads(LABELS.read_text())["images"]
+    cameras = {"lelystad-2024/scenes/scene_1.jpg": get_vehicle("sdc-kart").camera("center"),
+               "hanze-calibration/center.jpg": _hanze_camera(data)}
+    alterations: dict[str, Alter | None] = {"as they are": None, **{
+        name: alter for name, alter in ALTERATIONS.items() if not name.endswith("the size")}}
+    venue = sorted((data / "rdw-kart" / "lelystad-2024").glob("*/*.jpg"))
+    casts = [_road_cast(cv2.imread(str(path))) for path in venue]
+    out: dict[str, Any] = {"sizes": list(SIGNAL_SIZES), "rows": {}, "road_cast": {
+        "images": len(casts), "median": float(np.median(casts)), "max": float(np.max(casts))}}
+    for name, camera in cameras.items():
+        image = cv2.imread(str(data / "rdw-kart" / name))
+        for obj in (o for o in labels[name] if o["label"] in ("traffic_light", "speed_sign")):
+            column = f"{obj['label']} ({obj['state']}), {name.split('/')[-1]}"
+            for (key, alter), size in itertools.product(alterations.items(), SIGNAL_SIZES):
+                view, cam, where = _object_view(image, camera, obj["box"], size)
+                found = [d for d in detect_classical(view if alter is None else alter(view), cam,
+                                                     DetectorConfig(people=False))
+                         if d.label == obj["label"]]
+                mine = [d for d in found if _matches(d.box_px, where, LABEL_PX)]
+                cell = out["rows"].setdefault(key, {}).setdefault(column, {"views": 0, "right": 0, "other": 0})
+                cell["views"] += 1
+                cell["right"] += int(any(d.state == obj["state"] for d in mine))
+                cell["other"] += len(found) - len(mine)
+    return out
+
+
+def _road_cast(image: np.ndarray) -> float:
+    """How far the road's most-off colour channel is from its grey (a share, as ``road_grey``'s ``tint``, which
+    it leaves alone)."""
+    colour = road_colour(image)
+    return math.expm1(float(np.max(np.abs(np.log(colour / colour.mean())))))
+
+
+def _object_view(image: np.ndarray, camera: Any, box: list[float], size: float) -> tuple[np.ndarray, Any, list[float]]:
+    """The frame with its object (``box``: a sign, a light) ``size`` times as large, the camera that sees it so,
+    and where the object lies in it: larger, enlarged about the object's middle and cut back to the frame's size (a
+    longer focal length); smaller, the whole frame made smaller (the detectors scale the camera to it)."""
     h, w = image.shape[:2]
     if size <= 1.0:
         view = cv2.resize(image, (round(w * size), round(h * size)), interpolation=cv2.INTER_AREA)
@@ -857,6 +900,7 @@ def render(results: dict[str, Any]) -> str:
                      for name, row in sorted(results["pasted"]["classes"].items())]),
               *([] if not results.get("altered") else _render_altered(results)),
               *([] if not results.get("pitched") else _render_pitched(results)),
+              *([] if not results.get("signals_altered") else _render_signals_altered(results["signals_altered"])),
               *([] if not results.get("sign_reading") else _render_sign_reading(results["sign_reading"])),
               "", "Misses: " + ("; ".join(f"{m['label']} in {m['image'].split('/')[-1]} ({m['height_px']} px tall"
                                          + ("" if not math.isfinite(m["ahead_m"]) else
@@ -961,6 +1005,23 @@ def _render_pitched(results: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _render_signals_altered(altered: dict[str, Any]) -> list[str]:
+    columns = list(next(iter(altered["rows"].values())))
+    sizes = altered["sizes"]
+    return ["", "The real lights and signs at other sizes, altered as another day's camera would make them "
+                f"(`signals_altered` in `benchmarks/detect.py`: {', '.join(f'{s:g}' for s in sizes)} times their "
+                "size, as in the table below this one; the alterations above). Views where the object is found "
+                "with its state (its colour, its 20), and in brackets any other light or sign reported. "
+                "Development data: the signs' white balance and exposure were mended seeing these counts. The "
+                "venue's asphalt, the grey reference, over its "
+                f"{altered['road_cast']['images']} real images: its most-off colour channel "
+                f"{100 * altered['road_cast']['median']:.0f} % from its grey (median; at most "
+                f"{100 * altered['road_cast']['max']:.0f} %).", "",
+            "| frames | " + " | ".join(columns) + " |", "|---|" + "---|" * len(columns),
+            *(f"| {name} | " + " | ".join(f"{c['right']}/{c['views']} ({c['other']})" for c in row.values()) + " |"
+              for name, row in altered["rows"].items())]
+
+
 def _render_sign_reading(reading: dict[str, Any]) -> list[str]:
     signs = reading["signs"]
     sizes = reading["sizes"]
@@ -997,7 +1058,7 @@ def main() -> int:
     write_json(args.out, {"labelled": labelled(args.data), "frames": venue_frames(args.data),
                           "city": city_drive(args.data), "pasted": pasted(args.data), "altered": altered(args.data),
                           "pitched": pitched(args.data), "pitch_motion": pitch_motion(args.data),
-                          "sign_reading": sign_reading(args.data),
+                          "sign_reading": sign_reading(args.data), "signals_altered": signals_altered(args.data),
                           "light_in_view": light_in_view(args.data),
                           "rendered": over_seeds(), "timing_ms": timing(args.data),
                           "onnx_ms": onnx_overhead(args.data)})

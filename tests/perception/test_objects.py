@@ -14,7 +14,7 @@ from kartpilot.perception.detect import DetectorConfig, ObjectDetector, crossing
 from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, place_on_ground
 from kartpilot.perception.obstacles import ObstacleConfig, detect_barriers, detect_car, detect_standing_people
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
-from kartpilot.perception.signals import SignalConfig, detect_speed_signs, detect_traffic_lights, exposure
+from kartpilot.perception.signals import SignalConfig, detect_speed_signs, detect_traffic_lights, exposure, road_grey
 from kartpilot.sim.textures import speed_sign_texture
 
 CAMERA = get_vehicle("sdc-kart").camera("center")  # 848x480, 0.56 m up, 6.8 deg down: horizon near row 163
@@ -144,9 +144,10 @@ def test_a_red_barrier_on_the_ground_is_a_barrier_not_a_light():
     assert 3.0 < barriers[0].distance_m < 15.0
 
 
-def _sign(image: np.ndarray, centre: tuple[int, int], radius: int, text: str) -> None:
-    cv2.circle(image, centre, radius, (30, 30, 200), -1)
-    cv2.circle(image, centre, int(radius * 0.78), (245, 245, 245), -1)
+def _sign(image: np.ndarray, centre: tuple[int, int], radius: int, text: str,
+          ring: tuple[int, int, int] = (30, 30, 200), white: tuple[int, int, int] = (245, 245, 245)) -> None:
+    cv2.circle(image, centre, radius, ring, -1)
+    cv2.circle(image, centre, int(radius * 0.78), white, -1)
     scale = radius / 30
     (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, max(2, radius // 8))
     cv2.putText(image, text, (centre[0] - tw // 2, centre[1] + th // 2), cv2.FONT_HERSHEY_SIMPLEX, scale,
@@ -163,6 +164,34 @@ def test_a_speed_sign_and_its_value_on_the_right_only(value):
     left = scene()
     _sign(left, (150, 90), 40, value)  # the other direction's sign
     assert detect_speed_signs(left, camera=CAMERA) == []
+
+
+def test_a_sign_is_found_and_read_under_a_warm_white_balance_and_a_darker_exposure():
+    """A sign against the sky, backlit (its white a grey 170, its red ring dull), as the real ones are. Another
+    camera's colour cast tints its disc as it tints the road: warmer (blue x0.8, red x1.2), the disc was too pink
+    to be a white disc. Darker (x0.45, a camera exposing for the sun), the ring fell under a fixed least
+    brightness."""
+    image = scene()
+    _sign(image, (700, 90), 30, "15", ring=(45, 45, 125), white=(170, 170, 170))
+    assert [d.state for d in detect_speed_signs(image, camera=CAMERA)] == ["15"]
+    warm = np.clip(image * np.array([0.8, 1.0, 1.2]), 0, 255).astype(np.uint8)
+    dark = (image * 0.45).astype(np.uint8)
+    for altered in (warm, dark):
+        assert [(d.label, d.state) for d in detect_speed_signs(altered, camera=CAMERA)] == [("speed_sign", "15")]
+
+
+def test_the_road_is_the_grey_reference_only_where_its_cast_is_more_than_asphalt_s_own():
+    image = scene()
+    faint = np.clip(image * np.array([1.0, 1.0, 1.06]), 0, 255).astype(np.uint8)  # the venue's asphalt: 6 % warm
+    assert road_grey(faint) is faint
+    warm = np.clip(image * np.array([0.8, 1.0, 1.2]), 0, 255).astype(np.uint8)
+
+    def cast(im):  # how far the road's most-off channel is from the road's grey (log)
+        median = np.median(im[400:, 300:550].reshape(-1, 3).astype(float), axis=0)
+        return float(np.max(np.abs(np.log(median / median.mean()))))
+
+    assert cast(warm) > 0.18
+    assert cast(road_grey(warm)) == pytest.approx(np.log(1.1), abs=0.01)  # the cast less asphalt's own tint
 
 
 def test_the_values_a_sign_is_read_as_are_positive_and_each_given_once():

@@ -93,7 +93,7 @@ def test_the_venue_s_20_is_read_as_the_kart_nears_it_and_after_another_compressi
     default until 2026-11-26), most of these views were left unread, their "2" read about as well as a "3"."""
     from tests.test_docs_numbers import _script
 
-    sign_view = _script("detect")._sign_view
+    sign_view = _script("detect")._object_view
     image = _scene("scene_1.jpg")
     box = next(o["box"] for o in LABELS["images"]["lelystad-2024/scenes/scene_1.jpg"] if o["label"] == "speed_sign")
     read = []
