@@ -279,17 +279,12 @@ def sign_reading(data: Path) -> dict[str, Any]:
     smaller (the sign farther, or seen by a smaller image). Each size as it is and re-encoded at JPEG quality 90
     and 75 (another camera's compression moves a far digit's few pixels). A view counts as read (20), unread
     (found, no value), wrong (another value) or not found; counted per sign."""
-    labels = json.loads(LABELS.read_text())["images"]
-    signs = {name: (next(o["box"] for o in objects if o["label"] == "speed_sign"), camera)
-             for name, camera in (("lelystad-2024/scenes/scene_1.jpg", get_vehicle("sdc-kart").camera("center")),
-                                  ("hanze-calibration/center.jpg", _hanze_camera(data)))
-             for objects in [labels[name]]}
     known = {"the event's (default)": SignalConfig().values_kmh,
              "with 30 and 50": (*SignalConfig().values_kmh, 30, 50)}
     out: dict[str, Any] = {"sizes": list(SIGN_SIZES), "encodings": ["as it is", "JPEG 90", "JPEG 75"],
                            "signs": {}, "known": {}}
-    for name, (box, camera) in signs.items():
-        image = cv2.imread(str(data / "rdw-kart" / name))
+    for name, camera, image, sign in _real_signals(data, "speed_sign"):
+        box = sign["box"]
         out["signs"][name.split("/")[-1]] = {"px": round(box[2] - box[0])}
         for size, encode, (key, values) in itertools.product(SIGN_SIZES, (None, _jpeg(90), _jpeg(75)), known.items()):
             view, cam, where = _object_view(image, camera, box, size)
@@ -316,30 +311,35 @@ def signals_altered(data: Path) -> dict[str, Any]:
     another day's camera would make them (:data:`ALTERATIONS`, the smaller sizes left out: the sizes here are
     that): per alteration and object, the views where it is found with its state (a light's colour, a sign's
     20), and any other light or sign reported."""
-    labels = json.loads(LABELS.read_text())["images"]
-    cameras = {"lelystad-2024/scenes/scene_1.jpg": get_vehicle("sdc-kart").camera("center"),
-               "hanze-calibration/center.jpg": _hanze_camera(data)}
     alterations: dict[str, Alter | None] = {"as they are": None, **{
         name: alter for name, alter in ALTERATIONS.items() if not name.endswith("the size")}}
     venue = sorted((data / "rdw-kart" / "lelystad-2024").glob("*/*.jpg"))
     casts = [_road_cast(cv2.imread(str(path))) for path in venue]
     out: dict[str, Any] = {"sizes": list(SIGNAL_SIZES), "rows": {}, "road_cast": {
         "images": len(casts), "median": float(np.median(casts)), "max": float(np.max(casts))}}
-    for name, camera in cameras.items():
-        image = cv2.imread(str(data / "rdw-kart" / name))
-        for obj in (o for o in labels[name] if o["label"] in ("traffic_light", "speed_sign")):
-            column = f"{obj['label']} ({obj['state']}), {name.split('/')[-1]}"
-            for (key, alter), size in itertools.product(alterations.items(), SIGNAL_SIZES):
-                view, cam, where = _object_view(image, camera, obj["box"], size)
-                found = [d for d in detect_classical(view if alter is None else alter(view), cam,
-                                                     DetectorConfig(people=False))
-                         if d.label == obj["label"]]
-                mine = [d for d in found if _matches(d.box_px, where, LABEL_PX)]
-                cell = out["rows"].setdefault(key, {}).setdefault(column, {"views": 0, "right": 0, "other": 0})
-                cell["views"] += 1
-                cell["right"] += int(any(d.state == obj["state"] for d in mine))
-                cell["other"] += len(found) - len(mine)
+    for name, camera, image, obj in _real_signals(data, "traffic_light", "speed_sign"):
+        column = f"{obj['label']} ({obj['state']}), {name.split('/')[-1]}"
+        for (key, alter), size in itertools.product(alterations.items(), SIGNAL_SIZES):
+            view, cam, where = _object_view(image, camera, obj["box"], size)
+            found = [d for d in detect_classical(view if alter is None else alter(view), cam,
+                                                 DetectorConfig(people=False))
+                     if d.label == obj["label"]]
+            mine = [d for d in found if _matches(d.box_px, where, LABEL_PX)]
+            cell = out["rows"].setdefault(key, {}).setdefault(column, {"views": 0, "right": 0, "other": 0})
+            cell["views"] += 1
+            cell["right"] += int(any(d.state == obj["state"] for d in mine))
+            cell["other"] += len(found) - len(mine)
     return out
+
+
+def _real_signals(data: Path, *classes: str) -> list[tuple[str, Any, np.ndarray, dict[str, Any]]]:
+    """The labelled real lights and signs of these classes (the venue's in scene 1, the Hanze practice set-up's),
+    light before sign in each image: (the image's name, its camera, the image, the label)."""
+    labels = json.loads(LABELS.read_text())["images"]
+    cameras = {"lelystad-2024/scenes/scene_1.jpg": get_vehicle("sdc-kart").camera("center"),
+               "hanze-calibration/center.jpg": _hanze_camera(data)}
+    return [(name, camera, cv2.imread(str(data / "rdw-kart" / name)), obj) for name, camera in cameras.items()
+            for obj in labels[name] if obj["label"] in classes]
 
 
 def _road_cast(image: np.ndarray) -> float:
@@ -358,7 +358,7 @@ def _object_view(image: np.ndarray, camera: Any, box: list[float], size: float) 
         view = cv2.resize(image, (round(w * size), round(h * size)), interpolation=cv2.INTER_AREA)
         return view, camera, [v * size for v in box]
     cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
-    # u' = u * size + shift: the sign's middle stays where it was
+    # u' = u * size + shift: the object's middle stays where it was
     zoom = np.array([[size, 0.0, cx * (1 - size)], [0.0, size, cy * (1 - size)]])
     view = cv2.warpAffine(image, zoom, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     cam = replace(camera, fx_px=camera.fx_px * size, fy_px=camera.fy_px * size,

@@ -188,10 +188,10 @@ def road_grey(image: Image, tint: float = 0.1, max_gain: float = 1.3) -> Image:
     channel scaled so that the image's lower middle (the asphalt ahead of the kart) has the same median in each,
     less the ``tint`` asphalt itself may have (the venue's is off by less: ``signals_altered`` in
     ``benchmarks/detect.py``; left as it is, a faint far ring stays as red as it is) and by at most ``max_gain``
-    either way; the image itself where no channel is off by
-    more. Another camera's or another day's white balance tints a sign's white disc and the grey sky round it as
-    it tints the road: warmer (blue x0.85, red x1.15), the discs of the real signs turned pink enough to be no
-    white disc at any size, and the overcast sky round the venue's sign as red as a pale ring."""
+    either way; the image itself where no channel is off by more. Another camera's or another day's white
+    balance tints a sign's white disc and the grey sky round it as it tints the road: warmer (blue x0.85, red
+    x1.15), the discs of the real signs turned pink enough to be no white disc at any size, and the overcast sky
+    round the venue's sign as red as a pale ring."""
     median = np.maximum(road_colour(image), 1.0)
     cast = np.log(float(median.mean()) / median)
     gains = np.exp(np.sign(cast) * np.clip(np.abs(cast) - math.log1p(tint), 0.0, math.log(max_gain)))
