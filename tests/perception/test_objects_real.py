@@ -108,3 +108,21 @@ def test_the_venue_s_20_is_read_as_the_kart_nears_it_and_after_another_compressi
             read.append((size, quality, [d.state for d in found]))
     print(read)
     assert all(states == ["20"] for _, _, states in read), read
+
+
+def test_the_venue_s_signal_pole_is_no_person_as_the_kart_nears_it():
+    """Enlarged a fifth and two fifths about itself (the kart nearer), the venue's signal in scene 1 stands on a
+    pole whose thin middle breaks the column below its head: its lower part and the tripod's legs, as wide and
+    tall as a person, were a person 17 m ahead. A thing under a light or a sign, up to two of its heights below
+    it, is its pole."""
+    from tests.test_docs_numbers import _script
+
+    object_view = _script("detect")._object_view
+    image = _scene("scene_1.jpg")
+    box = next(o["box"] for o in LABELS["images"]["lelystad-2024/scenes/scene_1.jpg"] if o["label"] == "traffic_light")
+    for size in (1.2, 1.4):
+        view, camera, _ = object_view(image, CAMERA, box, size)
+        found = ObjectDetector(DetectorConfig(), camera)(view)
+        print(size, [(d.label, [round(v) for v in d.box_px]) for d in found])
+        assert [d.state for d in found if d.label == "traffic_light"] == ["green"]
+        assert not [d for d in found if d.label == "person"]
