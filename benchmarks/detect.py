@@ -41,7 +41,7 @@ from kartpilot.perception.matching import MatchConfig, match_descriptors
 from kartpilot.perception.objects import box_iou
 from kartpilot.perception.obstacles import ObstacleConfig, detect_barriers, detect_car, detect_people, horizon_row
 from kartpilot.perception.road_marks import RoadMarkConfig, camera_for_image, detect_road_marks
-from kartpilot.perception.signals import SignalConfig, detect_speed_signs, detect_traffic_lights, road_colour
+from kartpilot.perception.signals import SignalConfig, detect_signals, road_colour
 from vo_table import put_between_markers
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -748,7 +748,7 @@ def timing(data: Path) -> dict[str, float]:
     camera = get_vehicle("sdc-kart").camera("center")
     images = [cv2.imread(str(p)) for p in sorted((data / "rdw-kart" / "lelystad-2024" / "scenes").glob("*.jpg"))]
     stages: dict[str, Callable[[Any], Any]]
-    stages = {"traffic lights + speed signs": lambda im: detect_traffic_lights(im) + detect_speed_signs(im),
+    stages = {"traffic lights + speed signs": lambda im: detect_signals(im),
               "stop lines + zebras": lambda im: detect_road_marks(im, camera),
               "people (HOG)": lambda im: detect_people(im, camera),
               "car": lambda im: detect_car(im, camera),

@@ -36,7 +36,7 @@ from kartpilot.perception.obstacles import (
 )
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
 from kartpilot.perception.road_marks import RoadMarkConfig, camera_for_image, detect_road_marks
-from kartpilot.perception.signals import SignalConfig, detect_speed_signs, detect_traffic_lights, place_by_size
+from kartpilot.perception.signals import SignalConfig, detect_signals, place_by_size
 from kartpilot.sensors.base import MIN_IMAGE_PX
 
 __all__ = ["DetectorConfig", "ObjectDetector", "crossing_states", "detect_classical", "merge_people"]
@@ -97,7 +97,7 @@ def detect_classical(image: Image, camera: PinholeCamera | None, config: Detecto
         # the horizon and the camera's height from its mount, not the defaults' kart
         signals = replace(signals, camera_height_m=float(camera.pose_body_cam_array[2, 3]),
                           horizon=min(max(horizon_row(camera) / camera.height_px, 0.0), 1.0))
-    out = detect_traffic_lights(image, signals, camera) + detect_speed_signs(image, signals, camera)
+    out = detect_signals(image, signals, camera)
     things = upright_things(image, camera, config.obstacles) if camera is not None and image.ndim == 3 else []
     barriers = detect_barriers(image, camera, config.obstacles)
     people = detect_standing_people(image, camera, config.obstacles, things)

@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from functools import lru_cache
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import cv2
 import numpy as np
@@ -39,8 +39,8 @@ from kartpilot.core.glyphs import text_mask
 from kartpilot.core.types import Image
 from kartpilot.perception.objects import Detection
 
-__all__ = ["SignalConfig", "detect_speed_signs", "detect_traffic_lights", "exposure", "place_by_size",
-           "read_speed_value", "road_colour", "road_grey"]
+__all__ = ["SignalConfig", "detect_signals", "detect_speed_signs", "detect_traffic_lights", "exposure",
+           "place_by_size", "read_speed_value", "road_colour", "road_grey"]
 
 
 @dataclass(frozen=True)
@@ -211,16 +211,40 @@ def _green(hsv: Image, s_min: int, v_min: int) -> Image:
     return cv2.inRange(hsv, (40, s_min, v_min), (100, 255, 255))
 
 
+class _Planes(NamedTuple):
+    """What the light and the sign detectors both take from a frame, computed once: its HSV and grey planes, and
+    its exposure (:func:`exposure`)."""
+
+    hsv: Image
+    gray: Image
+    exposure: float
+
+
+def _planes(image: Image, config: SignalConfig) -> _Planes:
+    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+    return _Planes(_hsv(image), gray, exposure(gray, int(config.horizon * image.shape[0]), config.sky_level,
+                                               config.min_exposure))
+
+
+def detect_signals(image: Image, config: SignalConfig = SignalConfig(), camera: PinholeCamera | None = None
+                   ) -> list[Detection]:
+    """:func:`detect_traffic_lights` and :func:`detect_speed_signs` on one frame, its planes computed once."""
+    planes = _planes(image, config)
+    return _lights(image, planes, config, camera) + _signs(image, planes, config, camera)
+
+
 def detect_traffic_lights(image: Image, config: SignalConfig = SignalConfig(), camera: PinholeCamera | None = None
                           ) -> list[Detection]:
     """The lit lamps of signal heads, each as a ``traffic_light`` with state ``red`` or ``green`` and the whole
     head's box."""
-    hsv = _hsv(image)
+    return _lights(image, _planes(image, config), config, camera)
+
+
+def _lights(image: Image, planes: _Planes, config: SignalConfig, camera: PinholeCamera | None) -> list[Detection]:
+    hsv, gray, scale = planes
     h, w = image.shape[:2]
-    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     horizon = config.horizon * h
     lo, hi = config.min_lamp_px * h, config.max_lamp_px * h
-    scale = exposure(gray, int(horizon), config.sky_level, config.min_exposure)
     lit, dark = round(config.lamp_value * scale), round(config.housing_dark * scale)
     lamps: list[tuple[float, float, float, Detection]] = []  # (lamp's brightness, centre column, row, light)
     for state, mask in (("red", _red(hsv, config.lamp_saturation, lit)),
@@ -311,10 +335,14 @@ def detect_speed_signs(image: Image, config: SignalConfig = SignalConfig(), came
                        ) -> list[Detection]:
     """Round red-ringed signs with a white disc, each as a ``speed_sign`` with its value (state, km/h) where it
     can be read."""
-    hsv = _hsv(road_grey(image))
+    return _signs(image, _planes(image, config), config, camera)
+
+
+def _signs(image: Image, planes: _Planes, config: SignalConfig, camera: PinholeCamera | None) -> list[Detection]:
+    balanced = road_grey(image)
+    hsv = planes.hsv if balanced is image else _hsv(balanced)
+    gray, scale = planes.gray, planes.exposure
     h, w = image.shape[:2]
-    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    scale = exposure(gray, int(config.horizon * h), config.sky_level, config.min_exposure)
     red = cv2.morphologyEx(_red(hsv, config.ring_saturation, round(config.ring_value * scale)), cv2.MORPH_CLOSE,
                            np.ones((3, 3), np.uint8))
     contours, hierarchy = cv2.findContours(red, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
