@@ -89,3 +89,28 @@ def test_a_folder_s_images_that_cannot_be_used_are_left_out_and_named_and_the_re
     out.unlink()
     assert main(["detect", str(folder), "--out", str(out), "--no-people"]) == 1
     assert "no image" in capsys.readouterr().err and not out.exists()
+
+
+def test_detect_takes_the_detector_s_settings_from_the_stack_s_yaml(tmp_path, capsys):
+    """The same YAML a drive takes (lane_policy.detector): a team among 30 signs adds the value, which the
+    default reader, knowing the event's 10, 15 and 20, does not read; a key misspelt is a one-line error naming
+    it, and no CSV is written."""
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    image = scene()
+    _sign(image, (700, 90), 40, "30")
+    cv2.imwrite(str(folder / "a.png"), image)
+    out = tmp_path / "objects.csv"
+    assert main(["detect", str(folder), "--out", str(out), "--no-people"]) == 0
+    assert [r["value"] for r in csv.DictReader(out.open())] != ["30"]
+    config = tmp_path / "team.yaml"
+    config.write_text("lane_policy:\n  detector:\n    signals: {values_kmh: [10, 15, 20, 30]}\n")
+    assert main(["detect", str(folder), "--out", str(out), "--no-people", "--config", str(config)]) == 0
+    assert [(r["class"], r["value"]) for r in csv.DictReader(out.open())] == [("speed_sign", "30")]
+    capsys.readouterr()
+    config.write_text("lane_policy:\n  detector:\n    signals: {values_kph: [30]}\n")
+    other = tmp_path / "other.csv"
+    assert main(["detect", str(folder), "--out", str(other), "--config", str(config)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("kartpilot:") and "values_kph" in err and len(err.strip().splitlines()) == 1
+    assert not other.exists()

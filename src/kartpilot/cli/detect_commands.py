@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -21,6 +22,7 @@ from kartpilot.perception.detect import DetectorConfig, ObjectDetector
 from kartpilot.perception.objects import Detection
 from kartpilot.perception.road_marks import camera_for_image
 from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
+from kartpilot.runtime.config import load_stack_config
 
 __all__ = ["DETECT_COLUMNS", "add_parsers", "draw_detections"]
 
@@ -59,7 +61,11 @@ def _camera(args: argparse.Namespace) -> PinholeCamera:
 
 def detect(args: argparse.Namespace) -> int:
     """Objects per frame to CSV, one row per object (a frame with none has one row with an empty label)."""
-    config = DetectorConfig(detector=args.detector, classes=args.classes or "", people=not args.no_people)
+    # the detector's settings from the stack's YAML (lane_policy.detector: the same file a drive takes), the
+    # command line's over them
+    base = load_stack_config(args.config).lane_policy.detector if args.config else DetectorConfig()
+    config = replace(base, detector=args.detector or base.detector, classes=args.classes or base.classes,
+                     people=not args.no_people)
     camera = _camera(args)
     detector = ObjectDetector(config, camera)
     left_out: list[str] = []
@@ -119,9 +125,11 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                                            "barriers and a parking bay, per frame, to CSV")
     parser.add_argument("input", help="an image, a folder of images, a video or a recording")
     parser.add_argument("--out", required=True, type=output_file, help="CSV, one row per object")
-    parser.add_argument("--detector", default="classical",
+    parser.add_argument("--detector",
                         help="classical (default), onnx:MODEL.onnx (a team's YOLO model exported to ONNX, in place "
                              "of the classical detectors) or classical+onnx:MODEL.onnx (beside them)")
+    parser.add_argument("--config", help="YAML file merged over the defaults (section lane_policy.detector, as a "
+                                         "drive takes it: e.g. signals: {values_kmh: [10, 15, 20, 30, 50]})")
     parser.add_argument("--classes", help="onnx: YAML mapping the model's class ids to kartpilot's classes")
     parser.add_argument("--rig", help="rig file whose centre camera's mount places the objects on the ground "
                                       "(default: the real SDC kart's centre camera, 0.56 m up, 6.8 deg down)")

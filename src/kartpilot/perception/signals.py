@@ -80,8 +80,9 @@ class SignalConfig:
         values_kmh: the speed limits the reader knows: the event's signs, 10, 15 and 20 (the teams' code knows
             these). Each value the reader knows is one more it can take a sign for: a far real 20's "2" correlates
             with a drawn "3" nearly as well as with a drawn "2", and the real 20s, knowing 30 and 50 as well, were
-            often left unread and sometimes read as 30 (``sign_reading`` in ``benchmarks/detect.py``). Add 30 or
-            50 where the kart drives among such signs.
+            often left unread and sometimes read as 30 (``sign_reading`` in ``benchmarks/detect.py``). A sign of
+            a value the reader does not know is left unread or read as the nearest it knows (a drawn 30 as 10):
+            add 30 or 50 where the kart drives among such signs (``kartpilot detect --config``, a drive's YAML).
         min_value_score: the least correlation for a value to be read (below it the sign is reported with no value).
         sign_side: ``right``: only signs right of the camera's centre column count (the Netherlands); ``any``.
         max_distance_m: objects farther than this are not reported.
