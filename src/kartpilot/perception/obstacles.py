@@ -37,6 +37,7 @@ from kartpilot.core.geometry import invert_pose, transform_points
 from kartpilot.core.types import Image
 from kartpilot.perception.objects import Detection, box_iou, place_on_ground
 from kartpilot.perception.road_marks import camera_for_image, grass
+from kartpilot.perception.signals import red_mask
 
 __all__ = ["ObstacleConfig", "Upright", "detect_barriers", "detect_car", "detect_people", "detect_standing_people",
            "find_parking_bay", "horizon_row", "upright_things"]
@@ -376,9 +377,8 @@ def _red_share(image: Image, box: tuple[float, float, float, float]) -> float:
     patch = image[y0:max(int(box[3]), y0 + 1), x0:max(int(box[2]), x0 + 1)]
     if patch.size == 0:
         return 0.0
-    hsv = cv2.cvtColor(patch, cv2.COLOR_BGR2HSV)
-    hue, sat, val = hsv[..., 0], hsv[..., 1], hsv[..., 2]
-    return float(np.mean(((hue <= 10) | (hue >= 165)) & (sat >= 110) & (val >= 60)))
+    return float(np.count_nonzero(red_mask(cv2.cvtColor(patch, cv2.COLOR_BGR2HSV), 110, 60))) / (
+        patch.shape[0] * patch.shape[1])
 
 
 def detect_standing_people(image: Image, camera: PinholeCamera | None, config: ObstacleConfig = ObstacleConfig(),
@@ -425,8 +425,8 @@ def detect_barriers(image: Image, camera: PinholeCamera | None, config: Obstacle
     cam = camera_for_image(camera, w, h) if camera is not None else None
     horizon = horizon_row(cam) if cam is not None else config.horizon * h
     hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
-    hue, sat, val = cv2.split(hsv)
-    red = (((hue <= 10) | (hue >= 165)) & (sat >= 110) & (val >= 60)).astype(np.uint8)
+    _, sat, val = cv2.split(hsv)
+    red = red_mask(hsv, 110, 60)
     white = (sat < 60) & (val >= 150)
     red = cv2.morphologyEx(red, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     # a striped barrier's red blocks, joined across the white between them

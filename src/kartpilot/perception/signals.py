@@ -40,7 +40,7 @@ from kartpilot.core.types import Image
 from kartpilot.perception.objects import Detection
 
 __all__ = ["SignalConfig", "detect_signals", "detect_speed_signs", "detect_traffic_lights", "exposure",
-           "place_by_size", "read_speed_value", "road_colour", "road_grey"]
+           "place_by_size", "read_speed_value", "red_mask", "road_colour", "road_grey"]
 
 
 @dataclass(frozen=True)
@@ -201,7 +201,7 @@ def road_grey(image: Image, tint: float = 0.1, max_gain: float = 1.3) -> Image:
     return cv2.transform(image, np.diag(gains).astype(np.float32))
 
 
-def _red(hsv: Image, s_min: int, v_min: int) -> Image:
+def red_mask(hsv: Image, s_min: int, v_min: int) -> Image:
     """255 where an HSV pixel is red (hue up to 10 or from 165) and at least this saturated and bright, else 0."""
     return cv2.bitwise_or(cv2.inRange(hsv, (0, s_min, v_min), (10, 255, 255)),
                           cv2.inRange(hsv, (165, s_min, v_min), (255, 255, 255)))
@@ -248,7 +248,7 @@ def _lights(image: Image, planes: _Planes, config: SignalConfig, camera: Pinhole
     lo, hi = config.min_lamp_px * h, config.max_lamp_px * h
     lit, dark = round(config.lamp_value * scale), round(config.housing_dark * scale)
     lamps: list[tuple[float, float, float, Detection]] = []  # (lamp's brightness, centre column, row, light)
-    for state, mask in (("red", _red(hsv, config.lamp_saturation, lit)),
+    for state, mask in (("red", red_mask(hsv, config.lamp_saturation, lit)),
                         ("green", _green(hsv, config.lamp_saturation, lit))):
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
         # BBDT: the same labels as the default algorithm, with its statistics at a third of the cost here
@@ -344,7 +344,7 @@ def _signs(image: Image, planes: _Planes, config: SignalConfig, camera: PinholeC
     hsv = planes.hsv if balanced is image else _hsv(balanced)
     gray, scale = planes.gray, planes.exposure
     h, w = image.shape[:2]
-    red = cv2.morphologyEx(_red(hsv, config.ring_saturation, round(config.ring_value * scale)), cv2.MORPH_CLOSE,
+    red = cv2.morphologyEx(red_mask(hsv, config.ring_saturation, round(config.ring_value * scale)), cv2.MORPH_CLOSE,
                            np.ones((3, 3), np.uint8))
     contours, hierarchy = cv2.findContours(red, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
     if hierarchy is None:
