@@ -25,10 +25,12 @@ from kartpilot.core.vehicle import get_vehicle
 from kartpilot.odometry.places import build_places
 from kartpilot.record.recording import RecordingReader
 from kartpilot.runtime.config import StackConfig
+from kartpilot.runtime.drive import WatchdogConfig
 from kartpilot.runtime.live_drive import LiveDriveSetup, run_live_drive
 from kartpilot.runtime.pipelines import Route
 from kartpilot.runtime.session import SessionOutputs, SessionResult
 from kartpilot.runtime.simulate import run_simulation
+from kartpilot.sensors.health import HealthConfig
 from kartpilot.sim.can_ecu import KartpilotEcus, RdwEcus
 from kartpilot.sim.simulator import SimConfig
 
@@ -127,24 +129,31 @@ def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(p
                 time.sleep(0.05)
         _post(url + "input", {"hold": True}, cookie)
         _post(url + "request", {"request": "autonomous"}, cookie)
-        for _ in range(10):
+        held = 0  # holds until the page has shown the kart autonomous for a few of its replies, then goes away
+        while held < 5 and time.monotonic() < deadline + 20.0:  # a bound for a broken run, not a measure of speed
             _post(url + "input", {"hold": True}, cookie)
+            with urllib.request.urlopen(url + "state", timeout=1.0) as reply:
+                held += json.loads(reply.read())["state"] == "autonomous"
             time.sleep(0.1)
 
     threading.Thread(target=person, daemon=True).start()
-    # the watchdogs' timing is tested with a simulated clock; here threads share two cores with a video decoder
+    # the watchdogs' timing is tested with a simulated clock (tests/runtime/test_supervisor.py); here threads share
+    # two cores with a video decoder and, in CI, other tests: a busy machine must not be taken for a slow kart
     can_config = CanConfig(channel=channel, protocol=protocol, status_timeout_s=0.3,
                            rdw=RdwConfig(sensor_timeout_s=0.5, feedback_timeout_s=0.5))
+    watchdogs = WatchdogConfig(health=HealthConfig(timeout_s=2.0), overrun_steps=1000)
     setup = LiveDriveSetup(rig, pipeline, sdc, route, web_port=port, web_pair_code="test-code",
                            outputs=SessionOutputs(record_dir=tmp_path / "live"), duration_s=3.0)
     try:
-        summary = run_live_drive(setup, replace(StackConfig(), can=can_config))
+        summary = run_live_drive(setup, replace(StackConfig(), can=can_config, watchdogs=watchdogs))
     finally:
         stop.set()
         ecu_thread.join(timeout=2.0)
         ecu_bus.shutdown()
     assert SessionResult.from_json(summary).backend == "live"
-    assert SessionResult.from_json(json.loads((tmp_path / "live" / "result.json").read_text())).steps > 20
+    steps = SessionResult.from_json(json.loads((tmp_path / "live" / "result.json").read_text())).steps
+    # what happened, not how often: how many steps fit in the 3 s depends on how busy the machine is
+    assert steps >= 1 and len(RecordingReader(tmp_path / "live").commands()) == steps
     states = [(t["state"], t["reason"]) for t in summary["transitions"]]
     print(summary["ended"], states, summary["cameras"]["skew_ms"], summary["stage_ms"].get("policy"))
     assert summary["can"]["protocol"] == protocol
@@ -158,7 +167,7 @@ def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(p
     assert any(c.throttle > 0 for c in executed)  # it drove while the person held
     assert executed[-1].throttle == 0.0 and ecus.applied[-1].command.brake == 1.0  # and stopped
     reader = RecordingReader(tmp_path / "live")
-    assert reader.closed and len(reader.frames("center")) > 20
+    assert reader.closed and 1 <= len(reader.frames("center")) <= steps  # the recorder may drop images, not add
     assert reader.manifest["metadata"]["vehicle"] == "sdc-kart"
     assert {row["state"] for row in reader.outputs("supervisor")} >= {"autonomous", "fault"}
     sent = [(i, d) for _, direction, i, d in reader.can_frames() if direction == "tx"]
