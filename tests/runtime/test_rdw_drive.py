@@ -23,7 +23,7 @@ REPORTS = {0x440, 0x1E5, 0x710, 0x720, 0x730}
 def drive(tmp_path_factory):
     folder = tmp_path_factory.mktemp("rdw") / "drive"
     code = main(["drive", "--sim", "sdc-assen", "--vehicle", "sdc-kart", "--pipeline", "lanes", "--speed-mode", "15",
-                 "--bus", "virtual", "--duration", "20", "--record", str(folder), "--no-progress"])
+                 "--bus", "virtual", "--duration", "20", "--rate", "15", "--record", str(folder), "--no-progress"])
     assert code == 0
     return folder
 

@@ -686,11 +686,13 @@ class _RoadIndex:
         """True where a point lies closer than half the width plus ``margin_m`` to some centre line."""
         radius = self.max_half + max(margin_m, 0.0)
         out = np.zeros(len(points), bool)
-        for k, neighbours in enumerate(self.tree.query_ball_point(points, radius)):
-            if neighbours:
-                nb = np.asarray(neighbours)
-                d = np.hypot(*(self.xy[nb] - points[k]).T)
-                out[k] = bool(np.any(d < self.half[nb] + margin_m))
+        if len(points) == 0:
+            return out
+        # every (point, centre sample) pair within the widest half width at once, where a loop over the points
+        # asked the tree one point at a time (two seconds of each simulator's start on sdc-assen)
+        pairs = cKDTree(points).sparse_distance_matrix(self.tree, radius, output_type="ndarray")
+        near = pairs["v"] < self.half[pairs["j"]] + margin_m
+        out[pairs["i"][near]] = True
         return out
 
 
