@@ -64,6 +64,12 @@ class SignalConfig:
             housing into the sky). The real lights: 1.65 or more under every alteration of their frames (the
             venue's green, the Hanze red 5.2); a dark red shirt, which passes for a lamp in its own dark housing:
             about 1.0.
+        lamp_extent: a lamp is the pixels of its colour at least this share of its brightest pixel's value, or
+            the lit level (``lamp_value``, scaled), whichever is less; its brightest pixel must reach the lit level.
+            A bright lamp is its pixels at the lit level (lower takes in its glow on the housing, whose ring, placed
+            by the lamp's size, then reaches past the housing); the venue's dim, grainy green lamp (its brightest
+            pixels 120 to 160) under another camera's curve (gamma 1.5) kept only scattered specks at the lit level
+            and was lost in 5 of 6 views (``signals_altered`` in ``benchmarks/detect.py``). 1: the lit level alone.
         lamp_diameter_m, sign_diameter_m: real sizes, for the distance.
         min_lamp_height_m, camera_height_m: a lit lamp is at least this high above the ground, seen from a
             camera this high (the real kart's centre camera: 0.56 m).
@@ -98,6 +104,7 @@ class SignalConfig:
     min_exposure: float = 0.5
     housing_share: float = 0.45
     lamp_contrast: float = 1.3
+    lamp_extent: float = 0.65
     lamp_diameter_m: float = 0.2
     min_lamp_height_m: float = 1.2
     camera_height_m: float = 0.56
@@ -117,6 +124,8 @@ class SignalConfig:
     def __post_init__(self) -> None:
         if not 0.0 < self.min_lamp_px < self.max_lamp_px <= 1.0:
             raise ConfigError("signals: need 0 < min_lamp_px < max_lamp_px <= 1")
+        if not 0.0 < self.lamp_extent <= 1.0:
+            raise ConfigError("signals: lamp_extent must be in (0, 1] (a share of the lamp's brightest value)")
         if self.lamp_contrast < 1.0:
             raise ConfigError("signals: lamp_contrast must be at least 1 (a lamp is brighter than its housing)")
         if not 0.0 < self.min_exposure <= 1.0 or not 0 < self.sky_level <= 255:
@@ -247,44 +256,93 @@ def _lights(image: Image, planes: _Planes, config: SignalConfig, camera: Pinhole
     horizon = config.horizon * h
     lo, hi = config.min_lamp_px * h, config.max_lamp_px * h
     lit, dark = round(config.lamp_value * scale), round(config.housing_dark * scale)
+    value = hsv[..., 2]
     lamps: list[tuple[float, float, float, Detection]] = []  # (lamp's brightness, centre column, row, light)
-    for state, mask in (("red", red_mask(hsv, config.lamp_saturation, lit)),
-                        ("green", _green(hsv, config.lamp_saturation, lit))):
-        mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    for state, colour in (("red", red_mask), ("green", _green)):
+        coloured = colour(hsv, config.lamp_saturation, round(config.lamp_extent * lit))
         # BBDT: the same labels as the default algorithm, with its statistics at a third of the cost here
-        count, labels, stats, centroids = cv2.connectedComponentsWithStatsWithAlgorithm(
-            mask[: int(horizon)], 8, cv2.CV_32S, cv2.CCL_BBDT)
-        for k in range(1, count):
-            x, y, bw, bh, area = (int(v) for v in stats[k])
-            if not lo <= max(bw, bh) <= hi or not 0.6 <= bw / max(bh, 1) <= 1.6 or area < 0.45 * bw * bh:
-                continue
-            # the lamp's diameter: a thresholded disc's box is about a pixel wider than the disc (a partly covered
-            # pixel at each edge passes, since a lamp's colour mixed with its dark housing keeps its saturation)
-            d = max(bw, bh) - 1.0
-            cx, cy = centroids[k]
-            # the lamp stands at least min_lamp_height_m up: at the distance its size gives, that many rows above
-            # the horizon (a green fence or a red jacket near the horizon is lower)
-            if horizon - cy < d * (config.min_lamp_height_m - config.camera_height_m) / config.lamp_diameter_m:
-                continue
-            if config.light_side == "right" and cx < (w - 1) / 2:
-                continue
-            # the housing: the lamp's own width beside it, and the other lamp's place (below red, above green)
-            other = (cy + 0.9 * d, cy + 2.0 * d) if state == "red" else (cy - 2.0 * d, cy - 0.9 * d)
-            box = (cx - 0.8 * d, min(other[0], cy - 0.7 * d), cx + 0.8 * d, max(other[1], cy + 0.7 * d))
-            share = _dark_share(gray, (cx - 0.5 * d, other[0], cx + 0.5 * d, other[1]), dark)
-            ring = _ring((cx, cy), d, gray, hsv[..., 2])
-            if ring is None or min(share, float(np.mean(ring[0] <= dark))) < config.housing_share:
-                continue  # no dark box around it: a red jacket, a barrier, a leaf in the sun
-            ring_gray, ring_value = ring
-            level = float(np.mean(hsv[y:y + bh, x:x + bw, 2][labels[y:y + bh, x:x + bw] == k]))
-            if level < config.lamp_contrast * max(float(np.median(ring_value[ring_gray <= dark])), 1.0):
-                continue  # it does not glow: a dark red shirt is its own dark housing
-            confidence = min(1.0, share) * min(1.0, area / (0.75 * bw * bh))
-            det = Detection("traffic_light", _clip(box, w, h), float(confidence), state)
-            det = place_by_size(det, camera, w, config.lamp_diameter_m, size_px=d)
-            if not det.distance_m > config.max_distance_m:
-                lamps.append((level, float(cx), float(cy), det))
+        count, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(
+            cv2.morphologyEx(coloured[: int(horizon)], cv2.MORPH_CLOSE, _CLOSE), 8, cv2.CV_32S, cv2.CCL_BBDT)
+        for k in np.flatnonzero(np.maximum(stats[:, 2], stats[:, 3]) >= lo)[1:] if count > 1 else ():
+            found: list[tuple[int, tuple[float, float, float, Detection]]] = []  # (its edge, the lamp)
+            for bw, bh, area, cx, cy, level, edge in _lamp_cores(value, coloured, labels, int(k), stats[k], lit,
+                                                           config.lamp_extent):
+                if not lo <= max(bw, bh) <= hi or not 0.6 <= bw / max(bh, 1) <= 1.6 or area < 0.45 * bw * bh:
+                    continue
+                # the lamp's diameter: a thresholded disc's box is about a pixel wider than the disc (a partly
+                # covered pixel at each edge passes: a lamp's colour mixed with its dark housing keeps its saturation)
+                d = max(bw, bh) - 1.0
+                # the lamp stands at least min_lamp_height_m up: at the distance its size gives, that many rows
+                # above the horizon (a green fence or a red jacket near the horizon is lower)
+                if horizon - cy < d * (config.min_lamp_height_m - config.camera_height_m) / config.lamp_diameter_m:
+                    continue
+                if config.light_side == "right" and cx < (w - 1) / 2:
+                    continue
+                # the housing: the lamp's own width beside it, and the other lamp's place (below red, above green)
+                other = (cy + 0.9 * d, cy + 2.0 * d) if state == "red" else (cy - 2.0 * d, cy - 0.9 * d)
+                box = (cx - 0.8 * d, min(other[0], cy - 0.7 * d), cx + 0.8 * d,
+                       max(other[1], cy + 0.7 * d))
+                share = _dark_share(gray, (cx - 0.5 * d, other[0], cx + 0.5 * d, other[1]), dark)
+                ring = _ring((cx, cy), d, gray, value)
+                if ring is None or min(share, float(np.mean(ring[0] <= dark))) < config.housing_share:
+                    continue  # no dark box around it: a red jacket, a barrier, a leaf in the sun
+                ring_gray, ring_value = ring
+                # it glows: a dark red shirt is its own dark housing. A dim lamp taken to its extent glows to its
+                # edge: trees in sensor noise, one speck reaching the lit level, made one of leaves a little
+                # brighter than their shade (its mean 1.32 times its surround, its edge 1.09; the venue's dim green
+                # lamp under gamma 1.5: 2.6 or more; the same lamp blurred, 1.23 to 1.47, is found at the lit level)
+                housing = config.lamp_contrast * max(float(np.median(ring_value[ring_gray <= dark])), 1.0)
+                if level < housing or (edge < lit and edge < housing):
+                    continue
+                confidence = min(1.0, share) * min(1.0, area / (0.75 * bw * bh))
+                det = Detection("traffic_light", _clip(box, w, h), float(confidence), state)
+                det = place_by_size(det, camera, w, config.lamp_diameter_m, size_px=d)
+                if not det.distance_m > config.max_distance_m:
+                    found.append((edge, (level, float(cx), float(cy), det)))
+            # a dim lamp as its whole glass where that passes, not its brightest specks (sized by the glass)
+            lamps += [lamp for edge, lamp in found if edge < lit] or [lamp for _, lamp in found]
     return _one_lamp_per_head(lamps)
+
+
+_CLOSE = np.ones((3, 3), np.uint8)
+
+
+def _lamp_cores(value: Image, coloured: Image, labels: Image, k: int, stat: np.ndarray, lit: int, extent: float
+                ) -> list[tuple[int, int, int, float, float, float, int]]:
+    """The lamps that component ``k`` of the lamp-coloured pixels (``coloured``, at least ``extent * lit`` bright,
+    closed) may hold: the pieces of it at ``lit`` (the detector's lamps until 2026-11-27) and, where its brightest
+    pixel is under ``lit / extent``, the pieces down to ``extent`` of that brightest too; each reaching ``lit``
+    somewhere. As (width, height, area, centre column, row, mean value, the level it reaches down to).
+
+    A lamp is its bright core and the pixels around it that are nearly as bright. A bright lamp's extent is its
+    pixels at ``lit`` (lower takes in its glow on the housing, and the housing's ring, placed by the lamp's size,
+    then reaches past the housing: the Hanze red lamp was lost at a lit level of 75). A dim lamp (the venue's green
+    in daylight, its brightest pixels 120 to 160) under another camera's curve (gamma 1.5) kept only scattered
+    specks at ``lit``, too sparse a shape for a lamp; down to ``extent`` of its brightest it is the whole glass."""
+    x0, y0, bw0, bh0 = (int(v) for v in stat[:4])
+    inside = labels[y0:y0 + bh0, x0:x0 + bw0] == k
+    crop = value[y0:y0 + bh0, x0:x0 + bw0]
+    peak = int(crop[inside].max())
+    if peak < lit:
+        return []
+    # the lamp's own colour, then closed as the component was (not the component's closed pixels: those would
+    # take in the pale glow beside a bright lamp)
+    own_colour = inside & (coloured[y0:y0 + bh0, x0:x0 + bw0] > 0)
+    out = []
+    for edge in sorted({lit, min(lit, round(extent * peak))}, reverse=True):
+        # a pixel of margin: the closing's erosion takes the crop's outside for set, and would keep its dilation
+        core = np.pad((own_colour & (crop >= edge)).view(np.uint8), 1)
+        core = np.ascontiguousarray(cv2.morphologyEx(core, cv2.MORPH_CLOSE, _CLOSE)[1:-1, 1:-1])
+        count, pieces, stats, centroids = cv2.connectedComponentsWithStats(core, 8)
+        for j in range(1, count):
+            x, y, bw, bh, area = (int(v) for v in stats[j])
+            if max(bw, bh) < 3:
+                continue
+            own = crop[y:y + bh, x:x + bw][pieces[y:y + bh, x:x + bw] == j]
+            if int(own.max()) >= lit:
+                out.append((bw, bh, area, x0 + float(centroids[j][0]), y0 + float(centroids[j][1]),
+                            float(np.mean(own)), edge))
+    return out
 
 
 def _one_lamp_per_head(lamps: list[tuple[float, float, float, Detection]]) -> list[Detection]:
