@@ -248,6 +248,7 @@ def _truth_for_every_frame(reader: RecordingReader, at_least: int) -> None:
     assert all(np.min(np.abs(truth_ns - stamp)) < 1e3 for stamp, _ in kept)
 
 
+@pytest.mark.slow
 def test_sigkill_at_ten_random_moments_leaves_recordings_that_open_with_their_ground_truth(tmp_path) -> None:
     """``kill -9`` during ``sim --record``, ten times, each at a random moment (after a random number of frames
     and a random part of a frame's period, so a write may be cut anywhere): every recording opens, not closed,

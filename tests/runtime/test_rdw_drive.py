@@ -71,6 +71,7 @@ def test_can_monitor_reads_the_drive_back(drive, tmp_path, capsys):
     assert all(not row["faults"] for row in rows.values())
 
 
+@pytest.mark.slow
 def test_with_a_speed_the_lane_follower_holds_it_on_the_kart_s_measured_speed(tmp_path):
     """Closed-loop speed: the follower asks for 3 m/s on a straight and the kart's 0x440 says it holds it (the
     open-loop throttle of the drive above tops out wherever the kart's speed mode and the road put it)."""
