@@ -251,68 +251,88 @@ def detect_traffic_lights(image: Image, config: SignalConfig = SignalConfig(), c
 
 
 def _lights(image: Image, planes: _Planes, config: SignalConfig, camera: PinholeCamera | None) -> list[Detection]:
-    hsv, gray, scale = planes
-    h, w = image.shape[:2]
-    horizon = config.horizon * h
-    lo, hi = config.min_lamp_px * h, config.max_lamp_px * h
-    lit, dark = round(config.lamp_value * scale), round(config.housing_dark * scale)
-    value = hsv[..., 2]
+    hsv, h = planes.hsv, image.shape[0]
+    lit = round(config.lamp_value * planes.exposure)
     lamps: list[tuple[float, float, float, Detection]] = []  # (lamp's brightness, centre column, row, light)
     for state, colour in (("red", red_mask), ("green", _green)):
         coloured = colour(hsv, config.lamp_saturation, round(config.lamp_extent * lit))
         # BBDT: the same labels as the default algorithm, with its statistics at a third of the cost here
         count, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(
-            cv2.morphologyEx(coloured[: int(horizon)], cv2.MORPH_CLOSE, _CLOSE), 8, cv2.CV_32S, cv2.CCL_BBDT)
-        for k in np.flatnonzero(np.maximum(stats[:, 2], stats[:, 3]) >= lo)[1:] if count > 1 else ():
-            found: list[tuple[int, tuple[float, float, float, Detection]]] = []  # (its edge, the lamp)
-            for bw, bh, area, cx, cy, level, edge in _lamp_cores(value, coloured, labels, int(k), stats[k], lit,
-                                                           config.lamp_extent):
-                if not lo <= max(bw, bh) <= hi or not 0.6 <= bw / max(bh, 1) <= 1.6 or area < 0.45 * bw * bh:
-                    continue
-                # the lamp's diameter: a thresholded disc's box is about a pixel wider than the disc (a partly
-                # covered pixel at each edge passes: a lamp's colour mixed with its dark housing keeps its saturation)
-                d = max(bw, bh) - 1.0
-                # the lamp stands at least min_lamp_height_m up: at the distance its size gives, that many rows
-                # above the horizon (a green fence or a red jacket near the horizon is lower)
-                if horizon - cy < d * (config.min_lamp_height_m - config.camera_height_m) / config.lamp_diameter_m:
-                    continue
-                if config.light_side == "right" and cx < (w - 1) / 2:
-                    continue
-                # the housing: the lamp's own width beside it, and the other lamp's place (below red, above green)
-                other = (cy + 0.9 * d, cy + 2.0 * d) if state == "red" else (cy - 2.0 * d, cy - 0.9 * d)
-                box = (cx - 0.8 * d, min(other[0], cy - 0.7 * d), cx + 0.8 * d,
-                       max(other[1], cy + 0.7 * d))
-                share = _dark_share(gray, (cx - 0.5 * d, other[0], cx + 0.5 * d, other[1]), dark)
-                ring = _ring((cx, cy), d, gray, value)
-                if ring is None or min(share, float(np.mean(ring[0] <= dark))) < config.housing_share:
-                    continue  # no dark box around it: a red jacket, a barrier, a leaf in the sun
-                ring_gray, ring_value = ring
-                # it glows: a dark red shirt is its own dark housing. A dim lamp taken to its extent glows to its
-                # edge: trees in sensor noise, one speck reaching the lit level, made one of leaves a little
-                # brighter than their shade (its mean 1.32 times its surround, its edge 1.09; the venue's dim green
-                # lamp under gamma 1.5: 2.6 or more; the same lamp blurred, 1.23 to 1.47, is found at the lit level)
-                housing = config.lamp_contrast * max(float(np.median(ring_value[ring_gray <= dark])), 1.0)
-                if level < housing or (edge < lit and edge < housing):
-                    continue
-                confidence = min(1.0, share) * min(1.0, area / (0.75 * bw * bh))
-                det = Detection("traffic_light", _clip(box, w, h), float(confidence), state)
-                det = place_by_size(det, camera, w, config.lamp_diameter_m, size_px=d)
-                if not det.distance_m > config.max_distance_m:
-                    found.append((edge, (level, float(cx), float(cy), det)))
+            cv2.morphologyEx(coloured[: int(config.horizon * h)], cv2.MORPH_CLOSE, _CLOSE), 8, cv2.CV_32S,
+            cv2.CCL_BBDT)
+        for k in np.flatnonzero(np.maximum(stats[1:count, 2], stats[1:count, 3]) >= config.min_lamp_px * h) + 1:
+            found = [(core.edge, lamp) for core in _lamp_cores(hsv[..., 2], coloured, labels, int(k), stats[k], lit,
+                                                                config.lamp_extent)
+                     if (lamp := _light(state, core, planes, lit, config, camera)) is not None]
             # a dim lamp as its whole glass where that passes, not its brightest specks (sized by the glass)
             lamps += [lamp for edge, lamp in found if edge < lit] or [lamp for _, lamp in found]
     return _one_lamp_per_head(lamps)
+
+
+class _Core(NamedTuple):
+    """A lamp's candidate pixels (:func:`_lamp_cores`): its box's size, area, centre, mean value, and the value it
+    reaches down to."""
+
+    width: int
+    height: int
+    area: int
+    cx: float
+    cy: float
+    level: float
+    edge: int
+
+
+def _light(state: str, core: _Core, planes: _Planes, lit: int, config: SignalConfig,
+           camera: PinholeCamera | None) -> tuple[float, float, float, Detection] | None:
+    """The light a lamp's candidate pixels make, as (its brightness, centre column, row, the light); None where
+    they are no lamp: no lamp's shape or size, too low, left of the kart, no dark housing round them, no glow."""
+    hsv, gray, scale = planes
+    h, w = gray.shape
+    bw, bh, area, cx, cy, level, edge = core
+    horizon = config.horizon * h
+    if not config.min_lamp_px * h <= max(bw, bh) <= config.max_lamp_px * h or not 0.6 <= bw / max(bh, 1) <= 1.6 \
+            or area < 0.45 * bw * bh:
+        return None
+    # the lamp's diameter: a thresholded disc's box is about a pixel wider than the disc (a partly covered pixel at
+    # each edge passes, since a lamp's colour mixed with its dark housing keeps its saturation)
+    d = max(bw, bh) - 1.0
+    # the lamp stands at least min_lamp_height_m up: at the distance its size gives, that many rows above the
+    # horizon (a green fence or a red jacket near the horizon is lower)
+    if horizon - cy < d * (config.min_lamp_height_m - config.camera_height_m) / config.lamp_diameter_m:
+        return None
+    if config.light_side == "right" and cx < (w - 1) / 2:
+        return None
+    # the housing: the lamp's own width beside it, and the other lamp's place (below red, above green)
+    dark = round(config.housing_dark * scale)
+    other = (cy + 0.9 * d, cy + 2.0 * d) if state == "red" else (cy - 2.0 * d, cy - 0.9 * d)
+    box = (cx - 0.8 * d, min(other[0], cy - 0.7 * d), cx + 0.8 * d, max(other[1], cy + 0.7 * d))
+    share = _dark_share(gray, (cx - 0.5 * d, other[0], cx + 0.5 * d, other[1]), dark)
+    ring = _ring((cx, cy), d, gray, hsv[..., 2])
+    if ring is None or min(share, float(np.mean(ring[0] <= dark))) < config.housing_share:
+        return None  # no dark box around it: a red jacket, a barrier, a leaf in the sun
+    ring_gray, ring_value = ring
+    # it glows: a dark red shirt is its own dark housing. A dim lamp taken to its extent glows to its edge: trees in
+    # sensor noise, one speck reaching the lit level, made one of leaves a little brighter than their shade (its
+    # mean 1.32 times its surround, its edge 1.09; the venue's dim green lamp under gamma 1.5: 2.6 or more; the same
+    # lamp blurred, 1.23 to 1.47, is found at the lit level)
+    housing = config.lamp_contrast * max(float(np.median(ring_value[ring_gray <= dark])), 1.0)
+    if level < housing or (edge < lit and edge < housing):
+        return None
+    confidence = min(1.0, share) * min(1.0, area / (0.75 * bw * bh))
+    det = Detection("traffic_light", _clip(box, w, h), float(confidence), state)
+    det = place_by_size(det, camera, w, config.lamp_diameter_m, size_px=d)
+    return None if det.distance_m > config.max_distance_m else (level, cx, cy, det)
 
 
 _CLOSE = np.ones((3, 3), np.uint8)
 
 
 def _lamp_cores(value: Image, coloured: Image, labels: Image, k: int, stat: np.ndarray, lit: int, extent: float
-                ) -> list[tuple[int, int, int, float, float, float, int]]:
+                ) -> list[_Core]:
     """The lamps that component ``k`` of the lamp-coloured pixels (``coloured``, at least ``extent * lit`` bright,
     closed) may hold: the pieces of it at ``lit`` (the detector's lamps until 2026-11-27) and, where its brightest
     pixel is under ``lit / extent``, the pieces down to ``extent`` of that brightest too; each reaching ``lit``
-    somewhere. As (width, height, area, centre column, row, mean value, the level it reaches down to).
+    somewhere.
 
     A lamp is its bright core and the pixels around it that are nearly as bright. A bright lamp's extent is its
     pixels at ``lit`` (lower takes in its glow on the housing, and the housing's ring, placed by the lamp's size,
@@ -340,8 +360,8 @@ def _lamp_cores(value: Image, coloured: Image, labels: Image, k: int, stat: np.n
                 continue
             own = crop[y:y + bh, x:x + bw][pieces[y:y + bh, x:x + bw] == j]
             if int(own.max()) >= lit:
-                out.append((bw, bh, area, x0 + float(centroids[j][0]), y0 + float(centroids[j][1]),
-                            float(np.mean(own)), edge))
+                out.append(_Core(bw, bh, area, x0 + float(centroids[j][0]), y0 + float(centroids[j][1]),
+                                 float(np.mean(own)), edge))
     return out
 
 
