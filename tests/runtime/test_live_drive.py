@@ -131,9 +131,12 @@ def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(p
         _post(url + "request", {"request": "autonomous"}, cookie)
         held = 0  # holds until the page has shown the kart autonomous for a few of its replies, then goes away
         while held < 5 and time.monotonic() < deadline + 20.0:  # a bound for a broken run, not a measure of speed
-            _post(url + "input", {"hold": True}, cookie)
-            with urllib.request.urlopen(url + "state", timeout=1.0) as reply:
-                held += json.loads(reply.read())["state"] == "autonomous"
+            try:
+                _post(url + "input", {"hold": True}, cookie)
+                with urllib.request.urlopen(url + "state", timeout=1.0) as reply:
+                    held += json.loads(reply.read())["state"] == "autonomous"
+            except OSError:  # the drive has ended and the page with it
+                return
             time.sleep(0.1)
 
     threading.Thread(target=person, daemon=True).start()
