@@ -262,6 +262,40 @@ def test_a_sign_in_a_font_the_reader_has_no_template_of_is_read_or_left_unread_n
     assert all(read[1:]), read
 
 
+def _blurred(image: np.ndarray) -> np.ndarray:
+    return cv2.GaussianBlur(image, (0, 0), 1.5)
+
+
+def _compressed(image: np.ndarray) -> np.ndarray:
+    return cv2.imdecode(cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 30])[1], cv2.IMREAD_COLOR)
+
+
+def _noisy(image: np.ndarray) -> np.ndarray:
+    return np.clip(image + np.random.default_rng(3).normal(0.0, 8.0, image.shape), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("size", [22, 26, 30])
+def test_a_far_blurred_sign_s_faint_digits_make_it_a_sign_and_a_plain_white_disc_is_none(size):
+    """Blurred (a camera out of focus, 1.5 px), a far sign's digits are no darker than three quarters of its
+    white (the venue's 20 at 17 m): the sign is found by its middle's ink against its own white, with its value or
+    none, never another. A plain white disc in a red ring (the closed-road sign) is no speed sign, sharp, blurred
+    (its ring's red then reaches into the disc's edge), compressed or noisy."""
+    image = scene()
+    sign = cv2.resize(speed_sign_texture(20), (size, size), interpolation=cv2.INTER_AREA)
+    disc = np.hypot(*np.mgrid[:size, :size] - (size - 1) / 2) <= size / 2
+    image[80:80 + size, 680:680 + size][disc] = sign[disc]
+    found = detect_speed_signs(_blurred(image), camera=CAMERA)
+    assert [d.state in ("", "20") for d in found] == [True], found
+    for radius in (9, 11, 14, 20, 30):
+        plain = scene()
+        _sign(plain, (700, 90), radius, "")
+        for view in (plain, _blurred(plain), _compressed(plain), _noisy(plain)):
+            assert detect_speed_signs(view, camera=CAMERA) == [], radius
+    for share in (0.0, 1.0):
+        with pytest.raises(ConfigError, match="sign_ink_contrast"):
+            SignalConfig(sign_ink_contrast=share)
+
+
 def test_a_sign_s_likeness_on_the_ground_is_no_sign():
     """A sign on its pole stands higher than the camera; a red ring round a pale disc with dark strokes below
     the horizon (tyre marks on asphalt a warm white balance makes reddish, in a rendered frame) is on the road."""
