@@ -383,6 +383,24 @@ def test_an_upright_thing_is_a_car_or_a_person_by_its_size_and_paint_is_neither(
     assert people[0].lateral_m == pytest.approx(-3.0, rel=within)
 
 
+def test_a_thing_meets_the_ground_at_an_edge_and_a_far_road_fading_into_the_near_one_does_not():
+    """Two columns of a person's size 12 m ahead, dark above the horizon, pale below it, at the upright-thing
+    finder's own scale (424x240). One stops at its foot; the other fades into the road over 30 rows, as the far end of
+    a straight road does where the verge sets its rows' colour (it was a person 16 m ahead in the venue's scene 1,
+    enlarged): it is no thing standing there."""
+    image = np.full((240, 424, 3), 125, np.uint8)
+    image[:82] = (235, 232, 230)  # the horizon near row 82
+    image[50:82, 120:133] = image[50:82, 290:303] = 60
+    image[82:98, 120:133] = 150
+    for row in range(82, 113):
+        image[row, 290:303] = round(150 - 25 * (row - 82) / 30)
+    people = detect_standing_people(image, CAMERA)
+    assert [(round(p.box_px[0]), round(p.distance_m)) for p in people] == [(119, 12)]
+    assert len(detect_standing_people(image, CAMERA, ObstacleConfig(min_foot_edge=0.0))) == 2
+    with pytest.raises(ConfigError, match="min_foot_edge"):
+        ObstacleConfig(min_foot_edge=-1.0)
+
+
 def test_a_car_whose_top_breaks_is_still_one_car_and_a_person_beside_it_stays_apart():
     """The real inflatable car, its frame darkened, lost its roof's middle against the sky: its columns split
     where the top jumped, into things too narrow for a car."""
