@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from kartpilot.core.errors import ConfigError
+from kartpilot.core.glyphs import text_mask
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.perception.detect import DetectorConfig, ObjectDetector, crossing_states, merge_people
 from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, place_on_ground
@@ -294,6 +295,26 @@ def test_a_far_blurred_sign_s_faint_digits_make_it_a_sign_and_a_plain_white_disc
     for share in (0.0, 1.0):
         with pytest.raises(ConfigError, match="sign_ink_contrast"):
             SignalConfig(sign_ink_contrast=share)
+
+
+@pytest.mark.parametrize("value", [10, 15, 20])
+def test_a_sign_whose_digits_fill_its_white_disc_is_read(value):
+    """The digits of some signs nearly fill their white disc (the Hanze sign's, seen nearer under another camera's
+    curve: read in the disc's middle alone, its "2" and its "0" were cut at their outer sides, and it was left
+    unread). The number is also read in the whole of the ring's hole, here drawn in a font the reader has no
+    template of, 0.78 of the sign across."""
+    ink = text_mask(str(value), "dejavu-sans-bold", 200).astype(np.float32) / 255.0
+    for radius in (20, 30, 45):
+        image = scene()
+        cv2.circle(image, (700, 100), radius, (30, 30, 200), -1)
+        cv2.circle(image, (700, 100), int(radius * 0.8), (245, 245, 245), -1)
+        width = int(1.55 * radius)
+        height = int(ink.shape[0] * width / ink.shape[1])
+        glyph = cv2.resize(ink, (width, height), interpolation=cv2.INTER_AREA)[..., None]
+        top, left = 100 - height // 2, 700 - width // 2
+        patch = image[top:top + height, left:left + width].astype(np.float32)
+        image[top:top + height, left:left + width] = (patch * (1 - glyph) + 20 * glyph).astype(np.uint8)
+        assert [d.state for d in detect_speed_signs(image, camera=CAMERA)] == [str(value)], radius
 
 
 def test_a_sign_s_likeness_on_the_ground_is_no_sign():

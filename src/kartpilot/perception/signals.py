@@ -13,7 +13,8 @@ or a car's rear light do not have. Colours are judged with the road as the grey 
 cast is more than asphalt's own (:func:`road_grey`), and the ring's least brightness scales with the frame's
 exposure, as a lamp's does. On its pole a sign stands higher than the camera, so its middle lies above
 the horizon row (with a warm white balance, dark tyre marks on reddish asphalt made a ring with dark strokes on
-the road). The number is read by comparing the digits, cut out and scaled, with each value
+the road). The number is read (in the disc's middle and in the whole of the ring's hole, the better reading) by
+comparing the digits, cut out and scaled, with each value
 of ``values_kmh`` drawn in two unlike fonts (normalised correlation, smoothed): a small classifier with no training
 data and nothing to download. Signs stand on the right of the road in the Netherlands; one on the left (``sign_side``)
 belongs to the other direction.
@@ -448,9 +449,10 @@ def _signs(image: Image, planes: _Planes, config: SignalConfig, camera: PinholeC
             continue
         # a ring round one disc: its hole holds most of its area (a sign's white disc is about 0.8 of its
         # diameter, 0.64 of its area); a striped barrier's red, closed into one shape, has many small holes
-        hole, child = 0.0, int(hierarchy[0][k][2])
+        (hole, largest), child = (0.0, -1), int(hierarchy[0][k][2])
         while child != -1:  # its holes: the first child, then that child's next siblings
-            hole, child = max(hole, cv2.contourArea(contours[child])), int(hierarchy[0][child][0])
+            hole, largest = max((hole, largest), (cv2.contourArea(contours[child]), child))
+            child = int(hierarchy[0][child][0])
         if hole < config.min_hole_share * cv2.contourArea(contour):
             continue
         if config.sign_side == "right" and ex < (w - 1) / 2:
@@ -471,7 +473,15 @@ def _signs(image: Image, planes: _Planes, config: SignalConfig, camera: PinholeC
             continue  # not a white disc: a lamp, a barrier's stripes, the scene seen through a red hoop
         if _ink_contrast(gray, (ex, ey), (ma, mb), bright) < config.sign_ink_contrast:
             continue  # a plain white disc (the closed-road sign), or one with nothing dark in its middle
-        value, score = read_speed_value(gray, disc, config.values_kmh)
+        # the number is read in the disc's middle and in the whole of the ring's hole, the better of the two: a
+        # sign's digits may reach beyond the middle (the Hanze sign's nearly fill its white), and a far or blurred
+        # sign's ring bleeds into its hole's edge
+        whole = np.zeros((h, w), np.uint8)
+        cv2.drawContours(whole, contours, largest, 255, -1)
+        whole = cv2.erode(whole, np.ones((3, 3), np.uint8))
+        value, score = max(read_speed_value(gray, disc, config.values_kmh),
+                           read_speed_value(gray, whole, config.values_kmh) if np.any(whole) else (0, -1.0),
+                           key=lambda read: read[1])
         state = str(value) if score >= config.min_value_score else ""
         confidence = white * (0.5 + 0.5 * max(score, 0.0))
         det = Detection("speed_sign", _clip((x, y, x + bw, y + bh), w, h), float(min(confidence, 1.0)), state)
