@@ -923,7 +923,10 @@ def render(results: dict[str, Any]) -> str:
                       f" + {view['top_slope']:.3f} x m, so a lamp " + " or ".join(
                           f"{h} m up from {d:.1f} m ahead" for h, d in lamps.items()) + " of the camera on."
                   + ("" if "hanze" not in view else _render_hanze_light(view["hanze"]))]
-    lines += ["", "| detector | ms per 848x480 frame, one core | frames/s |", "|---|---|---|"]
+    lines += ["", "The classical detectors' cost: the best of three passes over the venue's scenes, on one core of the "
+                  "2-core development host with nothing else running. That host's speed changes from day to day by a "
+                  "quarter to a third, the same code with it.", "",
+              "| detector | ms per 848x480 frame, one core | frames/s |", "|---|---|---|"]
     lines += [f"| {name} | {ms:.1f} | {1000 / ms:.0f} |" for name, ms in results["timing_ms"].items()]
     seam = results.get("onnx_ms")
     if seam:
