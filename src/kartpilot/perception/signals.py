@@ -269,7 +269,7 @@ def _lights(image: Image, planes: _Planes, config: SignalConfig, camera: Pinhole
         coloured = colour(above, config.lamp_saturation, round(config.lamp_extent * lit))
         # BBDT: the same labels as the default algorithm, with its statistics at a third of the cost here
         count, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(
-            cv2.morphologyEx(coloured, cv2.MORPH_CLOSE, _CLOSE), 8, cv2.CV_32S, cv2.CCL_BBDT)
+            cv2.morphologyEx(coloured, cv2.MORPH_CLOSE, _SQUARE), 8, cv2.CV_32S, cv2.CCL_BBDT)
         for k in np.flatnonzero(np.maximum(stats[1:count, 2], stats[1:count, 3]) >= config.min_lamp_px * h) + 1:
             found = [(core.edge, lamp) for core in _lamp_cores(hsv[..., 2], coloured, labels, int(k), stats[k], lit,
                                                                 config.lamp_extent)
@@ -334,7 +334,8 @@ def _light(state: str, core: _Core, planes: _Planes, lit: int, config: SignalCon
     return None if det.distance_m > config.max_distance_m else (level, cx, cy, det)
 
 
-_CLOSE = np.ones((3, 3), np.uint8)
+_SQUARE = np.ones((3, 3), np.uint8)
+"""The 3x3 kernel of every closing and erosion here."""
 
 
 def _lamp_cores(value: Image, coloured: Image, labels: Image, k: int, stat: np.ndarray, lit: int, extent: float
@@ -362,7 +363,7 @@ def _lamp_cores(value: Image, coloured: Image, labels: Image, k: int, stat: np.n
     for edge in sorted({lit, min(lit, round(extent * peak))}, reverse=True):
         # a pixel of margin: the closing's erosion takes the crop's outside for set, and would keep its dilation
         core = np.pad((own_colour & (crop >= edge)).view(np.uint8), 1)
-        core = np.ascontiguousarray(cv2.morphologyEx(core, cv2.MORPH_CLOSE, _CLOSE)[1:-1, 1:-1])
+        core = np.ascontiguousarray(cv2.morphologyEx(core, cv2.MORPH_CLOSE, _SQUARE)[1:-1, 1:-1])
         count, pieces, stats, centroids = cv2.connectedComponentsWithStats(core, 8)
         for j in range(1, count):
             x, y, bw, bh, area = (int(v) for v in stats[j])
@@ -433,7 +434,7 @@ def _signs(image: Image, planes: _Planes, config: SignalConfig, camera: PinholeC
     gray, scale = planes.gray, planes.exposure
     h, w = image.shape[:2]
     red = cv2.morphologyEx(red_mask(hsv, config.ring_saturation, round(config.ring_value * scale)), cv2.MORPH_CLOSE,
-                           np.ones((3, 3), np.uint8))
+                           _SQUARE)
     contours, hierarchy = cv2.findContours(red, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
     if hierarchy is None:
         return []
@@ -478,7 +479,7 @@ def _signs(image: Image, planes: _Planes, config: SignalConfig, camera: PinholeC
         # sign's ring bleeds into its hole's edge
         whole = np.zeros((h, w), np.uint8)
         cv2.drawContours(whole, contours, largest, 255, -1)
-        whole = cv2.erode(whole, np.ones((3, 3), np.uint8))
+        whole = cv2.erode(whole, _SQUARE)
         value, score = max(read_speed_value(gray, disc, config.values_kmh),
                            read_speed_value(gray, whole, config.values_kmh) if np.any(whole) else (0, -1.0),
                            key=lambda read: read[1])
