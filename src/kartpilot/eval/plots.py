@@ -4,23 +4,35 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
-from matplotlib.figure import Figure
 
 from kartpilot.core.files import write_bytes_atomic
 from kartpilot.core.trajectory import Trajectory
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 __all__ = ["plot_path_following", "plot_steering", "plot_trajectories"]
+
+
+def pyplot() -> ModuleType:
+    """matplotlib's pyplot on the file-only Agg backend, imported when a figure is drawn: at import it would cost
+    every command a third of a second (``kartpilot`` starts without it)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
 
 
 def plot_trajectories(reference: Trajectory | None, estimate: Trajectory, path: str | Path, title: str = "") -> None:
     """Top view (x right, z forward of the first camera) and, with a reference, error over distance."""
     columns = 2 if reference is not None else 1
+    plt = pyplot()
     figure, axes = plt.subplots(1, columns, figsize=(6 * columns, 5), squeeze=False)
     top = axes[0, 0]
     if reference is not None:
@@ -52,6 +64,7 @@ def plot_path_following(taught_xy: np.ndarray, reference_xy: np.ndarray, driven_
     """Top view of a repeat drive: the taught path (truth), the reference (VO), the driven path (truth)
     and the pipeline's own estimate of it; beside it, ``distance_m``, each driven point's distance from
     the taught path."""
+    plt = pyplot()
     figure, axes = plt.subplots(1, 2, figsize=(12, 5), squeeze=False)
     top = axes[0, 0]
     top.plot(taught_xy[:, 0], taught_xy[:, 1], "k-", lw=2.5, alpha=0.4, label="taught path (truth)")
@@ -83,6 +96,7 @@ def plot_path_following(taught_xy: np.ndarray, reference_xy: np.ndarray, driven_
 def plot_steering(t_s: np.ndarray, steer_rad: np.ndarray, cross_track_m: np.ndarray, path: str | Path,
                   title: str = "") -> None:
     """Steering command and the controller's cross-track error over time."""
+    plt = pyplot()
     figure, axes = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
     axes[0].plot(t_s, np.degrees(steer_rad), "b-", lw=1)
     axes[0].set_ylabel("steer (deg, + left)")

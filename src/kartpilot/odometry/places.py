@@ -47,7 +47,6 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from sklearn.neighbors import BallTree
 
 from kartpilot.calibration.lens import LensRemap, undistortion
 from kartpilot.core.camera import PinholeCamera, camera_from_dict, camera_to_dict
@@ -239,6 +238,8 @@ class PlaceDatabase:
                 len(self.road_views) != count or self.road_views.shape[1:] != self._grids[0].shape):
             raise DataError(f"a place database's road views {self.road_views.shape} do not fit its {count} places "
                             f"and road patch {self._grids[0].shape}")
+        from sklearn.neighbors import BallTree  # here, not at import: scikit-learn takes most of a second to load
+
         self.tree = BallTree(self.vectors)
         self._describer = _Describer(self.camera, self.config)
         self._matcher = cv2.BFMatcher(cv2.NORM_HAMMING if self._describer.binary else cv2.NORM_L2)

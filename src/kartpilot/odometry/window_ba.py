@@ -18,15 +18,17 @@ the stereo baseline's, through the disparities.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
 from scipy.spatial.transform import Rotation
 
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array, invert_pose
+
+if TYPE_CHECKING:
+    from scipy.sparse import lil_matrix
 
 __all__ = ["WindowBAConfig", "WindowObservations", "bundle_adjust_window"]
 
@@ -84,6 +86,8 @@ def _residuals(params: Array, fixed_cam_world: Array, frames: int, points: int, 
 
 
 def _sparsity(frames: int, points: int, obs: WindowObservations) -> lil_matrix:
+    from scipy.sparse import lil_matrix
+
     free = frames - 1
     pattern = lil_matrix((3 * len(obs.frame), free * 6 + points * 3), dtype=np.int8)
     rows = np.arange(len(obs.frame))
@@ -107,6 +111,8 @@ def bundle_adjust_window(poses_world_cam: Array, points_world_m: Array, obs: Win
         np.column_stack([Rotation.from_matrix(cam_world[1:, :3, :3]).as_rotvec(), cam_world[1:, :3, 3]]).ravel(),
         np.asarray(points_world_m, float).ravel()])
     k = np.asarray(camera_matrix, float)
+    from scipy.optimize import least_squares  # here: scipy.optimize costs every command a tenth of a second
+
     solution = least_squares(_residuals, start, jac_sparsity=_sparsity(frames, points, obs), method="trf",
                              loss="soft_l1", f_scale=config.loss_scale_px, x_scale="jac",
                              max_nfev=config.max_evaluations, args=(cam_world[0], frames, points, obs, k, baseline_m))

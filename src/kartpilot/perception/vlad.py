@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from sklearn.cluster import KMeans
 
 from kartpilot.core.errors import ConfigError, PerceptionError
 from kartpilot.perception.features import FeatureConfig
@@ -80,6 +79,8 @@ def train_vocabulary(descriptor_sets: Sequence[NDArray[np.generic]], config: Vla
     sample = np.concatenate([d[rng.random(len(d)) < share] if share < 1.0 else d for d in sets])
     if len(sample) < config.words:
         sample = np.concatenate(sets)
+    from sklearn.cluster import KMeans  # here, not at import: scikit-learn takes most of a second to load
+
     kmeans = KMeans(config.words, n_init=config.kmeans_restarts, random_state=config.seed, max_iter=100)
     kmeans.fit(sample)
     return np.ascontiguousarray(kmeans.cluster_centers_, np.float32)

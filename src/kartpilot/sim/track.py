@@ -36,7 +36,6 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import splev, splprep
 from scipy.spatial import cKDTree
 
 from kartpilot.core.config import load_yaml_mapping, merge_config
@@ -587,6 +586,8 @@ def _centerline_points(spec: CenterlineSpec) -> Array:
                               "control points must differ from their neighbours")
         if spec.closed:
             pts = np.vstack([pts, pts[:1]])
+        from scipy.interpolate import splev, splprep  # here: scipy.interpolate costs every command 0.1 s
+
         tck, _ = splprep(pts.T, s=0.0, per=1 if spec.closed else 0, k=3)
         u = np.linspace(0.0, 1.0, 40 * len(pts) * 50)
         return np.stack(splev(u, tck), axis=1)

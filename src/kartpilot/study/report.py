@@ -15,15 +15,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-
-import matplotlib.pyplot as plt
 import numpy as np
-from scipy import stats
 
 from kartpilot.core.files import write_csv_atomic, write_text_atomic
+from kartpilot.eval.plots import pyplot
 from kartpilot.study.jobs import DEPTH_EDGES_M, GRID_COLS, GRID_ROWS
 from kartpilot.study.run import load_rows
 
@@ -56,6 +51,8 @@ def estimate(values: Iterable[float]) -> Estimate:
         return Estimate(math.nan, math.nan, 0)
     if len(data) == 1:
         return Estimate(float(data[0]), math.nan, 1)
+    from scipy import stats  # here, not at import: scipy.stats alone costs a command a fifth of a second
+
     half = float(stats.t.ppf(0.975, len(data) - 1) * data.std(ddof=1) / math.sqrt(len(data)))
     return Estimate(float(data.mean()), half, len(data))
 
@@ -110,7 +107,7 @@ def _save(figure: Any, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_name(path.stem + ".partial.png")
     figure.savefig(partial, dpi=110, bbox_inches="tight")
-    plt.close(figure)
+    pyplot().close(figure)
     partial.replace(path)
     return path
 
@@ -127,7 +124,7 @@ def _features(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]
     cones = [r for r in ok if r["part"] in ("cones", "real frames")]
     sections, answers = [], {}
     labels = list(dict.fromkeys((r["variant"], r["source"]) for r in cones))
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4))
+    fig, axes = pyplot().subplots(1, 2, figsize=(12, 4))
     width = 0.8 / max(len(labels), 1)
     for i, (variant, source) in enumerate(labels):
         members = [r for r in cones if r["variant"] == variant and r["source"] == source]
@@ -167,7 +164,7 @@ def _features(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]
             "(Fig. 16), the near, distinctive cones are what the motion is measured from.")
     bands = [r for r in ok if r["part"] == "depth bands"]
     if bands:
-        fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
+        fig, axes = pyplot().subplots(1, 2, figsize=(10, 3.5))
         variants = list(dict.fromkeys(r["variant"] for r in bands))
         for ax, (metric, label) in zip(axes, (("rpe_translation_percent", "translation error over 1 m (%)"),
                                               ("rpe_rotation_deg_per_m", "rotation error (deg/m)")), strict=True):
@@ -217,7 +214,7 @@ def _ranked_effects(rows: list[Row], figures: Path, question: str, title: str, s
     effects = paired_effects(ok, "drift_percent", "defaults")
     ate = paired_effects(ok, "ate_m", "defaults")
     ranked = sorted(effects.items(), key=lambda kv: -abs(kv[1].mean) if not math.isnan(kv[1].mean) else 0)
-    fig, ax = plt.subplots(figsize=(8, 0.35 * len(ranked) + 1.2))
+    fig, ax = pyplot().subplots(figsize=(8, 0.35 * len(ranked) + 1.2))
     names = [name for name, _ in ranked][::-1]
     values = [effects[n] for n in names]
     ax.barh(names, [v.mean for v in values], xerr=[0 if math.isnan(v.half_width) else v.half_width for v in values],
@@ -286,7 +283,7 @@ def _means(rows: list[Row], metric: str) -> dict[str, Estimate]:
 def _detectors(rows: list[Row], figures: Path) -> tuple[list[str], dict[str, str]]:
     ok = _ok(rows)
     sources = list(dict.fromkeys(r["source"] for r in ok))
-    fig, axes = plt.subplots(1, len(sources), figsize=(6.5 * len(sources), 5), squeeze=False)
+    fig, axes = pyplot().subplots(1, len(sources), figsize=(6.5 * len(sources), 5), squeeze=False)
     answer = []
     for ax, source in zip(axes[0], sources, strict=True):
         members = [r for r in ok if r["source"] == source]
@@ -380,7 +377,7 @@ def _bar_figure(rows: list[Row], figures: Path, metric: str, label: str = "") ->
     ok = _ok(rows)
     values = _means(ok, metric)
     variants = list(values)[::-1]
-    fig, ax = plt.subplots(figsize=(8, 0.35 * len(variants) + 1.2))
+    fig, ax = pyplot().subplots(figsize=(8, 0.35 * len(variants) + 1.2))
     ax.barh(variants, [values[v].mean for v in variants],
             xerr=[0 if math.isnan(values[v].half_width) else values[v].half_width for v in variants])
     ax.set(xlabel=metric.replace("_", " "))
