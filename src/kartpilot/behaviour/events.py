@@ -43,7 +43,8 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.perception.objects import Detection
 from kartpilot.planning.reference_path import ReferencePath
 
-__all__ = ["BehaviourConfig", "BehaviourDecision", "BehaviourState", "behaviour_step", "stopping_speed"]
+__all__ = ["ACTED_ON", "BehaviourConfig", "BehaviourDecision", "BehaviourState", "act_window", "behaviour_step",
+           "stopping_speed"]
 
 State = Literal["wait_start", "drive", "stop_red", "wait_red", "yield", "overtake", "wait_car", "park", "parked"]
 
@@ -161,6 +162,32 @@ class BehaviourDecision:
 
 
 _TRACKED_PEOPLE = 32
+
+
+ACTED_ON = ("traffic_light", "speed_sign", "stop_line", "crosswalk", "person", "car", "barrier", "parking_bay")
+"""The classes of things the rules act on."""
+
+
+def act_window(label: str, config: BehaviourConfig) -> tuple[float, float]:
+    """Where (metres ahead of the rear axle) the kart acts on a thing of class ``label``, as the rules play them.
+
+    Near end: where the kart stands still before it (its front and margin before a light's line or a sign, its
+    margin before a crossing, its clearance before a person, its gap behind a car), or for a bay, where the bay
+    passes under its front; nearer, the kart has acted already (the stop point is kept by the metres driven, a
+    manoeuvre's path is planned once). Far end: where it must have seen it: for a light, a sign, a stop line, a
+    crossing or a person, the near end plus the stopping distance from ``limit_kmh`` with the planned braking after
+    the brake's delay (for a light and its stop line, after the light has been seen for ``light_confirm_s`` too);
+    for a car, where the overtake is planned; for a parking bay and its barriers, where parking starts. What a
+    detector must find, and where (:mod:`kartpilot.eval.detection` scores it so)."""
+    b = config
+    if label == "car":
+        return b.front_m + b.car_gap_m, b.car_range_m
+    if label in ("barrier", "parking_bay"):
+        return b.front_m, b.bay_range_m
+    margin = {"crosswalk": b.crossing_margin_m, "person": b.person_clearance_m}.get(label, b.stop_margin_m)
+    v = b.limit_kmh / 3.6
+    confirm = b.light_confirm_s if label in ("traffic_light", "stop_line") else 0.0
+    return b.front_m + margin, b.front_m + margin + v * (confirm + b.brake_delay_s) + v * v / (2 * b.decel_mps2)
 
 
 def stopping_speed(distance_m: float, decel_mps2: float, delay_s: float) -> float:
