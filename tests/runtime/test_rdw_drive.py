@@ -74,13 +74,14 @@ def test_can_monitor_reads_the_drive_back(drive, tmp_path, capsys):
 @pytest.mark.slow
 def test_with_a_speed_the_lane_follower_holds_it_on_the_kart_s_measured_speed(tmp_path):
     """Closed-loop speed: the follower asks for 3 m/s on a straight and the kart's 0x440 says it holds it (the
-    open-loop throttle of the drive above tops out wherever the kart's speed mode and the road put it)."""
+    open-loop throttle of the drive above tops out wherever the kart's speed mode and the road put it). At 15 Hz,
+    as the drive above: the speed loop runs at the camera's rate, on the kart's latest report."""
     config = tmp_path / "stack.yaml"
     config.write_text("lane_policy:\n  speed_mps: 3.0\n")
     folder = tmp_path / "drive"
     assert main(["drive", "--sim", "sdc-assen", "--vehicle", "sdc-kart", "--pipeline", "lanes", "--speed-mode", "15",
-                 "--bus", "virtual", "--duration", "8", "--config", str(config), "--record", str(folder),
-                 "--no-progress"]) == 0
+                 "--bus", "virtual", "--duration", "8", "--rate", "15", "--config", str(config), "--record",
+                 str(folder), "--no-progress"]) == 0
     kart = RecordingReader(folder).outputs("kart")
     settled = np.array([row["Speed"] for row in kart if row["stamp_ns"] > 4e9]) / 3.6
     print(f"measured speed after 4 s: {settled.mean():.2f} m/s (min {settled.min():.2f}, max {settled.max():.2f})")
