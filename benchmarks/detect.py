@@ -30,17 +30,26 @@ import cv2
 import numpy as np
 
 from common import write_json
-from kartpilot.behaviour.events import BehaviourConfig
+from kartpilot.behaviour.events import ACTED_ON, BehaviourConfig
+from kartpilot.behaviour.events import act_window as events_act_window
 from kartpilot.calibration.board import BoardConfig, find_board
 from kartpilot.calibration.ground import calibrate_ground, ground_points
 from kartpilot.core.geometry import pose_from_rotvec
 from kartpilot.core.vehicle import get_vehicle
+from kartpilot.eval.detection import (
+    ON_GROUND,
+    ClassScore,
+    DetectionScore,
+    boxes_match,
+    read_labels,
+    score_detections,
+    watched_zone_m,
+)
 from kartpilot.perception.detect import DetectorConfig, ObjectDetector, detect_classical
 from kartpilot.perception.features import FeatureConfig, Features, create_detector, detect_features
 from kartpilot.perception.matching import MatchConfig, match_descriptors
-from kartpilot.perception.objects import box_iou
-from kartpilot.perception.obstacles import ObstacleConfig, detect_barriers, detect_car, detect_people, horizon_row
-from kartpilot.perception.road_marks import RoadMarkConfig, camera_for_image, detect_road_marks
+from kartpilot.perception.obstacles import detect_barriers, detect_car, detect_people, horizon_row
+from kartpilot.perception.road_marks import camera_for_image, detect_road_marks
 from kartpilot.perception.signals import SignalConfig, detect_signals, road_colour
 from vo_table import put_between_markers
 
@@ -54,49 +63,7 @@ LABEL_PX = 5.0
 """How far a hand-drawn label's edge may be off (the labels file says so): a far zebra's box is 11 px tall."""
 
 
-def _matches(box: tuple[float, ...], label_box: list[float], slack_px: float = 0.0) -> bool:
-    """The same object: boxes overlapping by a third, or one's centre inside the other grown by ``slack_px`` (a
-    hand-drawn label's accuracy; a far object's box is a few pixels; the lamp's box is the head's)."""
-    def inside(c: tuple[float, float], b: tuple[float, ...] | list[float]) -> bool:
-        return b[0] - slack_px <= c[0] <= b[2] + slack_px and b[1] - slack_px <= c[1] <= b[3] + slack_px
-
-    lb = tuple(label_box)
-    return (box_iou(tuple(box), lb) >= 0.3 or inside(((box[0] + box[2]) / 2, (box[1] + box[3]) / 2), lb)  # type: ignore[arg-type]
-            or inside(((lb[0] + lb[2]) / 2, (lb[1] + lb[3]) / 2), box))
-
-
 KART_CAMERA_AHEAD_M = float(get_vehicle("sdc-kart").camera("center").pose_body_cam_array[0, 3])
-ON_GROUND = ("car", "person", "barrier", "stop_line", "crosswalk", "parking_bay")
-def concerns(label: str, box: list[float], camera: Any) -> tuple[bool, float, float]:
-    """Whether a labelled thing on the ground concerns the kart, and where its box's foot stands (ahead, left,
-    metres on the ground from the rear axle): within its class's :func:`act_window`, and reaching into the side
-    limits the detectors are held to (a car in the kart's corridor, people and barriers this side of the
-    spectators' fence, a stop line or a zebra where the road marks are sought). A sign counts where, placed by
-    its size (the label's, :data:`LABEL_PX` larger: the nearest it may be), it is within its act window; a light
-    always does (its label boxes the head, whose size the detector does not know)."""
-    if label == "speed_sign":
-        size_px = max(box[2] - box[0], box[3] - box[1]) + LABEL_PX
-        ahead = camera.fx_px * SignalConfig().sign_diameter_m / size_px + KART_CAMERA_AHEAD_M
-        return bool(ahead <= act_window(label)[1]), float(ahead), math.nan
-    if label not in ON_GROUND:
-        return True, math.nan, math.nan
-    foot = ground_points(camera, np.array([[box[0], box[3]], [box[2], box[3]]], np.float64))
-    ahead, left = foot.mean(axis=0)
-    # from the SDC kart's rear axle: the Hanze calibration measures from the ground under the camera
-    ahead += KART_CAMERA_AHEAD_M - float(camera.pose_body_cam_array[0, 3])
-    side = _zone_m(label)
-    beside = foot[:, 1].min() > side or foot[:, 1].max() < -side  # wholly to one side of the zone
-    near, far = act_window(label)
-    return bool(near <= ahead <= far and not beside), float(ahead), float(left)
-
-
-def _zone_m(label: str) -> float:
-    """How far either side of the kart's line the detector of a class on the ground watches."""
-    obstacles, marks = ObstacleConfig(), RoadMarkConfig()
-    return {"car": obstacles.corridor_half_width_m, "stop_line": marks.search_half_width_m,
-            "crosswalk": marks.search_half_width_m}.get(label, obstacles.max_lateral_m)
-
-
 Alter = Callable[[np.ndarray], np.ndarray]
 
 
@@ -123,56 +90,35 @@ def _pitched(camera: Any, error_deg: float) -> Any:
 
 
 @functools.lru_cache(maxsize=2)
-def _hanze_camera(data: Path) -> Any:
-    """The Hanze kart's centre camera, placed over the ground from its three images of the board lying there."""
+def _hanze_camera(data: Path, reference_x_m: float = 0.0) -> Any:
+    """The Hanze kart's centre camera, placed over the ground from its three images of the board lying there;
+    ``reference_x_m`` ahead of the body's origin (0: the ground under the camera)."""
     hanze = data / "rdw-kart" / "hanze-calibration"
     images = {n: cv2.imread(str(hanze / f"{n}.jpg")) for n in ("left", "center", "right")}
     return calibrate_ground({n: find_board(im, BOARD, n) for n, im in images.items()},  # type: ignore[misc]
-                            {n: (1920, 1080) for n in images})["center"].camera
+                            {n: (1920, 1080) for n in images}, reference_x_m=reference_x_m)["center"].camera
 
 
 def labelled(data: Path, alter: Alter | None = None, pitch_error_deg: float = 0.0) -> dict[str, Any]:
-    """Each labelled object found or missed, counted apart where it concerns the kart (:func:`concerns`): the
-    detectors leave out by design what lies beyond, or off to the side (a car on another part of the course,
+    """Each labelled object found or missed, counted apart where it concerns the kart, by
+    :func:`kartpilot.eval.detection.score_detections` (what ``kartpilot eval detect`` runs): the detectors leave
+    out by design what lies beyond their act windows, or off to the side (a car on another part of the course,
     people across the field), so a miss there is what they were built to do. ``alter``: each image altered so
     first (:func:`altered`); ``pitch_error_deg``: the cameras' pitch that much off (:func:`pitched`)."""
-    labels = json.loads(LABELS.read_text())["images"]
+    labels = read_labels(LABELS)
     kart = get_vehicle("sdc-kart").camera("center")
-    hanze_camera = _hanze_camera(data)
-    per_class: dict[str, dict[str, int]] = {}
-    false_alarms: list[dict[str, Any]] = []
-    misses: list[dict[str, Any]] = []
-    for name, objects in labels.items():
+    # distances from the rear axle, as the SDC kart's: the Hanze centre camera placed as far ahead of it
+    hanze_camera = _hanze_camera(data, KART_CAMERA_AHEAD_M)
+    found, cameras = {}, {}
+    for name in labels:
         camera = hanze_camera if name.startswith("hanze") else kart
         image = cv2.imread(str(data / "rdw-kart" / name))
-        found = _found_in(image, ObjectDetector(DetectorConfig(), _pitched(camera, pitch_error_deg)), alter)
-        placed = camera_for_image(camera, image.shape[1], image.shape[0])
-        used: set[int] = set()
-        for obj in objects:
-            row = per_class.setdefault(obj["label"], dict.fromkeys(
-                ("labelled", "found", "state_right", "false_alarms", "concerning", "found_concerning"), 0))
-            row["labelled"] += 1
-            concern, ahead, left = concerns(obj["label"], obj["box"], placed)
-            row["concerning"] += int(concern)
-            hit = next((k for k, d in enumerate(found) if k not in used and d.label == obj["label"]
-                        and _matches(d.box_px, obj["box"], LABEL_PX)), None)
-            if hit is None:
-                misses.append({"image": name, "label": obj["label"], "height_px": obj["box"][3] - obj["box"][1],
-                               "concerns": concern, "ahead_m": round(ahead, 1), "left_m": round(left, 1)})
-                continue
-            used.add(hit)
-            row["found"] += 1
-            row["found_concerning"] += int(concern)
-            row["state_right"] += int(found[hit].state == obj.get("state", found[hit].state))
-        for k, d in enumerate(found):
-            if k not in used:
-                per_class.setdefault(d.label, dict.fromkeys(
-                    ("labelled", "found", "state_right", "false_alarms", "concerning", "found_concerning"), 0))
-                per_class[d.label]["false_alarms"] += 1
-                false_alarms.append({"image": name, "label": d.label, "state": d.state,
-                                     "box": [round(v) for v in d.box_px], "distance_m": round(d.distance_m, 1)})
-    return {"classes": per_class, "misses": misses, "false_alarms": false_alarms,
-            "zones_m": {label: _zone_m(label) for label in ON_GROUND}}
+        found[name] = _found_in(image, ObjectDetector(DetectorConfig(), _pitched(camera, pitch_error_deg)), alter)
+        cameras[name] = camera_for_image(camera, image.shape[1], image.shape[0])
+    windows = {label: act_window(label) for label in ACTED_ON}
+    score = score_detections(found, labels, cameras.__getitem__, windows, LABEL_PX).to_json()
+    return {"classes": score["classes"], "misses": score["misses"], "false_alarms": score["false_alarms"],
+            "zones_m": {label: watched_zone_m(label) for label in ON_GROUND}}
 
 
 def venue_frames(data: Path, alter: Alter | None = None, pitch_error_deg: float = 0.0) -> dict[str, Any]:
@@ -291,7 +237,7 @@ def sign_reading(data: Path) -> dict[str, Any]:
             signals = replace(SignalConfig(), values_kmh=values)
             found = [d for d in detect_classical(view if encode is None else encode(view), cam,
                                                  DetectorConfig(signals=signals, people=False))
-                     if d.label == "speed_sign" and _matches(d.box_px, where, LABEL_PX)]
+                     if d.label == "speed_sign" and boxes_match(d.box_px, where, LABEL_PX)]
             state = found[0].state if found else None
             row = out["known"].setdefault(key, {}).setdefault(
                 name.split("/")[-1], {"views": 0, "read": 0, "unread": 0, "wrong": 0, "not found": 0})
@@ -325,7 +271,7 @@ def signals_altered(data: Path) -> dict[str, Any]:
             view, cam, where = _object_view(image, camera, obj["box"], size)
             seen = detect_classical(view if alter is None else alter(view), cam)
             found = [d for d in seen if d.label == obj["label"]]
-            mine = [d for d in found if _matches(d.box_px, where, LABEL_PX)]
+            mine = [d for d in found if boxes_match(d.box_px, where, LABEL_PX)]
             cell = out["rows"].setdefault(key, {}).setdefault(column, {"views": 0, "right": 0, "other": 0,
                                                                        "people": 0})
             cell["views"] += 1
@@ -507,24 +453,9 @@ straight, beside the stop line, as in the event scenario), and its free length (
 
 
 def act_window(label: str, behaviour: BehaviourConfig | None = None) -> tuple[float, float]:
-    """Where (metres ahead of the rear axle) the kart acts on a thing of this class, from the event's rules as
-    :mod:`kartpilot.behaviour.events` plays them. Near end: where the kart stands still before it (its front and
-    margin before a light's line or a sign, its margin before a crossing, its clearance before a person, its gap
-    behind a car), or for a bay, where the bay passes under its front; nearer, the kart has acted already (the
-    stop point is kept by the metres driven, a manoeuvre's path is planned once). Far end: where it must have seen
-    it: for a light, a sign, a stop line, a crossing or a person, the near end plus the stopping distance from the
-    highest limit posted (20 km/h) with the planned braking after the brake's delay (for a light and its stop
-    line, after the light has been seen for the rules' ``light_confirm_s`` too); for a car, where the overtake
-    is planned; for a parking bay and its barriers, where parking starts."""
-    b = behaviour or BehaviourConfig()
-    if label == "car":
-        return b.front_m + b.car_gap_m, b.car_range_m
-    if label in ("barrier", "parking_bay"):
-        return b.front_m, b.bay_range_m
-    margin = {"crosswalk": b.crossing_margin_m, "person": b.person_clearance_m}.get(label, b.stop_margin_m)
-    v = b.limit_kmh / 3.6
-    confirm = b.light_confirm_s if label in ("traffic_light", "stop_line") else 0.0
-    return b.front_m + margin, b.front_m + margin + v * (confirm + b.brake_delay_s) + v * v / (2 * b.decel_mps2)
+    """Where (metres ahead of the rear axle) the kart acts on a thing of this class:
+    :func:`kartpilot.behaviour.events.act_window` with the rules' defaults."""
+    return events_act_window(label, behaviour or BehaviourConfig())
 
 
 SIGN_VALUES = (10, 15, 20)
@@ -595,7 +526,7 @@ def rendered(seed: int, count: int = 40, alter: Alter | None = None, pitch_error
                 straight = row["act_m"][0] <= obj.distance_m <= row["act_m"][1]
                 row["in_act_straight"] += int(straight)
                 hit = next((n for n, d in enumerate(found) if n not in used and d.label == obj.label
-                            and _matches(d.box_px, list(obj.box_px))), None)
+                            and boxes_match(d.box_px, list(obj.box_px))), None)
                 if hit is None:
                     continue
                 used.add(hit)
@@ -607,7 +538,7 @@ def rendered(seed: int, count: int = 40, alter: Alter | None = None, pitch_error
                 if 8.0 <= obj.distance_m <= 12.0:
                     row.setdefault("rel_errors_10m", []).append(abs(found[hit].distance_m / obj.distance_m - 1))
             for n, d in enumerate(found):
-                if n not in used and any(c.label == d.label and _matches(d.box_px, list(c.box_px)) for c in cut):
+                if n not in used and any(c.label == d.label and boxes_match(d.box_px, list(c.box_px)) for c in cut):
                     used.add(n)  # a detection of an object cut off by the image's border: not a false alarm
             for n, d in enumerate(found):
                 if n not in used:
@@ -868,12 +799,8 @@ def render(results: dict[str, Any]) -> str:
                   f"{z['car']:.1f} m either side; people and barriers: {z['person']:.0f} m either side; a stop line "
                   f"and a zebra: the {z['stop_line']:.1f} m either side where road marks are sought); the detectors "
                   "leave out what lies beyond by design. A light or a sign always counts.", "",
-              "| class | labelled (real) | of them concerning the kart | found of those | found of all | state right "
-              "| false alarms (labelled images) |",
-              "|---|---|---|---|---|---|---|"]
-    for name, row in sorted(results["labelled"]["classes"].items()):
-        lines.append(f"| {name} | {row['labelled']} | {row['concerning']} | {row['found_concerning']} | "
-                     f"{row['found']} | {row['state_right']} | {row['false_alarms']} |")
+              DetectionScore(classes={name: ClassScore(**row) for name, row in
+                                      results["labelled"]["classes"].items()}).table()]
     v = results["frames"]
     far = v.get("far_found", {})
     others = ", ".join(f"{k} {n}" for k, n in sorted(v["detections"].items()) if k not in far) or "none"

@@ -1,7 +1,7 @@
 """One frame of a drive's video as a figure (the docs' picture of the lane pipeline).
 
-    kartpilot demo --out demo_out
-    python docs/figures/video_frame.py demo_out/sdc-assen-lanes.mp4 600 docs/figures/demo-lanes.png
+    kartpilot sim --track sdc-assen --vehicle sdc-kart --driver lanes --speed-mode 15 --rate 30 --video lap.mp4
+    python docs/figures/video_frame.py lap.mp4 600 docs/figures/demo-lanes.png
 """
 
 import sys

@@ -71,8 +71,9 @@ def test_a_recorded_scenario_replays_to_the_same_decisions(tmp_path, capsys):
 
     from kartpilot.cli.main import main
     from kartpilot.runtime.scenarios import run_scenario
+    from kartpilot.runtime.session import SessionOutputs
 
-    run_scenario("red-light", 2, record_dir=tmp_path / "drive", max_time_s=6.0)
+    run_scenario("red-light", 2, max_time_s=6.0, outputs=SessionOutputs(record_dir=tmp_path / "drive"))
     assert main(["replay", str(tmp_path / "drive"), "--pipeline", "lanes", "--out", str(tmp_path / "again")]) == 0
     assert "settings: the recording's own" in capsys.readouterr().out
 

@@ -24,7 +24,7 @@ def test_eval_command(tmp_path, capsys) -> None:
     out = tmp_path / "traj.txt"
     main(["odometry", "synthetic", "--frames", "8", "--out", str(out), "--no-progress"])
     capsys.readouterr()
-    assert main(["eval", "--gt", str(out), "--est", str(out), "--json", str(tmp_path / "m.json")]) == 0
+    assert main(["eval", "trajectory", "--gt", str(out), "--est", str(out), "--json", str(tmp_path / "m.json")]) == 0
     assert "ATE RMSE (m)" in capsys.readouterr().out
     assert json.loads((tmp_path / "m.json").read_text())["ate_rmse_m"] == pytest.approx(0.0, abs=1e-9)
 
@@ -35,7 +35,7 @@ def test_eval_command(tmp_path, capsys) -> None:
         (["odometry", "kitti", "/does/not/exist", "--sequence", "06", "--out", "x.txt"], "KITTI root not found"),
         (["odometry", "euroc", "/does/not/exist", "--out", "x.tum"], "no EuRoC cam0/cam1"),
         (["odometry", "recording", "/does/not/exist", "--out", "x.txt"], "not a kartpilot recording"),
-        (["eval", "--gt", "/does/not/exist.txt", "--est", "/nope.txt"], "trajectory file not found"),
+        (["eval", "trajectory", "--gt", "/does/not/exist.txt", "--est", "/nope.txt"], "trajectory file not found"),
         (["sim", "--track", "monza", "--no-render"], "unknown track 'monza'"),
         (["sim", "--track", "/does/not/exist.yaml", "--no-render"], "config file not found"),
         (["sim", "--driver", "commands", "--no-render"], "needs a recording"),

@@ -27,7 +27,6 @@ from kartpilot.calibration.board import (
 )
 from kartpilot.calibration.ground import BirdseyeView, calibrate_ground, stitch_birdseye
 from kartpilot.calibration.rig import Rig, load_rig, save_rig
-from kartpilot.cli.values import number, output_file
 from kartpilot.core.errors import CalibrationError, ConfigError
 from kartpilot.core.files import write_bytes_atomic
 from kartpilot.core.geometry import invert_pose, mount_pose
@@ -35,7 +34,7 @@ from kartpilot.core.vehicle import get_vehicle
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.sensors.base import read_image
 
-__all__ = ["add_parsers", "calibrate", "calibrate_ground_command", "calibrate_steering_command"]
+__all__ = ["calibrate", "calibrate_ground_command", "calibrate_steering_command"]
 
 
 def _board(args: argparse.Namespace) -> BoardConfig:
@@ -209,68 +208,3 @@ def calibrate_steering_command(args: argparse.Namespace) -> int:
           f"{calibration.count_offset:+.1f} counts (R² {r_squared:.4f}); {calibration.rad_per_value:.4f} rad per unit "
           f"of value, {calibration.max_steer_rad:.3f} rad at the ECU's limit; written to {args.rig}")
     return 0
-
-
-def add_parsers(sub: argparse._SubParsersAction) -> None:
-    """This module's subcommands, each with its arguments and handler."""
-    calibrate_parser = sub.add_parser("calibrate", help="camera intrinsics (mono) or a stereo pair from board "
-                                                        "images, or the kart's steering")
-    cal_sub = calibrate_parser.add_subparsers(dest="mode", required=True, metavar="MODE")
-    mono = cal_sub.add_parser("mono", help="one camera")
-    mono.add_argument("images", nargs="+")
-    mono.add_argument("--name", default="center", help="the camera's name in the rig file")
-    stereo = cal_sub.add_parser("stereo", help="a stereo pair (images paired by name: left03.jpg, right03.jpg)")
-    stereo.add_argument("--left", nargs="+", required=True)
-    stereo.add_argument("--right", nargs="+", required=True)
-    for cal in (mono, stereo):
-        cal.add_argument("--board", default="9x6", help="inner corners COLUMNSxROWS (ChArUco: squares)")
-        cal.add_argument("--square", type=number(above=0), default=0.025, help="square side, m")
-        cal.add_argument("--charuco", action="store_true", help="a ChArUco board instead of a chessboard")
-        cal.add_argument("--marker", type=number(above=0), help="ChArUco marker side, m (default 0.75 of a square)")
-        cal.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco dictionary")
-        cal.add_argument("--mount", help="the (left) camera's pose on the kart: X,Y,Z[,YAW_DEG,PITCH_DOWN_DEG]")
-        cal.add_argument("--out", required=True, type=output_file, help="the rig file to write (YAML)")
-        cal.add_argument("--json", action="store_true", help="print a machine-readable summary")
-        cal.set_defaults(handler=calibrate)
-
-    ground = cal_sub.add_parser("ground", help="each camera's pose over the ground (height, pitch, roll, yaw) from "
-                                               "one image per camera of one ChArUco board lying on the floor")
-    ground.add_argument("--image", action="append", required=True, metavar="NAME=FILE",
-                        help="a camera's image of the board (repeat: --image center=c.jpg --image left=l.jpg ...)")
-    ground.add_argument("--board", default="10x8", help="the board's squares COLUMNSxROWS")
-    ground.add_argument("--square", type=number(above=0), default=0.115, help="square side, m")
-    ground.add_argument("--marker", type=number(above=0), default=0.086, help="marker side, m")
-    ground.add_argument("--dictionary", default="DICT_4X4_100", help="ArUco dictionary")
-    ground.add_argument("--rig", help="a rig file with the cameras' intrinsics (else each focal length is estimated "
-                                      "from its one view); its other contents are kept")
-    ground.add_argument("--reference", default="center", help="the camera that sets the kart's forward direction")
-    ground.add_argument("--reference-x", type=number(), default=0.0,
-                        help="how far ahead of the body's origin (the rear axle) the reference camera stands, m")
-    ground.add_argument("--out", required=True, type=output_file, help="the rig file to write (YAML)")
-    ground.add_argument("--birdseye", type=output_file, help="write the stitched bird's-eye view here (PNG or JPEG)")
-    ground.add_argument("--ahead", type=number(above=0), default=8.0, help="the bird's-eye view's reach ahead, m")
-    ground.add_argument("--side", type=number(above=0), default=5.0, help="its reach to each side, m")
-    ground.add_argument("--pixels-per-m", type=number(above=1, maximum=1000), default=100.0)
-    ground.add_argument("--json", action="store_true", help="print a machine-readable summary")
-    ground.set_defaults(handler=calibrate_ground_command, charuco=True)
-
-    steering = cal_sub.add_parser("steering", help="the RDW kart's steering: sweep it, fit value to sensor to "
-                                                   "road-wheel angle, write it into the rig file")
-    steering.add_argument("--rig", required=True, help="the kart's rig file (its steering section is rewritten)")
-    steering.add_argument("--vehicle", default="sdc-kart", help="the kart (its wheelbase, for --turning-circle)")
-    steering.add_argument("--bus", choices=("socketcan", "virtual"), help="default: the config's can.interface")
-    steering.add_argument("--channel", help="the CAN channel (can0)")
-    scale = steering.add_mutually_exclusive_group()
-    scale.add_argument("--turning-circle", type=number(above=0), metavar="DIAMETER_M",
-                       help="the rear axle's turning circle at full lock (--at-value), measured driving slowly")
-    scale.add_argument("--rad-per-value", type=number(), help="road-wheel radians per unit of the ECU's value, by hand")
-    steering.add_argument("--at-value", type=number(), default=1.25, help="the value the turning circle was driven at")
-    steering.add_argument("--positive-steers", choices=("right", "left"), default="right",
-                          help="which way a positive value turns the wheels (right on the RDW kart)")
-    steering.add_argument("--max-value", type=number(above=0, maximum=1.25), default=1.0,
-                          help="sweep from -this to this (at most 1.25)")
-    steering.add_argument("--steps", type=number(int, minimum=2), default=9)
-    steering.add_argument("--settle", type=number(minimum=0), default=1.0,
-                          help="seconds for the wheels to settle at each step")
-    steering.add_argument("--config", help="YAML file merged over the defaults (section can)")
-    steering.set_defaults(handler=calibrate_steering_command)

@@ -10,14 +10,13 @@ from pathlib import Path
 
 from kartpilot.actuation.can_bus import open_bus
 from kartpilot.actuation.monitor import TrafficRow, format_traffic, summarise_traffic
-from kartpilot.cli.values import number, output_file
 from kartpilot.core.errors import ConfigError, RecordingError
 from kartpilot.core.files import write_json_atomic
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.record.recording import RecordingReader
 from kartpilot.runtime.config import load_stack_config
 
-__all__ = ["add_parsers", "can_monitor"]
+__all__ = ["can_monitor"]
 
 
 def _rows_json(rows: list[TrafficRow]) -> list[dict[str, object]]:
@@ -72,21 +71,3 @@ def can_monitor(args: argparse.Namespace) -> int:
     if out is not None:
         write_json_atomic(out, _rows_json(rows))
     return 0
-
-
-def add_parsers(sub: argparse._SubParsersAction) -> None:
-    """This module's subcommands, each with its arguments and handler."""
-    can_parser = sub.add_parser("can", help="the kart's CAN bus: decoded traffic, live or from a recording")
-    can_sub = can_parser.add_subparsers(dest="action", required=True, metavar="ACTION")
-    monitor = can_sub.add_parser("monitor", help="one line per message id: rate, longest gap, last values, faults")
-    where_from = monitor.add_mutually_exclusive_group()
-    where_from.add_argument("--recording", help="a recording's can.csv instead of a live bus")
-    where_from.add_argument("--bus", choices=("socketcan", "virtual"), help="live: default the config's can.interface")
-    monitor.add_argument("--channel", help="live: the CAN channel (can0)")
-    monitor.add_argument("--protocol", choices=("rdw", "kartpilot"),
-                         help="how to decode (default: the recording's kart's, live rdw)")
-    monitor.add_argument("--duration", type=number(above=0), help="live: seconds to listen (default: until Ctrl-C)")
-    monitor.add_argument("--every", type=number(above=0), default=1.0, help="live: print the table this often, s")
-    monitor.add_argument("--json", type=output_file, help="write the last table here (JSON)")
-    monitor.add_argument("--config", help="YAML file merged over the defaults (section can)")
-    monitor.set_defaults(handler=can_monitor)

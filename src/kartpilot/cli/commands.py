@@ -4,11 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import math
-import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -19,17 +17,11 @@ from tqdm import tqdm
 from kartpilot.calibration.rig import load_rig
 from kartpilot.cli.drive_commands import with_default_speed_mode
 from kartpilot.cli.values import (
-    VIEW_HELP,
-    file_or_new_folder,
-    new_folder,
-    number,
-    output_file,
     report_left_out,
-    view_target,
 )
 from kartpilot.control.lane_follow import LaneFollowState, heading_follow_step, lane_follow_step
 from kartpilot.core.errors import ConfigError, DataError
-from kartpilot.core.files import write_csv_atomic, write_json_atomic, write_text_atomic
+from kartpilot.core.files import write_csv_atomic, write_text_atomic
 from kartpilot.core.geometry import mount_pose, transform_points
 from kartpilot.core.trajectory import Trajectory, read_trajectory, write_trajectory
 from kartpilot.core.types import FrameSet
@@ -52,8 +44,6 @@ from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
 from kartpilot.record.video import VideoFile
 from kartpilot.runtime.config import load_stack_config, sim_lane_preset
-from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
-from kartpilot.runtime.lane_policy import LANE_PRESETS
 from kartpilot.runtime.scenarios import run_scenario
 from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import SimRun, run_simulation
@@ -62,14 +52,12 @@ from kartpilot.sensors.donkeycar import DonkeyTub
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
 from kartpilot.sim.referee import RunResult
-from kartpilot.sim.scenarios import SCENARIOS
-from kartpilot.sim.simulator import SimConfig
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
 
 if TYPE_CHECKING:
     from kartpilot.record.rerun_view import RerunView
 
-__all__ = ["add_parsers", "demo", "disparity", "evaluate", "lanes", "odometry", "simulate"]
+__all__ = ["disparity", "evaluate", "lanes", "odometry", "simulate"]
 
 
 def _open_source(args: argparse.Namespace) -> StereoSource:
@@ -248,14 +236,17 @@ def _print_result(result: RunResult, run: SimRun) -> None:
 def _scenario(args: argparse.Namespace) -> int:
     """One of the event's scenarios on one seed, closed loop, scored by its referee."""
     stack = load_stack_config(args.config, args.preset or "kart")
-    result = run_scenario(args.scenario, args.seed if args.seed is not None else 1, stack, record_dir=args.record)
+    outputs = SessionOutputs(args.record, args.result, args.video, progress=not args.no_progress, view=args.view)
+    outputs.check()
+    result = run_scenario(args.scenario, args.seed if args.seed is not None else 1, stack, outputs=outputs)
     if args.record:
         print(f"recorded to {args.record} (kartpilot replay {args.record} --pipeline lanes gives the same decisions)")
     verdict = "passed" if result["passed"] else "failed: " + "; ".join(result["faults"])
     print(f"scenario {result['name']}, seed {result['seed']}: {verdict}")
-    if args.result:
-        write_json_atomic(args.result, {"scenarios": [result]})
-        print(f"result written to {args.result}")
+    for label, path in (("video", args.video), ("result", args.result),
+                        ("Rerun view", args.view if args.view != "live" else None)):
+        if path:
+            print(f"{label} written to {path}")
     return 0 if result["passed"] else 1
 
 
@@ -416,178 +407,3 @@ class _Overlay:
     def close(self) -> None:
         if self.video is not None:
             self.video.close()
-
-
-@dataclass(frozen=True)
-class DemoPlan:
-    """What ``kartpilot demo`` drives: a part of an sdc-assen lap on lane following, and a teach-and-repeat on
-    stereo VO; ``--full`` drives the whole lap and a teach-and-repeat lap of utrack."""
-
-    lanes_seconds: float  # 0: the whole lap
-    vo_track: str
-    vo_speed_mps: float
-
-
-QUICK_DEMO = DemoPlan(lanes_seconds=50.0, vo_track="straight20", vo_speed_mps=1.0)
-
-
-def demo(args: argparse.Namespace) -> int:
-    """The showcase, closed loop in the simulator, in about two minutes: lane following on the sdc-kart's three
-    cameras along the start of sdc-assen, then the rc-kart taught a drive and repeating it on stereo VO. Each
-    part writes a video of the pipeline's view and the referee's result; warnings go to ``demo.log``, and a
-    summary says what was measured and where it is."""
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    plan = DemoPlan(0.0, "utrack", args.vo_speed) if args.full else QUICK_DEMO
-    log_path = out / "demo.log"
-    handler = logging.FileHandler(log_path, mode="w", encoding="utf-8")
-    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
-    root = logging.getLogger()
-    quiet = [h for h in root.handlers if isinstance(h, logging.StreamHandler) and h.level < logging.ERROR]
-    levels = [h.level for h in quiet]
-    root.addHandler(handler)
-    for console in quiet:  # the terminal shows the progress and the summary; the details go to the log
-        console.setLevel(logging.ERROR)
-    start = time.perf_counter()
-    try:
-        lap = "a lap" if plan.lanes_seconds == 0 else f"the first {plan.lanes_seconds:g} s"
-        print(f"1/2 lane following: the sdc-kart drives {lap} of sdc-assen on its three cameras (15 km/h mode)")
-        lanes_config = SimConfig(track="sdc-assen", vehicle="sdc-kart", speed_mode_mps=15 / 3.6, camera_rate_hz=30.0,
-                                 seed=1, max_time_s=plan.lanes_seconds)
-        lanes = run_simulation(lanes_config, "lanes", outputs=SessionOutputs(
-            video_path=out / "sdc-assen-lanes.mp4", result_path=out / "sdc-assen-lanes.json", progress=True))
-        print(f"2/2 waypoint following: the rc-kart is taught {plan.vo_track} at {plan.vo_speed_mps:g} m/s, builds "
-              "its reference with stereo VO, then drives it on VO and the taught map")
-        repeat = run_teach_repeat(TeachRepeatConfig(track=plan.vo_track, speed_mps=plan.vo_speed_mps, seed=1),
-                                  out / f"{plan.vo_track}-vo", progress=True)
-    finally:
-        root.removeHandler(handler)
-        handler.close()
-        for console, level in zip(quiet, levels, strict=True):
-            console.setLevel(level)
-    minutes, seconds = divmod(round(time.perf_counter() - start), 60)
-    result = lanes.result
-    print(f"\ndone in {minutes} min {seconds:02d} s. What was measured:")
-    print(f"  lane following, sdc-assen: {result.distance_m:.0f} m in {result.sim_time_s:.0f} s, "
-          + (f"disqualified: {result.reason}" if result.disqualified else "no disqualification")
-          + f", centre offset mean {result.mean_center_offset_m:.2f} m, max {result.max_center_offset_m:.2f} m")
-    print(f"  teach and repeat, {plan.vo_track}: {summary_line(repeat)}")
-    print("Where it is:")
-    print(f"  {out / 'sdc-assen-lanes.mp4'}   the lane pipeline's view, with the referee's verdict on every frame")
-    print(f"  {out / 'sdc-assen-lanes.json'}  the lap's result and stage timings")
-    print(f"  {out / f'{plan.vo_track}-vo'}/  the teach recording, the VO reference, the repeat drive's video, "
-          "result and plots")
-    print(f"  {log_path}   warnings and details" + ("" if args.full else "; `kartpilot demo --full` drives whole laps"))
-    return 0
-
-
-def add_parsers(sub: argparse._SubParsersAction) -> None:
-    """This module's subcommands, each with its arguments and handler."""
-    odometry_parser = sub.add_parser("odometry", help="run stereo visual odometry over a dataset or recording")
-    odo_sub = odometry_parser.add_subparsers(dest="source", required=True, metavar="SOURCE")
-    kitti = odo_sub.add_parser("kitti", help="KITTI odometry layout (sequences/NN, poses/NN.txt)")
-    kitti.add_argument("root")
-    kitti.add_argument("--sequence", default="00")
-    euroc = odo_sub.add_parser("euroc", help="EuRoC ASL layout (mav0/cam0, cam1)")
-    euroc.add_argument("root")
-    recording = odo_sub.add_parser("recording", help="a kartpilot recording folder")
-    recording.add_argument("root")
-    synthetic = odo_sub.add_parser("synthetic", help="the built-in synthetic stereo sequence")
-    synthetic.add_argument("--frames", type=number(int, minimum=2, maximum=100_000), default=40)
-    synthetic.add_argument("--seed", type=number(int, minimum=0), default=0)
-    for sub_parser in (kitti, euroc, recording):
-        sub_parser.add_argument("--mono", action="store_true",
-                                help="monocular VO on the left camera, metric scale from the ground plane")
-        sub_parser.add_argument("--camera-height", type=number(above=0),
-                                help="--mono: the camera's height above the road, m (1.65 on KITTI, 0.6 on the "
-                                     "SDC kart)")
-        sub_parser.add_argument("--camera-pitch-down", type=number(minimum=-90, maximum=90), default=0.0,
-                                help="--places: the camera's pitch below level, deg")
-        sub_parser.add_argument("--places", help="--mono: fuse place fixes from this place database "
-                                                 "(kartpilot places build) into the metres and the position")
-    for sub_parser in (kitti, euroc, recording, synthetic):
-        sub_parser.add_argument("--out", required=True, type=output_file,
-                                help="trajectory file (.txt = KITTI, .tum = TUM)")
-        sub_parser.add_argument("--format", choices=("kitti", "tum"), help="override the format guessed from --out")
-        sub_parser.add_argument("--config", help="YAML file merged over the defaults")
-        sub_parser.add_argument("--plot", type=output_file, help="write the top-view plot here (PNG)")
-        sub_parser.add_argument("--view", type=view_target, help=VIEW_HELP)
-        sub_parser.add_argument("--json", type=output_file, help="write the summary and metrics here")
-        sub_parser.add_argument("--no-progress", action="store_true")
-        sub_parser.set_defaults(handler=odometry)
-
-    evaluate_parser = sub.add_parser("eval", help="ATE, RPE and end-point drift of a trajectory against ground truth")
-    evaluate_parser.add_argument("--gt", required=True)
-    evaluate_parser.add_argument("--est", required=True)
-    evaluate_parser.add_argument("--format", choices=("kitti", "tum"), help="format of both files (default: guessed)")
-    evaluate_parser.add_argument("--plot", type=output_file,
-                                 help="write the paths and the error over distance here (PNG)")
-    evaluate_parser.add_argument("--json", type=output_file, help="write the metrics here")
-    evaluate_parser.set_defaults(handler=evaluate)
-
-    disparity_parser = sub.add_parser("disparity", help="dense block matching scored against Middlebury ground truth")
-    disparity_parser.add_argument("pair", help="folder with a Middlebury pair and its ground truth")
-    disparity_parser.add_argument("--method", choices=("bm", "sgbm"), default="sgbm")
-    disparity_parser.add_argument("--wls", action="store_true", help="apply the WLS post-filter")
-    disparity_parser.add_argument("--threshold", type=number(above=0), default=2.0)
-    disparity_parser.set_defaults(handler=disparity)
-
-    sim = sub.add_parser("sim", help="drive a simulated kart on a track, judged by the referee")
-    sim.add_argument("--track", help="bundled track name (utrack, sdc-assen, lelystad, straight20) or a track YAML "
-                                     "file")
-    sim.add_argument("--vehicle", choices=("rc-kart", "sdc-kart"))
-    sim.add_argument("--driver", choices=("centerline", "commands", "lanes"), default="centerline",
-                     help="lanes: the lane-following pipeline on the rendered cameras (sdc-kart)")
-    sim.add_argument("--scenario", choices=SCENARIOS,
-                     help="one of the event's scenarios on the venue track, closed loop with the event's rules, "
-                          "scored as the event does (--seed varies it; exit 1 on a fault)")
-    sim.add_argument("--preset", choices=tuple(LANE_PRESETS),
-                     help="lanes: the lane pipeline's preset (default: the track's, lane_preset in its file)")
-    sim.add_argument("--speed-mode", type=number(above=0),  # lanes on the sdc-kart: a known-good mode by default
-                     help="cap the top speed, km/h (the SDC kart's 5/15/30/60 modes)")
-    sim.add_argument("--commands", help="recording (or its commands.csv) whose commands the commands driver replays")
-    sim.add_argument("--laps", type=number(int, minimum=1))
-    sim.add_argument("--speed", type=number(above=0), help="target speed of the centerline driver, m/s")
-    sim.add_argument("--weave", type=number(minimum=0), help="zig-zag amplitude of the centerline driver, m")
-    sim.add_argument("--edge-offset", type=number(), help="drive this far left (+) or right (-) of the centre, m")
-    sim.add_argument("--seed", type=number(int, minimum=0))
-    sim.add_argument("--rate", type=number(above=0, maximum=1000), help="camera and control rate, Hz")
-    sim.add_argument("--cameras", help="comma-separated cameras to render (default: all of the vehicle's)")
-    sim.add_argument("--no-cones", action="store_true", help="remove the cones (scene and referee)")
-    sim.add_argument("--no-render", action="store_true", help="physics and referee only (no images)")
-    sim.add_argument("--record", type=new_folder,
-                     help="write a recording (frames, commands, ground truth, result.json) here")
-    sim.add_argument("--video", type=output_file, help="write the camera view with the referee's state here (MP4)")
-    sim.add_argument("--result", type=output_file, help="write the referee's result JSON here")
-    sim.add_argument("--view", type=view_target, help=VIEW_HELP)
-    sim.add_argument("--config", help="YAML file merged over the defaults (sections sim, centerline_driver)")
-    sim.add_argument("--no-progress", action="store_true")
-    sim.set_defaults(handler=simulate)
-
-    lanes_parser = sub.add_parser("lanes", help="lane boundaries and steer for an image, folder, video, recording or "
-                                                "tub")
-    lanes_parser.add_argument("input")
-    lanes_parser.add_argument("--out", required=True, type=output_file, help="CSV, one row per frame")
-    lanes_parser.add_argument("--overlay", type=file_or_new_folder,
-                              help="write the frames with the lanes drawn: a .mp4 file or a folder")
-    lanes_parser.add_argument("--stages", action="store_true", help="draw the raw and clustered lines too")
-    lanes_parser.add_argument("--preset", choices=tuple(LANE_PRESETS), default="kart",
-                              help="the kind of track and camera: kart (road lines, a camera close to the ground, the "
-                                   "lane pipeline's own), dashcam (road lines, a car's dash camera) or tape (a small "
-                                   "car's wide-angle camera on a taped track)")
-    lanes_parser.add_argument("--config", help="YAML file merged over the preset (section lane_policy: lanes, "
-                                               "follow)")
-    lanes_parser.add_argument("--independent", action="store_true",
-                              help="every image on its own (unrelated photos): nothing carries from one to the next; "
-                                   "without it a frame that does not follow from the one before starts afresh")
-    lanes_parser.add_argument("--rig", help="rig file whose centre camera's body mask (the kart's own body in view) "
-                                            "is left out of the search")
-    lanes_parser.set_defaults(handler=lanes)
-
-    demo_parser = sub.add_parser("demo", help="the main job on an embedded default (see README)")
-    demo_parser.add_argument("--out", default="demo_out")
-    demo_parser.add_argument("--full", action="store_true",
-                             help="a whole lap of sdc-assen and a teach-and-repeat lap of utrack (over ten minutes)")
-    demo_parser.add_argument("--vo-speed", type=number(above=0), default=2.0,
-                             help="with --full: speed of the utrack lap, m/s")
-    demo_parser.set_defaults(handler=demo)

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from kartpilot.calibration.rig import load_rig
-from kartpilot.cli.values import file_or_new_folder, output_file, report_left_out
+from kartpilot.cli.values import report_left_out
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import write_csv_atomic
@@ -24,7 +24,7 @@ from kartpilot.perception.road_marks import camera_for_image
 from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
 from kartpilot.runtime.config import load_stack_config
 
-__all__ = ["DETECT_COLUMNS", "add_parsers", "draw_detections"]
+__all__ = ["DETECT_COLUMNS", "detect", "draw_detections"]
 
 DETECT_COLUMNS = ("frame", "file", "class", "x1", "y1", "x2", "y2", "confidence", "value", "distance_m", "lateral_m",
                   "track_id", "source", "new_scene")
@@ -118,23 +118,3 @@ def detect(args: argparse.Namespace) -> int:
     summary = ", ".join(f"{n} {label}" for label, n in sorted(counts.items())) or "nothing"
     print(f"{frames_seen} frames ({kind}): {summary} -> {args.out}")
     return report_left_out(left_out, args.out)
-
-
-def add_parsers(sub: argparse._SubParsersAction) -> None:
-    parser = sub.add_parser("detect", help="traffic lights, speed signs, stop lines, zebras, people, a car, "
-                                           "barriers and a parking bay, per frame, to CSV")
-    parser.add_argument("input", help="an image, a folder of images, a video or a recording")
-    parser.add_argument("--out", required=True, type=output_file, help="CSV, one row per object")
-    parser.add_argument("--detector",
-                        help="classical (default), onnx:MODEL.onnx (a team's YOLO model exported to ONNX, in place "
-                             "of the classical detectors) or classical+onnx:MODEL.onnx (beside them)")
-    parser.add_argument("--config", help="YAML file merged over the defaults (section lane_policy.detector, as a "
-                                         "drive takes it: e.g. signals: {values_kmh: [10, 15, 20, 30, 50]})")
-    parser.add_argument("--classes", help="onnx: YAML mapping the model's class ids to kartpilot's classes")
-    parser.add_argument("--rig", help="rig file whose centre camera's mount places the objects on the ground "
-                                      "(default: the real SDC kart's centre camera, 0.56 m up, 6.8 deg down)")
-    parser.add_argument("--overlay", type=file_or_new_folder, help="draw the detections: a folder of PNGs or a video")
-    parser.add_argument("--no-people", action="store_true", help="skip the HOG people detector (the slowest part)")
-    parser.add_argument("--independent", action="store_true",
-                        help="every image on its own: no track ids carried from one to the next")
-    parser.set_defaults(handler=detect)

@@ -12,7 +12,6 @@ from typing import Any
 import numpy as np
 
 from kartpilot.calibration.rig import load_rig
-from kartpilot.cli.values import VIEW_HELP, new_folder, number, output_file, view_target
 from kartpilot.control.path_follow import steer_bias_of_drive
 from kartpilot.core.config import merge_config
 from kartpilot.core.errors import ConfigError, KartpilotError, RecordingError
@@ -31,15 +30,15 @@ from kartpilot.record.recording import RecordingReader, RecordingStereoSource
 from kartpilot.runtime.config import StackConfig, load_stack_config, sim_lane_preset
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, summary_line
 from kartpilot.runtime.faults import parse_injection
-from kartpilot.runtime.lane_policy import LANE_PRESETS, lane_speed_mode_mps
+from kartpilot.runtime.lane_policy import lane_speed_mode_mps
 from kartpilot.runtime.live_drive import LiveDriveSetup, run_live_drive
-from kartpilot.runtime.pipelines import PIPELINES, Route
+from kartpilot.runtime.pipelines import Route
 from kartpilot.runtime.replay import replay_recording
 from kartpilot.runtime.session import SessionOutputs, SessionResult
 from kartpilot.runtime.simulate import run_supervised_drive
 from kartpilot.sim.simulator import SimConfig
 
-__all__ = ["add_parsers", "drive", "experiment", "reference", "replay"]
+__all__ = ["drive", "experiment", "reference", "replay"]
 
 
 def _stereo_vehicle(name: str) -> tuple[VehicleParams, tuple[str, str]]:
@@ -273,114 +272,3 @@ def experiment(args: argparse.Namespace) -> int:
     print(summary_line(result))
     print(f"wrote {Path(args.out) / 'result.json'}, path.png, steering.png")
     return 0
-
-
-def add_parsers(sub: argparse._SubParsersAction) -> None:
-    """This module's subcommands, each with its arguments and handler."""
-    ref = sub.add_parser("reference", help="a reference path (and visual map) from a recorded drive")
-    ref.add_argument("recording", help="a kartpilot recording with a stereo pair")
-    ref.add_argument("--out", required=True, type=output_file,
-                     help="the path file (.csv or .yaml); the map goes beside it")
-    ref.add_argument("--from", dest="source", choices=("vo", "groundtruth"), default="vo",
-                     help="vo: stereo VO over the recording, with a visual map (default); groundtruth: the "
-                          "simulator's poses")
-    ref.add_argument("--vehicle", default="rc-kart", help="the kart (its wheelbase); camera mounts come from the "
-                     "recording's rig")
-    ref.add_argument("--speed", type=number(above=0), help="cruise speed of the path's speed profile, m/s")
-    ref.add_argument("--config", help="YAML file merged over the defaults (sections stereo_vo, drive)")
-    ref.set_defaults(handler=reference)
-
-    drive_parser = sub.add_parser("drive", help="a supervised drive of any pipeline: simulated, replayed or live")
-    drive_parser.add_argument("--vehicle", help="rc-kart or sdc-kart (default: sdc-kart for lanes, rc-kart for "
-                                                "stereo-vo)")
-    drive_parser.add_argument("--pipeline", choices=tuple(PIPELINES), default="stereo-vo",
-                              help="lanes; stereo-vo (--reference); mono-vo: one camera, monocular VO fused with "
-                                   "place fixes (--places)")
-    drive_parser.add_argument("--places", help="mono-vo: the place database of the reference drive (kartpilot places "
-                                               "build); its drive is the reference unless --reference is given")
-    drive_parser.add_argument("--reference", help="stereo-vo: a path written by 'kartpilot reference'")
-    where = drive_parser.add_mutually_exclusive_group()
-    where.add_argument("--sim", metavar="TRACK", help="drive in the simulator on this track")
-    where.add_argument("--replay", metavar="RECORDING", help="run the pipeline on a recording (open loop)")
-    where.add_argument("--live", metavar="RIG", help="drive the real kart: the rig file's cameras, the CAN bus of "
-                                                     "the config's can section (or --bus, --channel)")
-    drive_parser.add_argument("--preset", choices=tuple(LANE_PRESETS),
-                              help="lanes: the lane pipeline's preset (default: kart; --sim: the track's own)")
-    drive_parser.add_argument("--bus", choices=("virtual", "socketcan", "none"),
-                              help="--sim: virtual (default: the simulated ECUs behind python-can's virtual bus) or "
-                                   "none; --live: socketcan or virtual (default: the config's can.interface)")
-    drive_parser.add_argument("--channel", help="--live: the CAN channel (can0; vcan0 for a bench test)")
-    drive_parser.add_argument("--cameras-json", nargs="+", metavar="JSON",
-                              help="--live: the organiser's camera-mapping files (front, left, right to device "
-                                   "paths); the first whose paths all exist wins (default: the rig file's camera_maps)")
-    drive_parser.add_argument("--gamepad", metavar="DEVICE", help="--live: the gamepad's joystick device "
-                                                                  "(/dev/input/js0)")
-    drive_parser.add_argument("--web", metavar="PORT", type=number(int, minimum=1, maximum=65535),
-                              help="--live: serve the kart's web page on this port")
-    drive_parser.add_argument("--duration", type=number(above=0), help="--sim, --live: seconds to drive at most")
-    drive_parser.add_argument("--inject", action="append", metavar="KIND@SECONDS",
-                              help="--sim: inject a fault (camera-freeze, black-frame, vo-failure, can-bus-off, "
-                                   "heartbeat-loss, ecu-error, steering-sensor-loss, steering-sensor-range, "
-                                   "loop-stall, gamepad-unplug, stage-exception); repeatable")
-    drive_parser.add_argument("--map", help="the visual map (default: the reference's .map.npz, if there)")
-    drive_parser.add_argument("--no-map", action="store_true", help="localise with VO alone")
-    drive_parser.add_argument("--speed", type=number(above=0), help="stereo-vo: cap the path's speed profile, m/s")
-    drive_parser.add_argument("--speed-mode", type=number(above=0),
-                              help="--sim: cap the top speed, km/h (the SDC kart's modes)")
-    drive_parser.add_argument("--seed", type=number(int, minimum=0))
-    drive_parser.add_argument("--rate", type=number(above=0, maximum=1000),
-                              help="camera and control rate, Hz (--sim; a replay keeps its own)")
-    drive_parser.add_argument("--steer-bias", type=number(), help="the simulated kart's drag to one side, rad (+ left)")
-    drive_parser.add_argument("--record", type=new_folder,
-                              help="record the drive here (frames, commands, outputs, CAN)")
-    drive_parser.add_argument("--video", type=output_file,
-                              help="write the camera view with the referee's state here (MP4)")
-    drive_parser.add_argument("--result", type=output_file,
-                              help="write the result JSON here (transitions, fault_to_stop_s, timing)")
-    drive_parser.add_argument("--view", type=view_target, help=VIEW_HELP)
-    drive_parser.add_argument("--log", type=output_file,
-                              help="stereo-vo, mono-vo: write the pipeline's per-step log here (CSV)")
-    drive_parser.add_argument("--config", help="YAML file merged over the defaults (sections sim, lane_policy, "
-                                               "stereo_vo, drive, can, watchdogs, supervisor)")
-    drive_parser.add_argument("--no-progress", action="store_true")
-    drive_parser.set_defaults(handler=drive)
-
-    rep = sub.add_parser("replay", help="push a recording through a pipeline; write its outputs as a recording")
-    rep.add_argument("recording")
-    rep.add_argument("--pipeline", choices=tuple(PIPELINES), required=True)
-    rep.add_argument("--out", type=new_folder, help="the new recording: commands, the pipeline's outputs, replay.json")
-    rep.add_argument("--realtime", action="store_true", help="at the recorded pace (default: as fast as possible)")
-    rep.add_argument("--with-frames", action="store_true", help="copy the frames into the new recording too")
-    rep.add_argument("--reference", help="stereo-vo, mono-vo: the path to follow (written by 'kartpilot reference'; "
-                                         "mono-vo: default the place database's drive)")
-    rep.add_argument("--places", help="mono-vo: the place database of the reference drive (kartpilot places build)")
-    rep.add_argument("--log", type=output_file, help="stereo-vo, mono-vo: write the pipeline's per-step log here (CSV)")
-    rep.add_argument("--view", type=view_target, help=VIEW_HELP)
-    rep.add_argument("--map", help="stereo-vo: the visual map (default: the reference's .map.npz, if there)")
-    rep.add_argument("--no-map", action="store_true", help="stereo-vo: localise with VO alone")
-    rep.add_argument("--vehicle", help="the kart (wheelbase, steering range; default: the one the recording was made "
-                                       "on)")
-    rep.add_argument("--preset", choices=tuple(LANE_PRESETS),
-                     help="lanes: the kind of track and camera (kart: the real kart's road lines, the default; "
-                          "a simulated run's default is its track's; dashcam: a car's; tape: a small car's "
-                          "wide-angle camera on a taped track)")
-    rep.add_argument("--config", help="YAML file merged over the defaults")
-    rep.set_defaults(handler=replay)
-
-    experiment_parser = sub.add_parser("experiment", help="reproduce an experiment of the thesis in the simulator")
-    experiment_parser.add_argument("name", choices=("teach-repeat",),
-                                   help="teach-repeat: teach, build the reference with stereo VO, repeat, score")
-    experiment_parser.add_argument("--track", default="straight20")
-    experiment_parser.add_argument("--speed", type=number(above=0), default=0.62, help="m/s")
-    experiment_parser.add_argument("--seed", type=number(int, minimum=0), default=1)
-    experiment_parser.add_argument("--rate", type=number(above=0, maximum=1000), default=15.0,
-                                   help="camera and control rate, Hz")
-    experiment_parser.add_argument("--steer-bias", type=number(), default=0.03, help="the kart's drag to one side, rad")
-    experiment_parser.add_argument("--no-map", action="store_true", help="localise with VO alone, as the thesis did")
-    experiment_parser.add_argument("--controller", choices=("tuned", "plain_stanley"), default="tuned",
-                                   help="plain_stanley: the pipeline as the thesis ran it, for comparison")
-    experiment_parser.add_argument("--no-video", action="store_true")
-    experiment_parser.add_argument("--out", required=True)
-    experiment_parser.add_argument("--config", help="YAML file merged over the defaults (sections stereo_vo, drive)")
-    experiment_parser.add_argument("--no-progress", action="store_true")
-    experiment_parser.set_defaults(handler=experiment)

@@ -17,16 +17,7 @@ import threading
 from collections.abc import Sequence
 
 from kartpilot import __version__
-from kartpilot.cli import (
-    calibrate_commands,
-    can_commands,
-    commands,
-    detect_commands,
-    drive_commands,
-    places_commands,
-    record_commands,
-    study_commands,
-)
+from kartpilot.cli.arguments import add_parsers
 from kartpilot.cli.values import OneLineParser, check_paths, output_dests
 from kartpilot.core.errors import KartpilotError
 
@@ -38,14 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"kartpilot {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log each stage's decisions")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    commands.add_parsers(sub)
-    detect_commands.add_parsers(sub)
-    calibrate_commands.add_parsers(sub)
-    record_commands.add_parsers(sub)
-    drive_commands.add_parsers(sub)
-    places_commands.add_parsers(sub)
-    can_commands.add_parsers(sub)
-    study_commands.add_parsers(sub)
+    add_parsers(sub)
     return parser
 
 

@@ -9,7 +9,6 @@ from dataclasses import replace
 from pathlib import Path
 
 from kartpilot.calibration.lens import undistortion
-from kartpilot.cli.values import number, output_file
 from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import write_csv_atomic, write_json_atomic
 from kartpilot.core.geometry import invert_pose
@@ -25,7 +24,7 @@ from kartpilot.record.recording import POSE_GAP_S, RecordingReader, RecordingSte
 from kartpilot.runtime.config import StackConfig, load_stack_config
 from kartpilot.sensors.base import read_gray
 
-__all__ = ["add_parsers", "places_build", "places_query"]
+__all__ = ["places_build", "places_query"]
 
 
 def _camera(reader: RecordingReader, name: str | None) -> str:
@@ -167,28 +166,3 @@ def _write_fixes(fixes: list[PlaceFix], path: Path) -> None:
                                      f"{fix.sigma_m:.4f}", fix.place, fix.inliers, int(fix.registered),
                                      f"{fix.cross_track_sigma_m:.4f}", f"{fix.heading_sigma_rad:.4f}", fix.reason]
                                     for fix in fixes))
-
-
-def add_parsers(sub: argparse._SubParsersAction) -> None:
-    """This module's subcommands, each with its arguments and handler."""
-    places = sub.add_parser("places", help="place recognition: a database of a reference drive, and queries")
-    places_sub = places.add_subparsers(dest="action", required=True, metavar="ACTION")
-    build = places_sub.add_parser("build", help="a place database from a recording with positions")
-    build.add_argument("recording")
-    build.add_argument("--out", required=True, type=output_file, help="the database file (places.db)")
-    build.add_argument("--camera", help="the camera (default: center, else the stereo pair's left, else the first)")
-    build.add_argument("--positions-from", choices=("truth", "stereo-vo", "mono-vo"),
-                       help="tag the places with the recording's ground truth (the default, where it has one), or "
-                            "with visual odometry over the recording (a real drive)")
-    build.add_argument("--positions", help="the camera's trajectory (KITTI or TUM; default: the recording's "
-                                           "ground truth)")
-    build.add_argument("--config", help="YAML file merged over the defaults (section places)")
-    build.set_defaults(handler=places_build)
-    query = places_sub.add_parser("query", help="where an image, or each frame of a recording, was taken")
-    query.add_argument("database")
-    query.add_argument("query", help="an image file or a recording folder")
-    query.add_argument("--camera", help="the recording's camera (default: the database's)")
-    query.add_argument("--radius", type=number(above=0), default=2.0, help="Recall@K counts places within this, m")
-    query.add_argument("--out", type=output_file, help="write each frame's fix here (CSV)")
-    query.add_argument("--json", type=output_file, help="write the recall figures here")
-    query.set_defaults(handler=places_query)

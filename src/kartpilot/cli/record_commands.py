@@ -5,15 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from collections.abc import Callable
 from dataclasses import asdict
 
 from kartpilot.actuation.can_bus import protocol_database
 from kartpilot.calibration.rig import apply_camera_maps, load_rig
-from kartpilot.cli.values import new_folder, number, output_file, view_target
 from kartpilot.core.config import load_yaml_mapping, merge_config
 from kartpilot.core.geometry import mount_pose
-from kartpilot.core.vehicle import VEHICLES, get_vehicle
+from kartpilot.core.vehicle import get_vehicle
 from kartpilot.record.convert import export_recording, import_donkey_tub, import_stereo_source
 from kartpilot.record.info import recording_info
 from kartpilot.record.live import record_live
@@ -24,7 +22,7 @@ from kartpilot.runtime.config import load_stack_config
 from kartpilot.sensors.capture import LiveFrameSource
 from kartpilot.sensors.kitti import KittiOdometrySource
 
-__all__ = ["add_parsers", "record", "recordings_export", "recordings_import_bag", "recordings_import_kitti",
+__all__ = ["record", "recordings_export", "recordings_import_bag", "recordings_import_kitti",
            "recordings_import_tub", "recordings_info", "view"]
 
 RECORD_QUEUE_FRAMES = 16  # per camera: half a second at 30 fps before frames are dropped (and counted)
@@ -167,94 +165,3 @@ def recordings_import_bag(args: argparse.Namespace) -> int:
     for topic, msgtype, reason in result.unmapped:
         print(f"  not imported: {topic} ({msgtype}): {reason}")
     return 0
-
-
-def _export_out(parser: argparse.ArgumentParser) -> Callable[[argparse.Namespace], None]:
-    """The check of ``recordings export --out``, which depends on ``--format``: a file to write for ``mcap``, a
-    new folder otherwise; a usage error as argparse's own types give."""
-    def check(args: argparse.Namespace) -> None:
-        try:
-            args.out = output_file(args.out) if args.format == "mcap" else new_folder(args.out)
-            if args.vehicle and args.format != "ros2":
-                parser.error("--vehicle is for --format ros2 (the commands' speed)")
-            if args.cameras and args.format == "ros2":
-                parser.error("--cameras is for the folder and mcap formats; a ROS 2 bag takes every camera")
-        except argparse.ArgumentTypeError as exc:
-            parser.error(f"argument --out: {exc}")
-    return check
-
-
-def add_parsers(sub: argparse._SubParsersAction) -> None:
-    """This module's subcommands, each with its arguments and handler."""
-    rec = sub.add_parser("record", help="record the live cameras of a rig file")
-    rec.add_argument("--rig", required=True, help="rig file: each camera's calibration and capture settings")
-    rec.add_argument("--out", required=True, type=new_folder, help="the recording folder to create")
-    rec.add_argument("--duration", type=number(above=0), help="seconds to record (default: until Ctrl-C)")
-    rec.add_argument("--cameras", help="comma-separated cameras (default: every camera with capture settings)")
-    rec.add_argument("--cameras-json", nargs="+", metavar="JSON",
-                     help="the organiser's camera-mapping files; the first whose paths all exist wins (default: the "
-                          "rig file's camera_maps)")
-    rec.add_argument("--image-format", choices=("jpg", "png"), default="jpg",
-                     help="jpg (quality 95) keeps up with three 960x540 cameras at 30 fps on two cores; png is "
-                          "lossless and about 25x slower to encode")
-    rec.add_argument("--config", help="YAML file merged over the defaults (section live)")
-    rec.set_defaults(handler=record)
-
-    recordings = sub.add_parser("recordings", help="inspect recordings")
-    rec_sub = recordings.add_subparsers(dest="action", required=True, metavar="ACTION")
-    info = rec_sub.add_parser("info", help="duration, frames per camera, drops, sync skew, command statistics")
-    info.add_argument("recording")
-    info.add_argument("--json", action="store_true")
-    info.set_defaults(handler=recordings_info)
-    tub = rec_sub.add_parser("import-tub", help="a Donkey Car tub as a recording")
-    tub.add_argument("tub")
-    tub.add_argument("--out", required=True, type=new_folder)
-    tub.add_argument("--rig", help="a rig file with the tub camera's calibration (default: guessed from --fov-deg)")
-    tub.add_argument("--camera", help="which camera of the rig file (default: its first)")
-    tub.add_argument("--fov-deg", type=number(above=0, maximum=179), default=120.0,
-                     help="horizontal field of view to guess intrinsics from")
-    tub.add_argument("--max-steer-deg", type=number(above=0, maximum=90), default=25.0,
-                     help="the steer that user/angle 1 stands for")
-    tub.set_defaults(handler=recordings_import_tub)
-    kitti = rec_sub.add_parser("import-kitti", help="a KITTI odometry sequence (stereo, ground truth) as a recording")
-    kitti.add_argument("root", help="the KITTI odometry folder (sequences/, poses/)")
-    kitti.add_argument("--sequence", required=True)
-    kitti.add_argument("--out", required=True, type=new_folder)
-    kitti.add_argument("--camera-height", type=number(above=0), required=True,
-                       help="the left camera's height above the road, m (1.65 on KITTI's car)")
-    kitti.add_argument("--camera-pitch-down", type=number(minimum=-90, maximum=90), default=0.0,
-                       help="its pitch below level, deg")
-    kitti.set_defaults(handler=recordings_import_kitti)
-
-    viewer = sub.add_parser("view", help="a recording and its outputs in the Rerun viewer, or as a .rrd file")
-    viewer.add_argument("recording")
-    viewer.add_argument("--out", type=view_target, help="write a .rrd file here (default: send to a viewer, started "
-                                                        "if none is running)")
-    viewer.add_argument("--vehicle", choices=sorted(VEHICLES),
-                        help="the kart whose CAN messages to decode (default: the one the recording names)")
-    viewer.add_argument("--config", help="YAML file merged over the defaults (section can: the DBC file)")
-    viewer.set_defaults(handler=view)
-
-    bag = rec_sub.add_parser("import-bag", help="a ROS 1 or ROS 2 bag as a recording (cameras, commands, ground "
-                                                "truth; the topics it cannot map are listed)")
-    bag.add_argument("bag", help="a ROS 1 .bag file or a ROS 2 bag folder")
-    bag.add_argument("--out", required=True, type=new_folder)
-    bag.add_argument("--topics", help="YAML topic map: cameras (name, image, info), stereo_pair, commands, "
-                                      "groundtruth, base_frame, sync_tolerance_ms (default: found by type)")
-    bag.add_argument("--vehicle", choices=sorted(VEHICLES), default="sdc-kart",
-                     help="its top speed and wheelbase turn commanded speeds and yaw rates into throttle and steer")
-    bag.set_defaults(handler=recordings_import_bag)
-
-    export = rec_sub.add_parser("export", help="a recording as a folder of images plus one CSV, one MCAP file or a "
-                                               "ROS 2 bag")
-    export.add_argument("recording")
-    export.add_argument("--out", required=True, help="folder and ros2: a new folder; mcap: the file to write")
-    export.add_argument("--format", choices=("folder", "mcap", "ros2"), default="folder",
-                        help="folder: images and frames.csv; mcap: images, calibration, transforms, ground truth, "
-                             "commands, CAN and outputs in Foxglove's schemas; ros2: images, camera info, mounts, "
-                             "ground truth and Ackermann commands as a ROS 2 bag")
-    export.add_argument("--cameras", help="comma-separated cameras (default: all)")
-    export.add_argument("--vehicle", choices=sorted(VEHICLES),
-                        help="ros2: the top speed a full throttle stands for in the commands (default: the speed is "
-                             "the throttle)")
-    export.set_defaults(handler=recordings_export, check=_export_out(export))

@@ -5,13 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 
-from kartpilot.cli.values import number, results_folder
 from kartpilot.study.report import write_report
 from kartpilot.study.run import run_study
 from kartpilot.study.spec import BUILT_IN, expand_cells, load_spec
 from kartpilot.study.tune import tune_study
 
-__all__ = ["add_parsers"]
+__all__ = ["study_list", "study_report", "study_run", "study_tune"]
 
 
 def study_list(args: argparse.Namespace) -> int:
@@ -53,34 +52,3 @@ def study_tune(args: argparse.Namespace) -> int:
         print(f"  held out, {name:8s} " + ", ".join(f"{k} {v:.4g}" for k, v in summary.items()))
     print(f"settings for --config: {args.out}/best.yaml  report: {args.out}/tune.md")
     return 0
-
-
-def _common(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("spec", help=f"a built-in study ({', '.join(BUILT_IN)}) or a spec .yaml file")
-    parser.add_argument("--out", required=True, type=results_folder,
-                        help="the study's folder: rows are cached here, so a rerun computes only new cells")
-    parser.add_argument("--quick", action="store_true", help="the study's small size (a few minutes on 2 cores)")
-    parser.add_argument("--address", help="an existing Ray cluster (HOST:6379, from `ray start --head`); "
-                                          "default: Ray on this machine's cores")
-    parser.add_argument("--cpus", type=number(int, minimum=1), help="cores of the local Ray (default: all)")
-    parser.add_argument("--data", default="../shared/data", help="the datasets' folder (real sources)")
-    parser.add_argument("--no-progress", action="store_true")
-
-
-def add_parsers(sub: argparse._SubParsersAction) -> None:
-    """This module's subcommands, each with its arguments and handler."""
-    study = sub.add_parser("study", help="the thesis's study and sweeps, on Ray: run, report, tune, list")
-    actions = study.add_subparsers(dest="action", required=True, metavar="ACTION")
-    listing = actions.add_parser("list", help="the built-in studies and their sizes")
-    listing.set_defaults(handler=study_list)
-    run = actions.add_parser("run", help="run a study's cells (cached by their hash), then write its report")
-    _common(run)
-    run.add_argument("--cache", help="where simulated recordings are kept (default: OUT/cache)")
-    run.set_defaults(handler=study_run)
-    report = actions.add_parser("report", help="a study folder's report: Markdown, CSV and figures")
-    report.add_argument("folder")
-    report.set_defaults(handler=study_report)
-    tune = actions.add_parser("tune", help="search a study's tune space with Optuna; report on held-out cells")
-    _common(tune)
-    tune.add_argument("--trials", type=number(int, minimum=1), help="how many trials (default: the spec's)")
-    tune.set_defaults(handler=study_tune)

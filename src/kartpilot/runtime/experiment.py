@@ -117,9 +117,11 @@ def path_distance(reference_xy: Array, run_xy: Array, spacing_m: float = 0.02) -
     return np.asarray(distance)
 
 
-def run_teach_repeat(config: TeachRepeatConfig, out: str | Path, progress: bool = False, video: bool = True
-                  ) -> dict[str, object]:
-    """Teach, build the reference, repeat, score; write ``out/result.json`` and the plots. Returns the result."""
+def run_teach_repeat(config: TeachRepeatConfig, out: str | Path, progress: bool = False, video: bool = True,
+                     keep_teach: bool = True) -> dict[str, object]:
+    """Teach, build the reference, repeat, score; write ``out/result.json`` and the plots. Returns the result.
+    ``keep_teach=False`` removes the teach drive's recording (its lossless frames: most of the output's size) once
+    the reference and the visual map are built from it."""
     out = Path(out)
     vehicle = get_vehicle("rc-kart")
     pair = vehicle.stereo_pair
@@ -151,8 +153,10 @@ def run_teach_repeat(config: TeachRepeatConfig, out: str | Path, progress: bool 
     visual_map.save(map_path_for(out / "reference.csv"))
 
     drive = replace(drive, path=path_config)
+    commands = RecordingReader(teach_dir).commands()
+    if not keep_teach:
+        shutil.rmtree(teach_dir)
     if config.controller == "tuned":
-        commands = RecordingReader(teach_dir).commands()
         bias = steer_bias_of_drive(reference, vo_ground, np.array([e.stamp_ns for e in vo_run.estimates]),
                                    np.array([c.stamp_ns for c in commands]), np.array([c.steer_rad for c in commands]),
                                    vehicle.wheelbase_m)

@@ -388,6 +388,8 @@ class LanePolicy:
                 cv2.putText(drawn, f"{d.label} {d.state} {d.distance_m:.1f} m", (left, max(top - 4, 12)),
                             cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 200, 255), 1, cv2.LINE_AA)
             b = self.last_behaviour
-            cv2.putText(drawn, f"{b.state}: {b.reason} (cap {b.speed_cap_mps * 3.6:.0f} km/h)", (10, 22),
-                        cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 200, 255), 2, cv2.LINE_AA)
+            # along the bottom: a drive's video writes its own lines from the top
+            text, where = f"{b.state}: {b.reason} (cap {b.speed_cap_mps * 3.6:.0f} km/h)", (10, drawn.shape[0] - 14)
+            cv2.putText(drawn, text, where, cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 4, cv2.LINE_AA)
+            cv2.putText(drawn, text, where, cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 200, 255), 2, cv2.LINE_AA)
         return drawn

@@ -6,19 +6,21 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import replace
-from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from kartpilot.core.config import config_to_dict
+from kartpilot.core.files import write_json_atomic
 from kartpilot.core.types import ActuatorCommand, FrameSet, VehicleFeedback
 from kartpilot.runtime.config import StackConfig, load_stack_config
 from kartpilot.runtime.drive import ToldPipeline
 from kartpilot.runtime.lane_policy import LanePolicy, LanePolicyConfig
 from kartpilot.runtime.loop import run_loop
-from kartpilot.runtime.simulate import sim_recording
+from kartpilot.runtime.session import SessionOutputs
+from kartpilot.runtime.simulate import DriveVideo, sim_recording
 from kartpilot.sim.referee import RefereeConfig
 from kartpilot.sim.scenarios import Scenario, ScenarioReferee, footprints_touch, scenario, start_pose_s
 from kartpilot.sim.simulator import SimConfig, Simulator
@@ -31,13 +33,18 @@ SCENARIO_SPEED_KMH = 15.0
 
 
 def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_rate_hz: float = 15.0,
-                 record_dir: str | Path | None = None, max_time_s: float | None = None) -> dict[str, Any]:
+                 max_time_s: float | None = None, outputs: SessionOutputs | None = None) -> dict[str, Any]:
     """Drive one scenario on one seed; its result in the session result's ``scenarios`` form (``name``,
     ``seed``, ``passed``, ``faults``). The kart's measured speed (its 0x440 report) and steering angle are the
-    simulator's. With ``record_dir``, the drive is recorded as every drive is (frames, commands, the ``lanes``
-    and ``behaviour`` topics, and the ``kart`` topic of what the pipeline was told the kart measured), with the
-    lane pipeline's settings in its manifest, so ``kartpilot replay`` gives the same decisions. ``max_time_s``
-    ends the drive earlier than the scenario's own time (a test's short drive: then judged as far as it went)."""
+    simulator's. ``max_time_s`` ends the drive earlier than the scenario's own time (a test's short drive: then
+    judged as far as it went).
+
+    ``outputs`` (none by default): ``record_dir`` records the drive as every drive is (frames, commands, the
+    ``lanes`` and ``behaviour`` topics, and the ``kart`` topic of what the pipeline was told the kart measured),
+    with the lane pipeline's settings in its manifest, so ``kartpilot replay`` gives the same decisions;
+    ``video_path`` writes the lane pipeline's view with what the rules saw and decided, the referee's state and
+    the scenario's faults so far; ``view`` a Rerun view; ``result_path`` the result as ``{"scenarios": [...]}``;
+    ``progress`` a bar over the scenario's time."""
     cv2.setNumThreads(1)
     plan = scenario(name, seed)
     policy_config = _rules_for(stack or load_stack_config(None, "kart"), plan)
@@ -47,47 +54,81 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
                        max_time_s=plan.duration_s if max_time_s is None else min(max_time_s, plan.duration_s),
                        referee=RefereeConfig(laps=plan.laps, may_cross_dashed=plan.overtake or plan.park))
     referee = ScenarioReferee(plan)
-    props: list[tuple[str, np.ndarray]] = [(p.kind, track.prop_corners(p)[:4, :2]) for p in plan.props
-                                           if p.kind == "car"]
-    props += [("barrier", footprint) for footprint in track.barrier_blocks]
     with Simulator(config, track=track) as sim:
         policy = LanePolicy(sim.cameras, policy_config, camera_rate_hz, sim.vehicle.max_steer_rad)
-        front = sim.vehicle.wheelbase_m + sim.vehicle.front_overhang_m
-        length = sim.track.route.length_m
-        where = {"s": math.nan, "lap": 0.0, "last": math.nan, "parked": 0.0}
-
-        def judge(frames: FrameSet, command: ActuatorCommand) -> None:
-            here = project_onto(sim.track.route, np.array([sim.state.x_m, sim.state.y_m]))
-            if here.s_m < where["last"] - length / 2:  # a new lap: the route's s starts again
-                where["lap"] += length
-            where["last"] = here.s_m
-            where["s"] = here.s_m + where["lap"] + front  # the front along the route, laps counted
-            kart = _footprint(sim)
-            corners = [project_onto(sim.track.route, corner, here.index) for corner in kart]
-            along = [where["s"] - front + math.remainder(c.s_m - here.s_m, length) for c in corners]
-            referee.step(sim.time_s, where["s"], sim.state.vx_mps, sim.dt_s, _touching(kart, props), here.offset_m,
-                         np.array([[a, c.offset_m] for a, c in zip(along, corners, strict=True)]))
-            parked = policy.last_behaviour is not None and policy.last_behaviour.state == "parked"
-            where["parked"] = where["parked"] + sim.dt_s if parked and abs(sim.state.vx_mps) < 0.05 else 0.0
-
-        # the drive ends at the scenario's time, or a second after the kart has parked
+        judge = _Judge(sim, referee, policy, plan, track)
         # told what the kart measured, as a drive tells it: the simulator's speed and the RDW steering ECU's angle
         told = ToldPipeline(policy, lambda frames: VehicleFeedback(frames.stamp_ns, sim.state.vx_mps,
                                                                    sim.state.steer_rad), kart_topic=True)
-        writer = sim_recording(sim, record_dir, {"source": "kartpilot sim --scenario", "scenario": name, "seed": seed,
-                                                 "vehicle": sim.vehicle.name, "pipeline": "lanes",
-                                                 "config": {"lane_policy": config_to_dict(policy_config)}})
-        try:
-            run_loop(_Until(sim, lambda: where["parked"] >= 1.0), told, sim, [writer] if writer else [],
-                     on_step=judge)
+        outputs = outputs or SessionOutputs()
+        writer = sim_recording(sim, outputs.record_dir, {
+            "source": "kartpilot sim --scenario", "scenario": name, "seed": seed, "vehicle": sim.vehicle.name,
+            "pipeline": "lanes", "config": {"lane_policy": config_to_dict(policy_config)}})
+        view = outputs.open_view(sim.cameras)
+        video = DriveVideo(outputs.video_path, sim, policy.overlay, more_lines=lambda: _verdict_line(name, referee)) \
+            if outputs.video_path is not None else None
+        bar = tqdm(total=round(config.max_time_s), unit="s", disable=(not outputs.progress) or None, leave=False)
+
+        def step(frames: FrameSet, command: ActuatorCommand) -> None:
+            judge(frames, command)
+            if video is not None:
+                video.write(frames)
+            bar.update(min(round(sim.time_s), bar.total) - bar.n)
+
+        try:  # the drive ends at the scenario's time, or a second after the kart has parked
+            run_loop(_Until(sim, lambda: judge.parked_s >= 1.0), told, sim,
+                     [sink for sink in (writer, view) if sink is not None], on_step=step)
         finally:
-            if writer is not None:
-                writer.close()
-        result = referee.result(where["s"])
+            bar.close()
+            for sink in (writer, video, view):
+                if sink is not None:
+                    sink.close()
+        result = referee.result(judge.front_s_m)
         if sim.referee.disqualified:
             result["faults"].append(str(sim.referee.reason))
             result["passed"] = False
+    if outputs.result_path is not None:
+        write_json_atomic(outputs.result_path, {"scenarios": [result]})
     return result
+
+
+class _Judge:
+    """Each step, where the kart is for the scenario's referee: its front along the route (laps counted), its
+    footprint along and across the route, what it touches (the car's box, a barrier), and how long it has stood
+    parked."""
+
+    def __init__(self, sim: Simulator, referee: ScenarioReferee, policy: LanePolicy, plan: Scenario,
+                 track: Track) -> None:
+        self.sim, self.referee, self.policy = sim, referee, policy
+        self.props: list[tuple[str, np.ndarray]] = [(p.kind, track.prop_corners(p)[:4, :2]) for p in plan.props
+                                                    if p.kind == "car"]
+        self.props += [("barrier", footprint) for footprint in track.barrier_blocks]
+        self.front_m = sim.vehicle.wheelbase_m + sim.vehicle.front_overhang_m
+        self.length_m = sim.track.route.length_m
+        self.front_s_m, self.parked_s = math.nan, 0.0
+        self._lap_m, self._last_s_m = 0.0, math.nan
+
+    def __call__(self, frames: FrameSet, command: ActuatorCommand) -> None:
+        sim, length = self.sim, self.length_m
+        here = project_onto(sim.track.route, np.array([sim.state.x_m, sim.state.y_m]))
+        if here.s_m < self._last_s_m - length / 2:  # a new lap: the route's s starts again
+            self._lap_m += length
+        self._last_s_m = here.s_m
+        self.front_s_m = here.s_m + self._lap_m + self.front_m  # the front along the route, laps counted
+        kart = _footprint(sim)
+        corners = [project_onto(sim.track.route, corner, here.index) for corner in kart]
+        along = [self.front_s_m - self.front_m + math.remainder(c.s_m - here.s_m, length) for c in corners]
+        self.referee.step(sim.time_s, self.front_s_m, sim.state.vx_mps, sim.dt_s, _touching(kart, self.props),
+                          here.offset_m, np.array([[a, c.offset_m] for a, c in zip(along, corners, strict=True)]))
+        behaviour = self.policy.last_behaviour
+        parked = behaviour is not None and behaviour.state == "parked"
+        self.parked_s = self.parked_s + sim.dt_s if parked and abs(sim.state.vx_mps) < 0.05 else 0.0
+
+
+def _verdict_line(name: str, referee: ScenarioReferee) -> list[tuple[str, bool]]:
+    """The video's line for the scenario: its faults so far (an alarm), or none."""
+    faults = referee.faults
+    return [(f"{name}: " + ("; ".join(faults) if faults else "no fault so far"), bool(faults))]
 
 
 def _footprint(sim: Simulator) -> np.ndarray:

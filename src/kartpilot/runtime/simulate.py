@@ -54,8 +54,8 @@ from kartpilot.sim.simulator import SimConfig, Simulator
 if TYPE_CHECKING:
     from kartpilot.record.rerun_view import RerunView
 
-__all__ = ["DRIVERS", "SimRun", "SupervisedRun", "load_commands", "run_simulation", "run_supervised_drive",
-           "sim_context", "sim_recording"]
+__all__ = ["DRIVERS", "DriveVideo", "SimRun", "SupervisedRun", "load_commands", "run_simulation",
+           "run_supervised_drive", "sim_context", "sim_recording"]
 
 DRIVERS = ("centerline", "commands", "lanes", "path")
 STOPPED_BEFORE_END_S = 1.5  # a path drive ends this long after the pipeline decided to stop
@@ -195,7 +195,7 @@ def _run(sim: Simulator, source: FrameSource, policy: Policy, sink: CommandSink,
     the ground truth) are closed, ``before_close`` first. Returns the loop's statistics and the wall time."""
     drawn = policy.pipeline if isinstance(policy, SupervisedDrive) else policy
     supervisor = policy.supervisor if isinstance(policy, SupervisedDrive) else None
-    video = (_VideoSink(outputs.video_path, sim, getattr(drawn, "overlay", None), supervisor)
+    video = (DriveVideo(outputs.video_path, sim, getattr(drawn, "overlay", None), supervisor)
              if outputs.video_path else None)
     bar = tqdm(total=round(_goal_m(sim), 1), unit="m", disable=(not outputs.progress) or None, leave=False)
 
@@ -297,18 +297,21 @@ def _wrapped(text: str, width_px: int) -> list[str]:
     return lines or [""]
 
 
-class _VideoSink:
+class DriveVideo:
     """Writes the pipeline's view (the policy's ``overlay``, if it has one) or the main camera's image, with
-    the referee's state and, for a supervised drive, the supervisor's state and reason drawn on every frame."""
+    the referee's state and, for a supervised drive, the supervisor's state and reason drawn on every frame;
+    ``more_lines`` adds lines of its own (a scenario's verdict), each with whether it is an alarm."""
 
     def __init__(self, path: str | Path, sim: Simulator,
                  overlay: Callable[[FrameSet], Image | None] | None = None,
-                 supervisor: Supervisor | None = None) -> None:
+                 supervisor: Supervisor | None = None,
+                 more_lines: Callable[[], list[tuple[str, bool]]] | None = None) -> None:
         if not sim.config.render_images:
             raise ConfigError("a video needs rendered images")
         self.sim = sim
         self.overlay = overlay
         self.supervisor = supervisor
+        self.more_lines = more_lines
         self.camera = "center" if "center" in sim.cameras else next(iter(sim.cameras))
         cam = sim.cameras[self.camera]
         self._size_hw = (cam.height_px, cam.width_px)
@@ -325,8 +328,8 @@ class _VideoSink:
         self._last = image
         canvas = image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
         width = canvas.shape[1] - 24
-        rows = [(part, alarm) for text, alarm in overlay_lines(self.sim, self.supervisor)
-                for part in _wrapped(text, width)]
+        lines = overlay_lines(self.sim, self.supervisor) + (self.more_lines() if self.more_lines else [])
+        rows = [(part, alarm) for text, alarm in lines for part in _wrapped(text, width)]
         for k, (text, alarm) in enumerate(rows):
             colour = (0, 0, 255) if alarm else (255, 255, 255)
             cv2.putText(canvas, text, (12, 28 + 26 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 3, cv2.LINE_AA)
