@@ -52,15 +52,15 @@ def main() -> int:
         done = subprocess.run([exe, "demo", "--out", str(out)], capture_output=True, text=True)
         wall_s = time.perf_counter() - start
         print(done.stdout[-3000:], done.stderr[-2000:])
-        files = [p for p in out.rglob("*") if p.is_file()]
+        sizes = {str(p.relative_to(out)): p.stat().st_size / 1e6 for p in out.rglob("*") if p.is_file()}
         verdicts = [json.loads(p.read_text())["scenarios"][0] for p in out.glob("*.json")]
         repeat = json.loads(next(out.glob("*-vo/result.json")).read_text())
     result = {"machine": f"{os.cpu_count()} cores, {sys.platform}, Python {sys.version.split()[0]}",
               "date": time.strftime("%Y-%m-%d"), "exit_code": done.returncode, "wall_s": wall_s,
-              "megabytes": sum(p.stat().st_size for p in files) / 1e6, "files": len(files),
+              "megabytes": sum(sizes.values()), "files": len(sizes),
               "scenarios": len(verdicts), "passed": sum(v["passed"] for v in verdicts),
               "repeat_finished": bool(repeat["finished"]),
-              "sizes_mb": {str(p.relative_to(out)): round(p.stat().st_size / 1e6, 2) for p in files}}
+              "sizes_mb": {name: round(size, 2) for name, size in sorted(sizes.items())}}
     write_json(args.out, result)
     return 0 if done.returncode == 0 else 1
 

@@ -1,5 +1,6 @@
-"""How long ``make test`` takes, and where the time goes: the suite run as ``make test`` runs it, its wall time, and
-its slowest 30 tests (setup, call and teardown together, from pytest's JUnit report).
+"""How long ``make test`` takes, and where the time goes: the suite run as ``make test`` runs it, its wall time, its
+slowest 30 tests (setup, call and teardown together, from pytest's JUnit report) and each module's seconds (which
+``tests/conftest.py`` uses to start the longest modules first).
 
     python benchmarks/suite_profile.py --out docs/results/suite_profile.json
     python benchmarks/suite_profile.py --docs    # the table in docs/contributing.md and the line in README.md
@@ -45,6 +46,15 @@ def read_junit(path: Path) -> list[dict[str, Any]]:
     return cases
 
 
+def module_seconds(cases: list[dict[str, Any]]) -> dict[str, float]:
+    """Each test module's seconds, its tests' sum, the longest first (``tests/conftest.py`` starts them so)."""
+    seconds: dict[str, float] = {}
+    for case in cases:
+        module = case["test"].split("::")[0]
+        seconds[module] = seconds.get(module, 0.0) + case["seconds"]
+    return dict(sorted(seconds.items(), key=lambda item: -item[1]))
+
+
 def render(results: dict[str, Any]) -> str:
     """The docs' table, from the JSON :func:`main` writes."""
     minutes, seconds = divmod(round(results["wall_s"]), 60)
@@ -86,7 +96,7 @@ def main() -> int:
               "date": time.strftime("%Y-%m-%d"), "workers": min(cores, 4), "exit_code": done.returncode,
               "wall_s": wall_s, "test_s": sum(c["seconds"] for c in cases),
               **{outcome: sum(c["outcome"] == outcome for c in cases) for outcome in ("passed", "skipped", "failed")},
-              "slowest": sorted(cases, key=lambda c: -c["seconds"])[:30]}
+              "slowest": sorted(cases, key=lambda c: -c["seconds"])[:30], "modules": module_seconds(cases)}
     print(f"{len(cases)} tests in {wall_s / 60:.1f} min of wall time")
     write_json(args.out, result)
     return 0

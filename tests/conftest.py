@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -68,11 +69,41 @@ def pytest_configure(config: pytest.Config) -> None:
         threadpool_limits(1)
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The modules that hold slow tests first, in their order, then the others: ``make test`` gives each worker a
-    module at a time, and the longest started last kept one worker busy minutes after the other had finished."""
+PROFILE = Path(__file__).resolve().parents[1] / "docs" / "results" / "suite_profile.json"
+"""The suite's last measured profile (``benchmarks/suite_profile.py``): its slowest tests and their seconds."""
+
+
+def _module_seconds() -> dict[str, float]:
+    """Each module's seconds in the measured profile (its tests' sum; in an older profile, its slowest tests'), by its
+    path from the repository."""
+    try:
+        profile = json.loads(PROFILE.read_text(encoding="utf-8"))
+        if "modules" in profile:
+            return {str(k): float(v) for k, v in profile["modules"].items()}
+        slowest = profile["slowest"]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {}
+    seconds: dict[str, float] = {}
+    for row in slowest:
+        module = row["test"].split("::")[0]
+        seconds[module] = seconds.get(module, 0.0) + float(row["seconds"])
+    return seconds
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The longest modules first, then the other modules that hold slow tests, then the rest: ``make test`` gives
+    each worker a module at a time, and a long one started last keeps one worker busy minutes after the other has
+    finished. "Longest" is as the committed profile measured them (the longest first: each worker then ends with
+    short modules), so the order follows the suite as it is measured again."""
+    root = Path(str(config.rootpath))
+    measured = _module_seconds()
     slow = {item.path for item in items if item.get_closest_marker("slow") is not None}
-    items.sort(key=lambda item: item.path not in slow)  # stable: each module's own order stays
+
+    def order(item: pytest.Item) -> tuple[int, float]:
+        module = item.path.relative_to(root).as_posix() if item.path.is_relative_to(root) else str(item.path)
+        return (0, -measured[module]) if module in measured else (1 if item.path in slow else 2, 0.0)
+
+    items.sort(key=order)  # stable: each module's own order stays
 
 
 @pytest.fixture

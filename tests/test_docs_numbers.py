@@ -144,3 +144,26 @@ def test_the_detection_and_one_camera_drive_tables_shown_are_the_measured_ones(s
     assert text[text.index(start) + len(start):text.index(end)].strip() == module.render(results).strip(), (
         f"{module.PAGE.name}'s {marker} section differs from docs/results/{script}.json: run benchmarks/{script}.py "
         "--render")
+
+
+def _section(page: Path, marker: str) -> str:
+    text = page.read_text(encoding="utf-8")
+    start, end = f"<!-- {marker} -->", f"<!-- /{marker} -->"
+    return text[text.index(start) + len(start):text.index(end)].strip()
+
+
+@pytest.mark.parametrize(("script", "result", "pages"), [
+    ("startup", "startup", [("docs/contributing.md", "startup", "render")]),
+    ("demo", "demo", [("README.md", "demo-cost", "render"), ("docs/getting-started.md", "demo-cost", "render")]),
+    ("suite_profile", "suite_profile", [("docs/contributing.md", "suite-profile", "render"),
+                                        ("README.md", "suite-time", "render_readme")]),
+])
+def test_the_start_up_demo_and_suite_times_shown_are_the_measured_ones(script: str, result: str,
+                                                                       pages: list[tuple[str, str, str]]) -> None:
+    """The README's and the docs' times of start-up, the demo and the test suite: each rendered by its script from
+    its committed JSON (`python benchmarks/SCRIPT.py --docs`)."""
+    module = _script(script)
+    results = json.loads((ROOT / "docs" / "results" / f"{result}.json").read_text(encoding="utf-8"))
+    for page, marker, render in pages:
+        assert _section(ROOT / page, marker) == getattr(module, render)(results).strip(), (
+            f"{page}'s {marker} section differs from docs/results/{result}.json: run benchmarks/{script}.py --docs")
