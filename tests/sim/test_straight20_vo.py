@@ -20,12 +20,15 @@ def near_points_per_frame(run, max_depth_m: float = 3.0) -> float:
 
 @pytest.mark.slow
 def test_stereo_vo_on_a_recorded_straight20_drive(tmp_path):
+    """Two recorded drives of straight20 at 2 m/s, 10 Hz (20 cm a frame): stereo VO over the one with cones keeps
+    its drift under 2 %, and the bare track gives it almost no points within 3 m (the thesis's question of what
+    the cones are for)."""
     results = {}
     for cones in (True, False):
         config = SimConfig(track="straight20", vehicle="rc-kart", cameras=("left", "right"), camera_rate_hz=10.0,
                            show_cones=cones, seed=1)
         folder = tmp_path / ("cones" if cones else "bare")
-        drive = run_simulation(config, driver_config=CenterlineDriverConfig(speed_mps=1.0),
+        drive = run_simulation(config, driver_config=CenterlineDriverConfig(speed_mps=2.0),
                                outputs=SessionOutputs(record_dir=folder))
         assert drive.result.finished and not drive.result.disqualified
         source = RecordingStereoSource(folder)

@@ -16,9 +16,7 @@ from tqdm import tqdm
 
 from kartpilot.calibration.rig import load_rig
 from kartpilot.cli.drive_commands import with_default_speed_mode
-from kartpilot.cli.values import (
-    report_left_out,
-)
+from kartpilot.cli.values import report_left_out
 from kartpilot.control.lane_follow import LaneFollowState, heading_follow_step, lane_follow_step
 from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import write_csv_atomic, write_text_atomic
