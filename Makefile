@@ -36,6 +36,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/record.py --out benchmarks/results/record.json
 	$(BIN)/python benchmarks/places.py --out benchmarks/results/places.json
 	$(BIN)/python benchmarks/mono_drive.py --out benchmarks/results/mono_drive.json
+	$(BIN)/python benchmarks/startup.py --data $(DATA) --out benchmarks/results/startup.json
 
 # VO accuracy on every real and simulated sequence (records the simulated drives once), into the docs
 accuracy: $(STAMP)
