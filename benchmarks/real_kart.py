@@ -23,6 +23,7 @@ import numpy as np
 from common import write_json
 from kartpilot.calibration.board import BoardConfig, find_board
 from kartpilot.calibration.ground import BirdseyeView, calibrate_ground, ground_points, stitch_birdseye
+from kartpilot.eval.lanes import boundary_errors
 from kartpilot.perception.lanes import LaneConfig, detect_lanes
 from kartpilot.runtime.lane_policy import LANE_PRESETS
 from vo_table import put_between_markers
@@ -51,15 +52,8 @@ def lanes_on(frames: list[np.ndarray], names: list[str], config: LaneConfig, rep
     truth = json.loads(TRUTH.read_text())["frames"]
     errors = []
     for name, sides in truth.items():
-        if name not in observations:
-            continue
-        for side, points in sides.items():
-            curve = getattr(observations[name], f"{side}_curve")
-            line = getattr(observations[name], side)
-            found = getattr(observations[name], f"{side}_source") == "detected"
-            for y, x in points:
-                at = (float(curve.x_at(y)) if curve is not None else line.x_at(y)) if found else np.inf
-                errors.append(abs(at - x))
+        if name in observations:
+            errors += [error for _, _, error in boundary_errors(observations[name], sides)]
     err = np.asarray(errors)
     return {"frames": len(frames), "both_found": both, "both_found_percent": 100.0 * both / len(frames),
             "truth_points": len(err), "truth_within_25px_percent": 100.0 * float(np.mean(err < 25)),
@@ -130,13 +124,7 @@ def lanes_on_rendered(frames: list[np.ndarray], truths: list[dict[str, list[list
     for image, truth in zip(frames, truths, strict=True):
         observation = detect_lanes(image, config)
         both += observation.both_detected
-        for side, points in truth.items():
-            curve = getattr(observation, f"{side}_curve")
-            line = getattr(observation, side)
-            found = getattr(observation, f"{side}_source") == "detected"
-            for y, x in points:
-                at = (float(curve.x_at(y)) if curve is not None else line.x_at(y)) if found else np.inf
-                errors.append(abs(at - x))
+        errors += [error for _, _, error in boundary_errors(observation, truth)]
     best = np.inf
     for _ in range(3):
         start = time.perf_counter()

@@ -19,7 +19,7 @@ import csv
 import io
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,7 +37,8 @@ LanePoints = dict[str, list[tuple[float, float]]]
 """One image's labelled points: by side, each (row, x) in pixels."""
 
 
-def boundary_errors(observation: LaneObservation, points: LanePoints) -> list[tuple[str, float, float]]:
+def boundary_errors(observation: LaneObservation, points: Mapping[str, Sequence[Sequence[float]]]
+                    ) -> list[tuple[str, float, float]]:
     """Each labelled point's (side, row, error in pixels along its row): where the finder's boundary of that side
     (its curve where it has one) crosses the row, against the point; infinite where the side was not detected."""
     errors = []
