@@ -74,20 +74,13 @@ PROFILE = Path(__file__).resolve().parents[1] / "docs" / "results" / "suite_prof
 
 
 def _module_seconds() -> dict[str, float]:
-    """Each module's seconds in the measured profile (its tests' sum; in an older profile, its slowest tests'), by its
-    path from the repository."""
+    """Each module's seconds in the measured profile (its tests' sum), by its path from the repository; none where
+    the profile is missing or unreadable (the slow modules then start first, in their order)."""
     try:
-        profile = json.loads(PROFILE.read_text(encoding="utf-8"))
-        if "modules" in profile:
-            return {str(k): float(v) for k, v in profile["modules"].items()}
-        slowest = profile["slowest"]
+        modules = json.loads(PROFILE.read_text(encoding="utf-8"))["modules"]
+        return {str(k): float(v) for k, v in modules.items()}
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return {}
-    seconds: dict[str, float] = {}
-    for row in slowest:
-        module = row["test"].split("::")[0]
-        seconds[module] = seconds.get(module, 0.0) + float(row["seconds"])
-    return seconds
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
