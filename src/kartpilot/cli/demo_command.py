@@ -31,6 +31,7 @@ from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat, su
 from kartpilot.runtime.scenarios import run_scenario
 from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation
+from kartpilot.sim.scenarios import SCENARIOS
 from kartpilot.sim.simulator import SimConfig
 
 __all__ = ["FULL_DEMO", "QUICK_DEMO", "DemoPlan", "demo"]
@@ -54,7 +55,8 @@ class DemoPlan:
     vo_speed_mps: float
 
 
-SIX = ("start-on-green", "speed-limit", "red-light", "pedestrian", "overtake", "parking")
+SIX = tuple(name for name in SCENARIOS if name != "event")
+"""The event's six scenarios, each on its own (``event`` drives them in a row)."""
 QUICK_DEMO = DemoPlan(scenarios=SIX, seed=3, venue_lap_kmh=0.0, vo_track="straight20", vo_speed_mps=1.0)
 FULL_DEMO = DemoPlan(scenarios=("event",), seed=3, venue_lap_kmh=30.0, vo_track="utrack", vo_speed_mps=2.0)
 

@@ -283,6 +283,8 @@ def read_labels(path: str | Path, sizes: Callable[[str], tuple[int, int]] | None
     except json.JSONDecodeError as exc:
         raise DataError(f"{path}: not JSON ({exc.msg} at line {exc.lineno}); labels are a kartpilot or COCO JSON "
                         "file, or a YOLO folder") from None
+    except RecursionError:
+        raise DataError(f"{path}: nested too deeply to be labels") from None
     if isinstance(data, dict) and "images" in data and isinstance(data["images"], dict):
         return _kartpilot_json(data, path, class_map)
     if isinstance(data, dict) and {"images", "annotations", "categories"} <= data.keys():

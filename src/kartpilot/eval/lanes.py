@@ -143,9 +143,9 @@ def _from_csv(text: str, path: Path) -> dict[str, LanePoints]:
 def _from_json(text: str, path: Path) -> dict[str, LanePoints]:
     try:
         frames = json.loads(text)["frames"]
-    except (json.JSONDecodeError, KeyError, TypeError):
+    except (json.JSONDecodeError, RecursionError, KeyError, TypeError):
         raise DataError(f"{path}: lane labels in JSON are {{\"frames\": {{IMAGE: {{\"left\": [[row, x], ...], "
-                        "\"right\": [...]}}}}") from None
+                        "\"right\": [...]}}}") from None
     labels: dict[str, LanePoints] = {}
     for name, sides in frames.items():
         where = f"{path}: {name}"
