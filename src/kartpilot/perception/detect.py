@@ -22,6 +22,7 @@ from pathlib import Path
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError, PerceptionError
 from kartpilot.core.types import Image
+from kartpilot.perception.colour import ColourPlanes
 from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, box_iou, place_on_ground
 from kartpilot.perception.obstacles import (
     ObstacleConfig,
@@ -97,9 +98,10 @@ def detect_classical(image: Image, camera: PinholeCamera | None, config: Detecto
         # the horizon and the camera's height from its mount, not the defaults' kart
         signals = replace(signals, camera_height_m=float(camera.pose_body_cam_array[2, 3]),
                           horizon=min(max(horizon_row(camera) / camera.height_px, 0.0), 1.0))
-    out = detect_signals(image, signals, camera)
+    planes = ColourPlanes.of(image)  # converted once, read by several detectors
+    out = detect_signals(image, signals, camera, planes)
     things = upright_things(image, camera, config.obstacles) if camera is not None and image.ndim == 3 else []
-    barriers = detect_barriers(image, camera, config.obstacles)
+    barriers = detect_barriers(image, camera, config.obstacles, planes)
     people = detect_standing_people(image, camera, config.obstacles, things)
     if config.people:  # HOG's people, and the upright shapes it did not find
         hog = detect_people(image, camera, config.obstacles, things)
@@ -118,7 +120,7 @@ def detect_classical(image: Image, camera: PinholeCamera | None, config: Detecto
     # what stands on the ground is not paint on it (seen from above, a barrier's white stripes would lie across
     # the road)
     out += detect_road_marks(image, camera, config.road_marks, [d.box_px for d in barriers + cars + people],
-                             [t.box_px for t in things])
+                             [t.box_px for t in things], planes)
     out += people + cars + barriers + find_parking_bay(barriers, camera)
     return out
 

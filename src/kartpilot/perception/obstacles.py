@@ -35,9 +35,9 @@ from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import invert_pose, transform_points
 from kartpilot.core.types import Image
+from kartpilot.perception.colour import ColourPlanes, grass, mask_components, red_mask
 from kartpilot.perception.objects import Detection, box_iou, place_on_ground
-from kartpilot.perception.road_marks import camera_for_image, grass
-from kartpilot.perception.signals import red_mask
+from kartpilot.perception.road_marks import camera_for_image, medians_u8
 
 __all__ = ["ObstacleConfig", "Upright", "detect_barriers", "detect_car", "detect_people", "detect_standing_people",
            "find_parking_bay", "horizon_row", "upright_things"]
@@ -233,13 +233,17 @@ def _plausible_person(d: Detection, camera: PinholeCamera | None, w: int, h: int
     return abs(d.height_px / expected - 1.0) <= config.height_tolerance
 
 
-def _asphalt_model(lab: Image, h: int, w: int, top: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """The road's colour (median) and spread (MAD per channel) from the image's lower middle (``lab``: the image
-    from row ``top`` down)."""
-    patch = lab[int(0.8 * h) - top:, int(0.35 * w):int(0.65 * w)].reshape(-1, 3).astype(np.float32)
-    median = np.median(patch, axis=0)
-    mad = np.median(np.abs(patch - median), axis=0)
-    return median, np.maximum(1.4826 * mad, 2.0)
+def _road_spread(lab: Image, h: int, w: int, top: int = 0) -> np.ndarray:
+    """The road's spread of colour, per channel (1.4826 times the median absolute deviation from the median, 2 at
+    least; float32), from the image's lower middle (``lab``: the 8-bit image from row ``top`` down). In whole
+    numbers, as the float statistics give it: twice the median and twice each value's distance from it are
+    whole."""
+    patch = np.ascontiguousarray(lab[int(0.8 * h) - top:, int(0.35 * w):int(0.65 * w)].reshape(-1, 3).T)
+    twice_median = (2 * medians_u8(patch)).astype(np.int32)
+    twice_gap = np.abs(2 * patch.astype(np.int32) - twice_median[:, None]).astype(np.uint16)
+    ordered, n = np.sort(twice_gap, axis=1), patch.shape[1]
+    mad = ((ordered[:, (n - 1) // 2].astype(np.int32) + ordered[:, n // 2]) / 4).astype(np.float32)
+    return np.maximum(1.4826 * mad, 2.0)
 
 
 class Upright(NamedTuple):
@@ -278,27 +282,28 @@ def upright_things(image: Image, camera: PinholeCamera, config: ObstacleConfig =
     row0 = math.ceil(horizon)
     if not 1 <= row0 < h - 4:
         return []
-    lab = cv2.cvtColor(cv2.GaussianBlur(image, (5, 5), 0), cv2.COLOR_BGR2LAB).astype(np.float32)
-    _, spread = _asphalt_model(lab[row0:], h, w, row0)
+    lab8 = cv2.cvtColor(cv2.GaussianBlur(image, (5, 5), 0), cv2.COLOR_BGR2LAB)
+    lab = lab8.astype(np.float32)
+    spread = _road_spread(lab8[row0:], h, w, row0)
     # each row's own colour (the road pales with distance; the sky with height), smoothed over rows: a thing
     # covering less than half a row stands out from it
-    rows = cv2.blur(np.median(np.ascontiguousarray(lab.transpose(0, 2, 1)), axis=2)[:, None, :], (1, 15))[:, 0, :]
+    rows = cv2.blur(medians_u8(np.ascontiguousarray(lab8.transpose(0, 2, 1)))[:, None, :], (1, 15))[:, 0, :]
     distance = np.abs(lab[..., 0] - rows[:, None, 0]) / spread[0]  # the farthest channel, one at a time: a third
     for channel in (1, 2):                                          # of the cost of one max over a 3-wide axis
         np.maximum(distance, np.abs(lab[..., channel] - rows[:, None, channel]) / spread[channel], out=distance)
     thing = ((distance > config.colour_sigmas) & ~grass(cv2.cvtColor(image, cv2.COLOR_BGR2HSV))).astype(np.uint8)
     thing = cv2.morphologyEx(thing, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)).astype(bool)
-    down = np.cumprod(thing[row0:], axis=0).sum(axis=0)
-    up = np.cumprod(thing[row0 - 1::-1], axis=0).sum(axis=0)
+    down = _leading_run(thing[row0:])
+    up = _leading_run(thing[row0 - 1::-1])
     standing = down >= config.min_run_px
     bottom = (row0 + down - 1).astype(np.float64)
     top = row0 - cv2.medianBlur(up.astype(np.uint8).reshape(1, -1), 5).ravel().astype(np.float64)
     out = []
     for start, stop in _segments(standing, top, bottom):
-        foot = float(np.median(bottom[start:stop])) + 0.5
+        foot = _median(bottom[start:stop].tolist()) + 0.5
         if _foot_edge(lab, spread, start, stop, int(foot)) < config.min_foot_edge:
             continue  # no edge where it meets the ground: the far road, paler than its rows, running on nearer
-        head = float(np.percentile(top[start:stop], 25))
+        head = _lower_quartile(top[start:stop].tolist())
         ahead = ground_points(cam, np.array([[start, foot], [stop, foot], [(start + stop) / 2, foot]]))
         if not np.all(np.isfinite(ahead)) or ahead[2, 0] <= 0:
             continue
@@ -306,6 +311,30 @@ def upright_things(image: Image, camera: PinholeCamera, config: ObstacleConfig =
         out.append(Upright((start * sx, head * sy, stop * sx, foot * sy), float(ahead[2, 0]), float(ahead[0, 1]),
                             float(ahead[1, 1]), (foot - head) * depth / cam.fy_px, head <= 0.5))
     return out
+
+
+def _leading_run(mask: np.ndarray) -> np.ndarray:
+    """Per column, how many of its first rows are all True (its first False's row; every row if none)."""
+    return np.where(mask.all(axis=0), mask.shape[0], mask.argmin(axis=0))
+
+
+def _median(values: list[float]) -> float:
+    """``np.median`` of a few values, without its overhead (a thing is a few columns wide)."""
+    ordered, n = sorted(values), len(values)
+    return float(ordered[n // 2]) if n % 2 else (ordered[n // 2 - 1] + ordered[n // 2]) / 2
+
+
+def _lower_quartile(values: list[float]) -> float:
+    """``np.percentile(values, 25)`` (linear between the nearest ranks, as NumPy computes it), without its
+    overhead."""
+    ordered = sorted(values)
+    position = 0.25 * (len(ordered) - 1)
+    i = int(position)
+    t = position - i
+    if t == 0:
+        return float(ordered[i])
+    a, b = ordered[i], ordered[i + 1]
+    return float(a + (b - a) * t) if t < 0.5 else float(b - (b - a) * (1 - t))
 
 
 def _foot_edge(lab: np.ndarray, spread: np.ndarray, start: int, stop: int, foot: int) -> float:
@@ -432,27 +461,25 @@ def _person_fit(t: Upright, config: ObstacleConfig, reach_m: float = math.inf) -
     return fit if fit <= config.shape_height_tolerance else None
 
 
-def detect_barriers(image: Image, camera: PinholeCamera | None, config: ObstacleConfig = ObstacleConfig()
-                    ) -> list[Detection]:
+def detect_barriers(image: Image, camera: PinholeCamera | None, config: ObstacleConfig = ObstacleConfig(),
+                    planes: ColourPlanes | None = None) -> list[Detection]:
     """Red-and-white barriers standing on the ground: red blobs (a barrier's stripes joined), split where one
     stands behind another, as tall as a barrier where they stand. With the mount, each is placed by its nearest
     foot and reports its farthest (``far_m``: a barrier beside the road shows its inner side, whose foot runs to
-    its far end)."""
+    its far end). ``planes``: the frame's, where the caller has them."""
     if image.ndim != 3:
         return []
     h, w = image.shape[:2]
     cam = camera_for_image(camera, w, h) if camera is not None else None
     horizon = horizon_row(cam) if cam is not None else config.horizon * h
-    hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
-    _, sat, val = cv2.split(hsv)
+    hsv = planes.hsv if planes is not None and planes.hsv is not None else cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
     red = red_mask(hsv, 110, 60)
-    white = (sat < 60) & (val >= 150)
     red = cv2.morphologyEx(red, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     # a striped barrier's red blocks, joined across the white between them
     joined = cv2.morphologyEx(red, cv2.MORPH_CLOSE, np.ones((1, max(3, round(0.03 * w))), np.uint8))
-    # BBDT: the same labels as the default algorithm, with its statistics at a third of the cost here
-    count, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(joined, 8, cv2.CV_32S, cv2.CCL_BBDT)
-    pieces = [piece for k in range(1, count) for piece in _by_foot(labels, k, tuple(int(v) for v in stats[k][:4]))]
+    count, labels, stats, origin = mask_components(joined)
+    pieces = [piece for k in range(1, count) for piece in _by_foot(labels, k, tuple(int(v) for v in stats[k][:4]),
+                                                                   origin)]
     out = []
     for piece in _join_stripes(pieces):
         x, y, bw, bh = piece.box
@@ -467,8 +494,9 @@ def detect_barriers(image: Image, camera: PinholeCamera | None, config: Obstacle
                 <= config.barrier_height_m[1]:
             continue  # as tall as a barrier where it stands (seen end on, one is taller than wide in the image)
         pad = max(2, bh // 3)
-        around = white[max(y - pad, 0):y + bh + pad, max(x - pad, 0):x + bw + pad]
-        stripes = float(np.mean(around)) if around.size else 0.0
+        around = hsv[max(y - pad, 0):y + bh + pad, max(x - pad, 0):x + bw + pad]
+        # its white stripes: unsaturated and bright
+        stripes = float(np.mean(cv2.inRange(around, (0, 0, 150), (255, 59, 255)) > 0)) if around.size else 0.0
         box = (float(x), float(y), float(x + bw), float(y + bh - 1))
         found = Detection("barrier", box, min(1.0, 0.5 + 2.0 * stripes))
         if cam is not None:
@@ -515,9 +543,10 @@ class _Piece(NamedTuple):
     feet: np.ndarray
 
 
-def _by_foot(labels: np.ndarray, k: int, box: tuple[int, ...]) -> list[_Piece]:
+def _by_foot(labels: np.ndarray, k: int, box: tuple[int, ...], origin: tuple[int, int] = (0, 0)) -> list[_Piece]:
     """Component ``k`` split where its foot (its lowest row, column by column) jumps: a barrier behind another,
-    seen over its end, touches it in the image but stands farther up on the ground."""
+    seen over its end, touches it in the image but stands farther up on the ground. ``labels`` and ``box`` are of
+    a box of the image whose top-left is ``origin``; the pieces are the image's."""
     x, y, bw, bh = box
     mask = labels[y:y + bh, x:x + bw] == k
     seen = mask.any(axis=0)
@@ -531,8 +560,8 @@ def _by_foot(labels: np.ndarray, k: int, box: tuple[int, ...]) -> list[_Piece]:
         cols = np.flatnonzero(seen[start:c]) + start
         if len(cols):
             top, bottom = int(head[cols].min()), int(foot[cols].max())
-            out.append(_Piece((x + int(cols[0]), y + top, int(cols[-1] - cols[0] + 1), bottom - top + 1),
-                              x + cols, y + foot[cols]))
+            out.append(_Piece((origin[0] + x + int(cols[0]), origin[1] + y + top, int(cols[-1] - cols[0] + 1),
+                               bottom - top + 1), origin[0] + x + cols, origin[1] + y + foot[cols]))
         start = c
     return out
 

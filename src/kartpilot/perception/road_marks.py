@@ -24,6 +24,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -33,9 +34,10 @@ from kartpilot.calibration.ground import BirdseyeView, birdseye_homography
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import Image
+from kartpilot.perception.colour import ColourPlanes, grass
 from kartpilot.perception.objects import Detection
 
-__all__ = ["RoadMarkConfig", "camera_for_image", "detect_road_marks", "grass"]
+__all__ = ["RoadMarkConfig", "camera_for_image", "detect_road_marks", "medians_u8"]
 
 
 @dataclass(frozen=True)
@@ -108,22 +110,26 @@ def camera_for_image(camera: PinholeCamera, width_px: int, height_px: int) -> Pi
                    cy_px=(camera.cy_px + 0.5) * sy - 0.5, width_px=width_px, height_px=height_px)
 
 
-def grass(hsv: Image) -> np.ndarray:
-    """Green, saturated pixels of an HSV image (OpenCV's hue 0 to 180): grass, not road or paint."""
-    hue, sat = hsv[..., 0], hsv[..., 1]
-    return (hue >= 30) & (hue <= 90) & (sat >= 50)
+def medians_u8(values: np.ndarray) -> np.ndarray:
+    """The median along the last axis of 8-bit values, as ``np.median`` gives it (float32), at a third of its
+    cost: a stable sort of 8-bit values is a counting sort, where the median's partition compares."""
+    ordered = np.sort(values, axis=-1, kind="stable")
+    n = values.shape[-1]
+    return (ordered[..., (n - 1) // 2].astype(np.float32) + ordered[..., n // 2]) / 2
 
 
 def detect_road_marks(image: Image, camera: PinholeCamera | None, config: RoadMarkConfig = RoadMarkConfig(),
                       upright: Sequence[tuple[float, float, float, float]] = (),
-                      columns: Sequence[tuple[float, float, float, float]] = ()) -> list[Detection]:
+                      columns: Sequence[tuple[float, float, float, float]] = (),
+                      planes: ColourPlanes | None = None) -> list[Detection]:
     """Stop lines and zebra crossings ahead, each with its near edge's distance on the ground.
 
     ``upright``: the image boxes of things found standing on the ground (barriers, cars, people), which are not
     ground: seen from above, a barrier's white stripes would lie across the road as far as the eye reaches.
     ``columns``: the boxes of other upright things, whose foot is less sure (a far thing's column can run on down
     into the paint before it): not ground for a stop line (a bright edge along a thing's foot is a bar across the
-    view), but ground for a zebra, whose pattern of bars such an edge does not make."""
+    view), but ground for a zebra, whose pattern of bars such an edge does not make. ``planes``: the frame's, where
+    the caller has them."""
     if camera is None:
         return []
     h, w = image.shape[:2]
@@ -132,18 +138,15 @@ def detect_road_marks(image: Image, camera: PinholeCamera | None, config: RoadMa
     foot = float(camera.pose_body_cam_array[0, 3])
     view = BirdseyeView((foot + config.near_m, foot + config.far_m), (-half, half), config.pixels_per_m)
     bw, bh = view.size_wh
-    homography = birdseye_homography(camera, view)
-    gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    homography, in_view, smear = _ground_geometry(camera, view)
+    hsv, gray = planes if planes is not None else ColourPlanes.of(image)
     ground = cv2.warpPerspective(gray, homography, (bw, bh), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
-    valid = cv2.warpPerspective(np.full((h, w), 255, np.uint8), homography, (bw, bh),
-                                flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP) > 0
     # paint lies on the road: not on grass, and not on what stands on the ground
-    off_road = (grass(cv2.cvtColor(image, cv2.COLOR_BGR2HSV)) if image.ndim == 3 else np.zeros((h, w), bool)
-                ).astype(np.uint8)
+    off_road = (grass(hsv) if hsv is not None else np.zeros((h, w), bool)).astype(np.uint8)
     _mark_boxes(off_road, upright, 1)
     _mark_boxes(off_road, columns, 2)
     seen = cv2.warpPerspective(off_road, homography, (bw, bh), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP)
-    valid &= (seen != 1) & _in_front(view, camera)
+    valid = in_view & (seen != 1)
     bare = valid & (seen == 0)  # the ground a stop line may lie on
     if valid.sum() < 50:
         return []
@@ -168,7 +171,6 @@ def detect_road_marks(image: Image, camera: PinholeCamera | None, config: RoadMa
     length = (longest[:, 1] - longest[:, 0]).astype(np.float64)
     width = bare.sum(axis=1)
     line = (width >= 0.6 * lane_px) & (length >= config.stop_cover * np.minimum(width, lane_px))
-    smear = _row_length_m(view, camera)  # the ground one image row spans, per ground row: a far line's blur
     sunlit: float | None = None  # the road's sunlit level, found once a candidate needs it (most frames: none)
     for r0, r1 in _bands(line):
         depth = (r1 - r0) / config.pixels_per_m
@@ -304,6 +306,21 @@ def _span(width: int, first_last: np.ndarray) -> np.ndarray:
     return cols
 
 
+@lru_cache(maxsize=8)
+def _ground_geometry(camera: PinholeCamera, view: BirdseyeView) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the mount and the view fix, the same for every frame: the homography from ``view`` to the image, the
+    ground pixels the image sees well in front of the camera, and the ground one image row spans per ground row
+    (:func:`_row_length_m`: a far line's blur). Read-only: kept between frames."""
+    bw, bh = view.size_wh
+    homography = birdseye_homography(camera, view)
+    in_view = cv2.warpPerspective(np.full((camera.height_px, camera.width_px), 255, np.uint8), homography, (bw, bh),
+                                  flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP) > 0
+    out = (homography, in_view & _in_front(view, camera), _row_length_m(view, camera))
+    for array in out:
+        array.setflags(write=False)
+    return out
+
+
 def _row_length_m(view: BirdseyeView, camera: PinholeCamera) -> np.ndarray:
     """For each ground row of ``view`` (straight ahead), the length along the ground that one image row spans."""
     bw, bh = view.size_wh
@@ -330,9 +347,13 @@ def _row_thresholds(tophat: np.ndarray, valid: np.ndarray, config: RoadMarkConfi
     out = np.full(tophat.shape[0], np.inf)
     if not seen.any():
         return out
-    values = np.where(valid[seen], tophat[seen].astype(np.float32), np.nan)
-    median = _row_medians(values)
-    mad = _row_medians(np.abs(values - median[:, None]))
+    # in integers, exactly as the float statistics of the valid values: twice the median and twice each value's
+    # distance from it are whole, and an invalid value sorts last as one above every valid value
+    inside = valid[seen]
+    twice_median = _row_middle_sum(np.where(inside, tophat[seen].astype(np.uint16), 256), inside)
+    twice_gap = np.abs(2 * tophat[seen].astype(np.int32) - twice_median[:, None]).astype(np.uint16)
+    median = (twice_median / 2).astype(np.float32)
+    mad = (_row_middle_sum(np.where(inside, twice_gap, 1024), inside) / 4).astype(np.float32)
     size = 2 * max(1, round(config.stats_half_window_m * config.pixels_per_m)) + 1
     median = median_filter(median, size=size, mode="mirror")
     mad = median_filter(mad, size=size, mode="mirror")
@@ -340,13 +361,14 @@ def _row_thresholds(tophat: np.ndarray, valid: np.ndarray, config: RoadMarkConfi
     return out
 
 
-def _row_medians(values: np.ndarray) -> np.ndarray:
-    """Each row's median of its values that are not NaN (each row holds some), as ``np.nanmedian(values,
-    axis=1)`` gives it, a tenth of the cost: sorted, NaN goes last, and the middle of a row's values is read off."""
+def _row_middle_sum(values: np.ndarray, inside: np.ndarray) -> np.ndarray:
+    """Twice each row's median of its ``values`` where ``inside`` (each row holds some; whole numbers under 2^16,
+    those outside larger than every inside one), the sum of its two middle values: sorted (a stable sort of 16-bit
+    values counts, where a float sort compares), the inside values come first and their middle is read off."""
     ordered = np.sort(values, axis=1)
-    count = np.count_nonzero(~np.isnan(values), axis=1)
+    count = np.count_nonzero(inside, axis=1)
     rows = np.arange(len(values))
-    return 0.5 * (ordered[rows, (count - 1) // 2] + ordered[rows, count // 2])
+    return ordered[rows, (count - 1) // 2].astype(np.int32) + ordered[rows, count // 2]
 
 
 def _in_front(view: BirdseyeView, camera: PinholeCamera) -> np.ndarray:

@@ -38,10 +38,11 @@ from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.glyphs import text_mask
 from kartpilot.core.types import Image
+from kartpilot.perception.colour import ColourPlanes, green_mask, mask_components, red_mask
 from kartpilot.perception.objects import Detection
 
 __all__ = ["SignalConfig", "detect_signals", "detect_speed_signs", "detect_traffic_lights", "exposure",
-           "place_by_size", "read_speed_value", "red_mask", "road_colour", "road_grey"]
+           "place_by_size", "read_speed_value", "road_colour", "road_grey"]
 
 
 @dataclass(frozen=True)
@@ -170,12 +171,6 @@ def place_by_size(detection: Detection, camera: PinholeCamera | None, width_px: 
     return replace(detection, distance_m=float(body[0]), lateral_m=float(body[1]))
 
 
-def _hsv(image: Image) -> Image:
-    if image.ndim != 3:
-        raise ConfigError("traffic lights and signs need a colour image")
-    return cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
-
-
 def exposure(gray: Image, horizon_row: int, sky_level: float, least: float) -> float:
     """The frame's exposure against one exposed for daylight: the sky's bright end (the 99th percentile of the
     grey levels above the horizon row) over ``sky_level``, between ``least`` and 1. A lit lamp and its dark
@@ -220,17 +215,6 @@ def road_grey(image: Image, tint: float = 0.1, max_gain: float = 1.3) -> Image:
     return cv2.transform(image, np.diag(gains).astype(np.float32))
 
 
-def red_mask(hsv: Image, s_min: int, v_min: int) -> Image:
-    """255 where an HSV pixel is red (hue up to 10 or from 165) and at least this saturated and bright, else 0."""
-    return cv2.bitwise_or(cv2.inRange(hsv, (0, s_min, v_min), (10, 255, 255)),
-                          cv2.inRange(hsv, (165, s_min, v_min), (255, 255, 255)))
-
-
-def _green(hsv: Image, s_min: int, v_min: int) -> Image:
-    """255 where an HSV pixel is green (hue 40 to 100) and at least this saturated and bright, else 0."""
-    return cv2.inRange(hsv, (40, s_min, v_min), (100, 255, 255))
-
-
 class _Planes(NamedTuple):
     """What the light and the sign detectors both take from a frame, computed once: its HSV and grey planes, and
     its exposure (:func:`exposure`)."""
@@ -240,17 +224,21 @@ class _Planes(NamedTuple):
     exposure: float
 
 
-def _planes(image: Image, config: SignalConfig) -> _Planes:
-    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
-    return _Planes(_hsv(image), gray, exposure(gray, int(config.horizon * image.shape[0]), config.sky_level,
-                                               config.min_exposure))
+def _planes(image: Image, config: SignalConfig, colour: ColourPlanes | None = None) -> _Planes:
+    if colour is None:
+        colour = ColourPlanes.of(image)
+    if colour.hsv is None:
+        raise ConfigError("traffic lights and signs need a colour image")
+    return _Planes(colour.hsv, colour.gray, exposure(colour.gray, int(config.horizon * image.shape[0]),
+                                                     config.sky_level, config.min_exposure))
 
 
-def detect_signals(image: Image, config: SignalConfig = SignalConfig(), camera: PinholeCamera | None = None
-                   ) -> list[Detection]:
-    """:func:`detect_traffic_lights` and :func:`detect_speed_signs` on one frame, its planes computed once."""
-    planes = _planes(image, config)
-    return _lights(image, planes, config, camera) + _signs(image, planes, config, camera)
+def detect_signals(image: Image, config: SignalConfig = SignalConfig(), camera: PinholeCamera | None = None,
+                   planes: ColourPlanes | None = None) -> list[Detection]:
+    """:func:`detect_traffic_lights` and :func:`detect_speed_signs` on one frame, its planes computed once
+    (``planes``: the frame's, where the caller has them)."""
+    both = _planes(image, config, planes)
+    return _lights(image, both, config, camera) + _signs(image, both, config, camera)
 
 
 def detect_traffic_lights(image: Image, config: SignalConfig = SignalConfig(), camera: PinholeCamera | None = None
@@ -265,14 +253,14 @@ def _lights(image: Image, planes: _Planes, config: SignalConfig, camera: Pinhole
     lit = round(config.lamp_value * planes.exposure)
     lamps: list[tuple[float, float, float, Detection]] = []  # (lamp's brightness, centre column, row, light)
     above = hsv[: int(config.horizon * h)]  # a lit lamp is above the horizon
-    for state, colour in (("red", red_mask), ("green", _green)):
+    for state, colour in (("red", red_mask), ("green", green_mask)):
         coloured = colour(above, config.lamp_saturation, round(config.lamp_extent * lit))
-        # BBDT: the same labels as the default algorithm, with its statistics at a third of the cost here
-        count, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(
-            cv2.morphologyEx(coloured, cv2.MORPH_CLOSE, _SQUARE), 8, cv2.CV_32S, cv2.CCL_BBDT)
+        count, labels, stats, (x0, y0) = mask_components(cv2.morphologyEx(coloured, cv2.MORPH_CLOSE, _SQUARE))
+        value = hsv[y0:y0 + labels.shape[0], x0:x0 + labels.shape[1], 2]  # the labelled box's
+        coloured = coloured[y0:y0 + labels.shape[0], x0:x0 + labels.shape[1]]
         for k in np.flatnonzero(np.maximum(stats[1:count, 2], stats[1:count, 3]) >= config.min_lamp_px * h) + 1:
-            found = [(core.edge, lamp) for core in _lamp_cores(hsv[..., 2], coloured, labels, int(k), stats[k], lit,
-                                                                config.lamp_extent)
+            found = [(core.edge, lamp) for core in _lamp_cores(value, coloured, labels, int(k), stats[k], lit,
+                                                                config.lamp_extent, (x0, y0))
                      if (lamp := _light(state, core, planes, lit, config, camera)) is not None]
             # a dim lamp as its whole glass where that passes, not its brightest specks (sized by the glass)
             lamps += [lamp for edge, lamp in found if edge < lit] or [lamp for _, lamp in found]
@@ -338,8 +326,8 @@ _SQUARE = np.ones((3, 3), np.uint8)
 """The 3x3 kernel of every closing and erosion here."""
 
 
-def _lamp_cores(value: Image, coloured: Image, labels: Image, k: int, stat: np.ndarray, lit: int, extent: float
-                ) -> list[_Core]:
+def _lamp_cores(value: Image, coloured: Image, labels: Image, k: int, stat: np.ndarray, lit: int, extent: float,
+                origin: tuple[int, int] = (0, 0)) -> list[_Core]:
     """The lamps that component ``k`` of the lamp-coloured pixels (``coloured``, at least ``extent * lit`` bright,
     closed) may hold: the pieces of it at ``lit`` (the detector's lamps until 2026-11-27) and, where its brightest
     pixel is under ``lit / extent``, the pieces down to ``extent`` of that brightest too; each reaching ``lit``
@@ -349,7 +337,9 @@ def _lamp_cores(value: Image, coloured: Image, labels: Image, k: int, stat: np.n
     pixels at ``lit`` (lower takes in its glow on the housing, and the housing's ring, placed by the lamp's size,
     then reaches past the housing: the Hanze red lamp was lost at a lit level of 75). A dim lamp (the venue's green
     in daylight, its brightest pixels 120 to 160) under another camera's curve (gamma 1.5) kept only scattered
-    specks at ``lit``, too sparse a shape for a lamp; down to ``extent`` of its brightest it is the whole glass."""
+    specks at ``lit``, too sparse a shape for a lamp; down to ``extent`` of its brightest it is the whole glass.
+    ``value``, ``coloured``, ``labels`` and ``stat`` are of a box of the image whose top-left is ``origin``; the
+    cores' centres are the image's."""
     x0, y0, bw0, bh0 = (int(v) for v in stat[:4])
     inside = labels[y0:y0 + bh0, x0:x0 + bw0] == k
     crop = value[y0:y0 + bh0, x0:x0 + bw0]
@@ -371,7 +361,8 @@ def _lamp_cores(value: Image, coloured: Image, labels: Image, k: int, stat: np.n
                 continue
             own = crop[y:y + bh, x:x + bw][pieces[y:y + bh, x:x + bw] == j]
             if int(own.max()) >= lit:
-                out.append(_Core(bw, bh, area, x0 + float(centroids[j][0]), y0 + float(centroids[j][1]),
+                out.append(_Core(bw, bh, area, origin[0] + x0 + float(centroids[j][0]),
+                                 origin[1] + y0 + float(centroids[j][1]),
                                  float(np.mean(own)), edge))
     return out
 
@@ -430,7 +421,7 @@ def detect_speed_signs(image: Image, config: SignalConfig = SignalConfig(), came
 
 def _signs(image: Image, planes: _Planes, config: SignalConfig, camera: PinholeCamera | None) -> list[Detection]:
     balanced = road_grey(image)
-    hsv = planes.hsv if balanced is image else _hsv(balanced)
+    hsv = planes.hsv if balanced is image else cv2.cvtColor(balanced, cv2.COLOR_BGR2HSV)
     gray, scale = planes.gray, planes.exposure
     h, w = image.shape[:2]
     red = cv2.morphologyEx(red_mask(hsv, config.ring_saturation, round(config.ring_value * scale)), cv2.MORPH_CLOSE,
@@ -460,14 +451,21 @@ def _signs(image: Image, planes: _Planes, config: SignalConfig, camera: PinholeC
             continue
         if ey >= config.horizon * h:
             continue  # on its pole a sign stands higher than the camera: this is on the ground, not one
-        disc = np.zeros((h, w), np.uint8)
-        cv2.ellipse(disc, ((ex, ey), (0.62 * ma, 0.62 * mb), 0.0), 255, -1)
-        inside = gray[disc > 0]
+        # the sign's neighbourhood (its ring's box and the fitted ellipse's, with a margin): every mask below is
+        # drawn there, not over the whole frame
+        reach = 0.5 * max(ma, mb)
+        x0, y0 = max(min(x, math.floor(ex - reach)) - 2, 0), max(min(y, math.floor(ey - reach)) - 2, 0)
+        x1 = min(max(x + bw, math.ceil(ex + reach)) + 3, w)
+        y1 = min(max(y + bh, math.ceil(ey + reach)) + 3, h)
+        near_gray = gray[y0:y1, x0:x1]
+        disc = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        cv2.ellipse(disc, ((ex - x0, ey - y0), (0.62 * ma, 0.62 * mb), 0.0), 255, -1)
+        inside = near_gray[disc > 0]
         if inside.size < 20:
             continue
         # white: unsaturated (once the road is grey: :func:`road_grey`) and near the disc's brightest (a backlit
         # sign's white is grey, not bright)
-        pale = hsv[..., 1][disc > 0] < config.sign_white_saturation
+        pale = hsv[y0:y1, x0:x1, 1][disc > 0] < config.sign_white_saturation
         bright = float(np.percentile(inside, 90))
         white = float(np.mean(pale & (inside >= 0.75 * bright)))
         if white < config.sign_white_share or np.mean(inside < 0.5 * bright) > 0.5:
@@ -477,11 +475,11 @@ def _signs(image: Image, planes: _Planes, config: SignalConfig, camera: PinholeC
         # the number is read in the disc's middle and in the whole of the ring's hole, the better of the two: a
         # sign's digits may reach beyond the middle (the Hanze sign's nearly fill its white), and a far or blurred
         # sign's ring bleeds into its hole's edge
-        whole = np.zeros((h, w), np.uint8)
-        cv2.drawContours(whole, contours, largest, 255, -1)
+        whole = np.zeros_like(disc)
+        cv2.drawContours(whole, contours, largest, 255, -1, offset=(-x0, -y0))
         whole = cv2.erode(whole, _SQUARE)
-        value, score = max(read_speed_value(gray, disc, config.values_kmh),
-                           read_speed_value(gray, whole, config.values_kmh) if np.any(whole) else (0, -1.0),
+        value, score = max(read_speed_value(near_gray, disc, config.values_kmh),
+                           read_speed_value(near_gray, whole, config.values_kmh) if np.any(whole) else (0, -1.0),
                            key=lambda read: read[1])
         state = str(value) if score >= config.min_value_score else ""
         confidence = white * (0.5 + 0.5 * max(score, 0.0))
