@@ -850,19 +850,18 @@ def render(results: dict[str, Any]) -> str:
                       f" + {view['top_slope']:.3f} x m, so a lamp " + " or ".join(
                           f"{h} m up from {d:.1f} m ahead" for h, d in lamps.items()) + " of the camera on."
                   + ("" if "hanze" not in view else _render_hanze_light(view["hanze"]))]
-    lines += ["", "The classical detectors' cost: the best of three passes over the venue's scenes, on one core of the "
-                  "2-core development host with nothing else running. That host's speed changes from day to day by a "
+    lines += ["", "The classical detectors' cost: the best of three passes over the venue's scenes, on one core of the"
+                  " 2-core development host with nothing else running. That host's speed changes from day to day by a "
                   "quarter to a third, the same code with it. Where the time goes: each detector alone is a row (each "
-                  "then converts the frame itself, so the rows add up to more than all of them together, which "
-                  "convert it once). What made all of them together nearly a third shorter on 2026-11-27, every detection "
-                  "the same to the bit (`tests/perception/test_fast_kernels.py` holds each kernel to the call it "
-                  "replaces): the frame's HSV and grey converted once for every detector; medians of 8-bit values "
-                  "by a counting sort instead of NumPy's partition (each row's colour for the upright things, the "
-                  "road's spread, the top view's row statistics); the top view's geometry (its homography, the "
-                  "ground the image sees, a row's length) kept between frames; a sign's masks drawn round the sign, "
-                  "not over the whole frame; a colour mask's blobs labelled in the box that holds them (a "
-                  "lamp's, a barrier's), not over the whole frame; a thing's foot and head without NumPy's "
-                  "per-call cost.", "",
+                  "then converts the frame itself, so the rows add up to more than all of them together, which convert"
+                  " it once). What made all of them together nearly a third shorter on 2026-11-27, every detection the"
+                  " same to the bit (`tests/perception/test_fast_kernels.py` holds each kernel to the call it "
+                  "replaces): the frame's HSV and grey converted once for every detector; medians of 8-bit values by a"
+                  " counting sort instead of NumPy's partition (each row's colour for the upright things, the road's "
+                  "spread, the top view's row statistics); the top view's geometry (its homography, the ground the "
+                  "image sees, a row's length) kept between frames; a sign's masks drawn round the sign, not over the "
+                  "whole frame; a colour mask's blobs labelled in the box that holds them (a lamp's, a barrier's), not"
+                  " over the whole frame; a thing's foot and head without NumPy's per-call cost.", "",
               "| detector | ms per 848x480 frame, one core | frames/s |", "|---|---|---|"]
     lines += [f"| {name} | {ms:.1f} | {1000 / ms:.0f} |" for name, ms in results["timing_ms"].items()]
     seam = results.get("onnx_ms")
