@@ -87,14 +87,17 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     """The longest modules first, then the other modules that hold slow tests, then the rest: ``make test`` gives
     each worker a module at a time, and a long one started last keeps one worker busy minutes after the other has
     finished. "Longest" is as the committed profile measured them (the longest first: each worker then ends with
-    short modules), so the order follows the suite as it is measured again."""
+    short modules), so the order follows the suite as it is measured again. A slow module the profile has not
+    measured yet goes first: started last, it could be the longest."""
     root = Path(str(config.rootpath))
     measured = _module_seconds()
     slow = {item.path for item in items if item.get_closest_marker("slow") is not None}
 
     def order(item: pytest.Item) -> tuple[int, float]:
         module = item.path.relative_to(root).as_posix() if item.path.is_relative_to(root) else str(item.path)
-        return (0, -measured[module]) if module in measured else (1 if item.path in slow else 2, 0.0)
+        if module in measured:
+            return (0, -measured[module])
+        return (-1, 0.0) if item.path in slow else (2, 0.0)  # a new slow module, not measured yet, may be long
 
     items.sort(key=order)  # stable: each module's own order stays
 

@@ -109,3 +109,36 @@ def test_euroc_missing_calibration(tmp_path) -> None:
     (copy / "mav0" / "cam1").mkdir(parents=True)
     with pytest.raises(CalibrationError, match="not found"):
         EurocSource(copy)
+
+
+def test_real_euroc_ground_truth_is_the_rectified_left_camera_s() -> None:
+    """MH_01's truth through cam0's T_BS and the rectification: one pose per frame at its stamp, from the first
+    frame's camera, over the clip's 3.85 m of path and 23.1 deg of net turn (its SOURCE.txt's figures)."""
+    source = EurocSource(data_path("euroc-mh01-moving"))
+    truth = source.ground_truth()
+    assert truth is not None and len(truth) == len(source) == 110
+    assert np.allclose(truth.poses[0], np.eye(4))
+    assert [truth.stamps_s[i] for i in (0, 109)] == [source.frame(i).stamp_ns * 1e-9 for i in (0, 109)]
+    assert truth.path_length_m == pytest.approx(3.85, abs=0.03)
+    net = truth.poses[-1][:3, :3]
+    assert np.degrees(np.arccos((np.trace(net) - 1) / 2)) == pytest.approx(23.1, abs=0.3)
+
+
+def test_euroc_without_ground_truth_has_none_and_a_broken_one_is_named(tmp_path) -> None:
+    assert EurocSource(data_path("euroc-v101-static")).ground_truth() is None
+    root = data_path("euroc-mh01-moving")
+    copy = tmp_path / "euroc"
+    for camera in ("cam0", "cam1"):
+        (copy / "mav0" / camera).mkdir(parents=True)
+        shutil.copy(root / "mav0" / camera / "sensor.yaml", copy / "mav0" / camera / "sensor.yaml")
+        (copy / "mav0" / camera / "data.csv").write_text((root / "mav0" / camera / "data.csv").read_text())
+        shutil.copytree(root / "mav0" / camera / "data", copy / "mav0" / camera / "data")
+    truth = copy / "mav0" / "state_groundtruth_estimate0" / "data.csv"
+    truth.parent.mkdir(parents=True)
+    truth.write_text("#timestamp, ...\n1403636584663560000,4.6,-1.7,0.9,2.0,0,0,0,0,0,0,0,0,0,0,0,0\n")
+    with pytest.raises(DataError, match=r"data\.csv.*quaternion of length 2"):
+        EurocSource(copy).ground_truth()
+    row = ",4.6,-1.7,0.9,1,0,0,0,0,0,0,0,0,0,0,0,0\n"
+    truth.write_text(f"#timestamp, ...\n1{row}2{row}")
+    with pytest.raises(DataError, match="fewer than two of the frames' stamps"):
+        EurocSource(copy).ground_truth()

@@ -158,14 +158,30 @@ def write_kitti_poses(path: str | Path, trajectory: Trajectory) -> None:
 
 def read_tum(path: str | Path) -> Trajectory:
     rows = _read_rows(Path(path), 8)
-    norms = np.linalg.norm(rows[:, 4:8], axis=1)
+    return _quaternion_trajectory(path, rows[:, 0].copy(), rows[:, 1:4], rows[:, 4:8],
+                                  "a TUM line is: time tx ty tz qx qy qz qw")
+
+
+def read_euroc_groundtruth(path: str | Path) -> Trajectory:
+    """A EuRoC ground-truth CSV (``state_groundtruth_estimate0/data.csv``: ``#timestamp [ns], p_RS_R x y z [m],
+    q_RS w x y z``, then nine velocity and bias columns): the body's poses in the world, stamped in seconds."""
+    rows = _read_rows(Path(path), 17)
+    return _quaternion_trajectory(path, rows[:, 0] * 1e-9, rows[:, 1:4], rows[:, [5, 6, 7, 4]],
+                                  "a EuRoC line is: stamp_ns, px, py, pz, qw, qx, qy, qz, then velocity and biases")
+
+
+def _quaternion_trajectory(path: str | Path, stamps_s: Array, positions: Array, quaternions_xyzw: Array,
+                           line_format: str) -> Trajectory:
+    """Poses from positions and unit quaternions (x, y, z, w) read from ``path``; a quaternion far from unit length
+    or a stamp out of order is a DataError naming the file and ``line_format``."""
+    norms = np.linalg.norm(quaternions_xyzw, axis=1)
     bad = np.flatnonzero(np.abs(norms - 1.0) > 0.1)
     if len(bad):
         raise DataError(f"{path}: pose {int(bad[0])} has a quaternion of length {norms[bad[0]]:.3g}, not a unit one "
-                        "(a TUM line is: time tx ty tz qx qy qz qw)")
-    poses = np.stack([pose_from_quaternion(row[4:8], row[1:4]) for row in rows])
+                        f"({line_format})")
+    poses = np.stack([pose_from_quaternion(q, t) for q, t in zip(quaternions_xyzw, positions, strict=True)])
     try:
-        return Trajectory(rows[:, 0].copy(), poses)
+        return Trajectory(stamps_s, poses)
     except DataError as exc:
         raise DataError(f"{path}: {exc}") from None
 

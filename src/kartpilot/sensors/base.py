@@ -47,10 +47,11 @@ class StereoSource(abc.ABC):
         for index in range(len(self)):
             yield self.frame(index)
 
-    def frame_sets(self, cameras: tuple[str, str] = ("left", "right")) -> Iterator[FrameSet | int]:
-        """Every frame as a frame set of the two named cameras; a frame that cannot be read is its bare index
-        (for VO to bridge and count, or an importer to leave out)."""
-        for index in range(len(self)):
+    def frame_sets(self, cameras: tuple[str, str] = ("left", "right"), stride: int = 1) -> Iterator[FrameSet | int]:
+        """Every frame (every ``stride``-th: the same drive at larger steps) as a frame set of the two named
+        cameras; a frame that cannot be read is its bare index (for VO to bridge and count, or an importer to leave
+        out)."""
+        for index in range(0, len(self), stride):
             try:
                 frame = self.frame(index)
             except KartpilotError:

@@ -4,7 +4,14 @@
 raw and distorted (radial-tangential); they are rectified with the maps computed
 once from ``sensor.yaml`` (intrinsics, distortion, ``T_BS`` body-to-sensor).
 Frames are paired by timestamp, keeping only stamps present in both cameras
-with an existing file.
+with an existing file. Where the sequence has its ground truth
+(``state_groundtruth_estimate0/data.csv``: the body's pose in the world), the
+rectified left camera's poses follow from it through cam0's ``T_BS`` and the
+rectification's rotation.
+
+The rig is hand-held or flown, not on a ground vehicle: its camera has no
+mount, and nothing that assumes a level ground vehicle (stereo VO's attitude
+prior) applies to it.
 """
 
 from __future__ import annotations
@@ -20,6 +27,7 @@ from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.errors import CalibrationError, DataError
 from kartpilot.core.files import parse_yaml, read_text_file
 from kartpilot.core.geometry import invert_pose
+from kartpilot.core.trajectory import Trajectory, read_euroc_groundtruth
 from kartpilot.core.types import StereoFrame
 from kartpilot.sensors.base import StereoSource, read_gray
 
@@ -94,6 +102,10 @@ class EurocSource(StereoSource):
         right_cam, body_right = read_euroc_camera(mav / "cam1" / "sensor.yaml")
         pose_right_left = invert_pose(body_right) @ body_left
         self.rectification: StereoRectification = rectify_stereo(left_cam, right_cam, pose_right_left)
+        rect_raw = np.eye(4)
+        rect_raw[:3, :3] = self.rectification.rotation_rect_left.T  # the rectified axes in the raw camera's frame
+        self._body_rect = body_left @ rect_raw  # the rectified left camera in the body (IMU) frame
+        self._truth_path = mav / "state_groundtruth_estimate0" / "data.csv"
         left_frames = _read_stamps(mav / "cam0" / "data.csv")
         right_frames = _read_stamps(mav / "cam1" / "data.csv")
         self._stamps = sorted(set(left_frames) & set(right_frames))
@@ -112,3 +124,23 @@ class EurocSource(StereoSource):
     def frame(self, index: int) -> StereoFrame:
         left, right = self.rectification.rectify(read_gray(self._left[index]), read_gray(self._right[index]))
         return StereoFrame(index, self._stamps[index], left, right)
+
+    def ground_truth(self) -> Trajectory | None:
+        """The rectified left camera's poses at the frames' stamps, in the first frame's camera frame (as KITTI's
+        are), from the body's ground truth: interpolated between its samples (200 Hz in EuRoC), positions
+        linearly and rotations spherically. Frames outside the truth's time span are left out; None where the
+        sequence has no ground truth."""
+        if not self._truth_path.is_file():
+            return None
+        body = read_euroc_groundtruth(self._truth_path)
+        stamps_s = np.array(self._stamps, dtype=np.float64) * 1e-9
+        inside = (stamps_s >= body.stamps_s[0] - _TRUTH_SLACK_S) & (stamps_s <= body.stamps_s[-1] + _TRUTH_SLACK_S)
+        if inside.sum() < 2:
+            raise DataError(f"{self._truth_path}: its {len(body)} poses span {body.stamps_s[0]:.3f} to "
+                            f"{body.stamps_s[-1]:.3f} s, and hold fewer than two of the frames' stamps")
+        cameras = body.at(stamps_s[inside]).poses @ self._body_rect
+        return Trajectory(stamps_s[inside], invert_pose(cameras[0]) @ cameras)
+
+
+_TRUTH_SLACK_S = 0.005
+"""A frame this close outside the ground truth's span takes its nearest end's pose (EuRoC's truth runs at 200 Hz)."""

@@ -209,7 +209,7 @@ def two_view_job(cell: Cell, context: JobContext) -> dict[str, Any]:
     for i in range(1, len(images)):
         start = time.perf_counter()
         motion = two_view_motion(images[i - 1], images[i], source.rig.camera.matrix, vo.features, vo.matching,
-                                 vo.temporal_matching, vo.klt, stack.mono_vo.ransac_px)
+                                 vo.temporal, vo.klt, stack.mono_vo.ransac_px)
         seconds.append(time.perf_counter() - start)
         true_step = np.linalg.inv(poses[i - 1]) @ poses[i]  # camera i in camera i-1
         step = true_step.copy()
