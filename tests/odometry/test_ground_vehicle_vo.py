@@ -122,6 +122,32 @@ def test_keyframes_need_klt_and_frame_to_frame_refinements_need_no_keyframes() -
         StereoVOConfig(attitude_prior_deg=-1.0)
 
 
+def test_frame_to_frame_matches_descriptors_unless_told_and_keyframes_track_with_klt() -> None:
+    """``auto``: KLT with keyframes, descriptors from frame to frame (KLT there drifted more on KITTI 06)."""
+    assert StereoVOConfig().temporal == "klt"
+    assert StereoVOConfig(keyframes=False).temporal == "descriptor"
+    assert StereoVOConfig(keyframes=False, temporal_matching="klt").temporal == "klt"
+    assert StereoVOConfig(keyframes=False, window_ba=WindowBAConfig(enabled=True)).window_ba.enabled
+
+
+def test_the_attitude_prior_is_off_by_default_and_never_given_to_a_rig_without_a_mount(
+        source: SyntheticStereoSource, caplog: pytest.LogCaptureFixture) -> None:
+    """A dataset's rig (no mount: EuRoC's is carried by hand) does not get the ground vehicle's prior even when it
+    is asked for, and the log says so; a rig on a vehicle gets it when asked for."""
+    from dataclasses import replace
+
+    from kartpilot.core.geometry import mount_pose
+
+    asked = StereoVOConfig(attitude_prior_deg=1.0)
+    mounted = replace(source.rig, camera=source.rig.camera.on_body(mount_pose(z_m=0.19)))
+    with caplog.at_level("INFO", logger="kartpilot.odometry.stereo_vo"):
+        vos = [StereoVO(source.rig), StereoVO(source.rig, asked), StereoVO(mounted, asked)]
+    assert [vo.attitude_prior for vo in vos] == [False, False, True]
+    assert caplog.text.count("without the attitude prior") == 1
+    for vo in vos:
+        vo.close()
+
+
 def test_the_motion_model_moves_at_the_kart_s_measured_speed_while_it_is_fresh(source: SyntheticStereoSource) -> None:
     """The SDC kart reports its wheel speed (0x440): the prediction keeps the last motion's direction and takes
     the measured speed; a stale or NaN measurement leaves constant velocity."""
