@@ -87,28 +87,24 @@ def score_stereo(clip: RealClip, data: Path, config: StereoVOConfig | None = Non
 
 def score_stereo_source(source: StereoSource, config: StereoVOConfig | None = None, stride: int = 1
                         ) -> dict[str, Any]:
-    """Stereo VO with ``config`` over every ``stride``-th frame of ``source``, against its truth: end drift (% of
-    the distance), end rotation, ATE after alignment, bridged frames, frames per second, and whether the attitude
-    prior applied (the rig has a mount)."""
-    truth = source.ground_truth()
-    if truth is None:
-        raise DataError(f"{source.name} has no ground truth to score VO against")
+    """Stereo VO with ``config`` over every ``stride``-th frame of ``source``, against its truth (:func:`_scored`),
+    and whether the attitude prior applied (the rig has a mount)."""
     vo = StereoVO(source.rig, config)
     run = run_vo(source.frame_sets(stride=stride), vo, source.name)
-    metrics = evaluate_trajectory(truth, run.trajectory)
-    return {"frames": len(run.trajectory), "distance_m": metrics.path_length_m,
-            "end_drift_percent": metrics.end_drift_percent, "end_rotation_deg": metrics.end_rotation_deg,
-            "ate_rmse_m": metrics.ate_rmse_m, "bridged_frames": run.bridged_frames,
-            "frames_per_second": run.frames_per_second, "attitude_prior": vo.attitude_prior}
+    return {**_scored(run, source), "attitude_prior": vo.attitude_prior}
 
 
 def _scored(run: VORun, truth_source: StereoSource) -> dict[str, Any]:
+    """A run against its source's truth: end drift (% of the distance), end rotation, ATE after alignment, bridged
+    frames and frames per second."""
     truth = truth_source.ground_truth()
     if truth is None:
         raise DataError(f"{truth_source.name} has no ground truth to score VO against")
     metrics = evaluate_trajectory(truth, run.trajectory)
-    return {"frames": len(run.trajectory), "end_drift_percent": metrics.end_drift_percent,
-            "ate_rmse_m": metrics.ate_rmse_m, "bridged_frames": run.bridged_frames}
+    return {"frames": len(run.trajectory), "distance_m": metrics.path_length_m,
+            "end_drift_percent": metrics.end_drift_percent, "end_rotation_deg": metrics.end_rotation_deg,
+            "ate_rmse_m": metrics.ate_rmse_m, "bridged_frames": run.bridged_frames,
+            "frames_per_second": run.frames_per_second}
 
 
 def _mono_run(source: StereoSource, height_m: float = 1.65) -> VORun:

@@ -78,7 +78,7 @@ class StereoVOConfig:
             (block matching, ``block_match``, sampled at the left keypoints).
         temporal_matching: ``descriptor`` (ratio test, the thesis), ``klt``, or ``auto``: KLT with
             ``keyframes``, descriptors from frame to frame without (KLT from frame to frame drifts more on real
-            roads: KITTI 06 1.04 % against 0.84 %, ``benchmarks/vo_ablation.py``).
+            roads: KITTI 06 1.05 % against 0.84 %, ``benchmarks/vo_ablation.py``).
         subpixel: refine descriptor matches to sub-pixel positions with KLT.
         joint_depth_refinement: after PnP, refine the pose jointly with each inlier's inverse
             depth, observed through its disparity (see ``stereo_refine``).
@@ -108,7 +108,7 @@ class StereoVOConfig:
             within this many degrees (``pnp.refine_with_attitude_prior``). A prior, not a clamp. Off (0) by
             default: real roads slope and bank and a car rolls in a bend, and held to the first frame's attitude
             VO drifted more on every clip measured, real and simulated (KITTI 06 0.80 % against 0.69 %, utrack
-            seed 3 1.72 % against 0.55 %: ``benchmarks/vo_ablation.py``). Where set, it applies only where the
+            seed 3 1.71 % against 0.55 %: ``benchmarks/vo_ablation.py``). Where set, it applies only where the
             rig's camera has a mount (its pose on a ground vehicle: a kart's rig); a rig without one (a dataset's:
             EuRoC's is hand-held) never gets it, and the log says so.
     """
