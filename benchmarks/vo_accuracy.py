@@ -1,9 +1,10 @@
 """Visual odometry accuracy on every sequence at hand, real and simulated, each marked tuned-on or held-out.
 
 The defaults were tuned on KITTI 06 (stereo and monocular), the stereo keyframes on utrack seed 1 as well (the
-attitude prior, once tuned there, is off since its ablation on the real clips: ``benchmarks/vo_ablation.py``), and the monocular arc settings on sdc-assen seeds 1 and 2; every other row is held out
-(utrack seed 2's result was seen with the attitude prior on and off before its default was set). Simulated drives
-are recorded once into ``--cache`` (several seeds each):
+attitude prior, once tuned there, is off since its ablation on the real clips: ``benchmarks/vo_ablation.py``),
+and the monocular arc settings on sdc-assen seeds 1 and 2; every other row is held out (utrack seed 2's result
+was seen with the attitude prior on and off before its default was set). Simulated drives are recorded once into
+``--cache`` (several seeds each):
 
 * utrack, rc-kart stereo: 160 m from the start at 2 m/s, an 74 m straight and 130 degrees of the first bend;
 * sdc-assen, sdc-kart centre camera (monocular, the mount's arc with the tyres' slip): 70 s at 4 m/s, about
