@@ -126,10 +126,10 @@ def real_rows(data: Path) -> list[dict[str, Any]]:
         rows += [stereo, mono]
     moving = data / "euroc-mh01-moving"
     if moving.is_dir():
-        source = EurocSource(moving)
+        hand_held = EurocSource(moving)
         rows.append(_row(Sequence("EuRoC MH_01 (110 frames, hand-held)", "real", "stereo", False,
                                   "a rig carried over a pallet, 0.5 to 1 m away; no mount, no attitude prior"),
-                         _stereo(source), source.ground_truth()))
+                         _stereo(hand_held), hand_held.ground_truth()))
     euroc = data / "euroc-v101-static"
     if euroc.is_dir():
         run = _stereo(EurocSource(euroc))
