@@ -142,3 +142,37 @@ def test_euroc_without_ground_truth_has_none_and_a_broken_one_is_named(tmp_path)
     truth.write_text(f"#timestamp, ...\n1{row}2{row}")
     with pytest.raises(DataError, match="fewer than two of the frames' stamps"):
         EurocSource(copy).ground_truth()
+
+
+def test_read_ahead_keeps_the_order_raises_where_reading_stopped_and_stops_with_its_caller() -> None:
+    import threading
+
+    from kartpilot.sensors.base import read_ahead
+
+    assert list(read_ahead(iter(range(50)), depth=3)) == list(range(50))
+
+    def broken():
+        yield from (0, 1)
+        raise DataError("frame 2: cut off")
+
+    got = []
+    with pytest.raises(DataError, match="frame 2"):
+        for item in read_ahead(broken()):
+            got.append(item)
+    assert got == [0, 1]
+    read = []
+
+    def endless():
+        k = 0
+        while True:
+            read.append(k)
+            yield k
+            k += 1
+
+    stream = read_ahead(endless(), depth=2)
+    assert [next(stream) for _ in range(3)] == [0, 1, 2]
+    stream.close()  # the caller stops: the thread stops too, a few items ahead at most
+    assert not any(t.name == "read-ahead" and t.is_alive() for t in threading.enumerate())
+    assert len(read) <= 3 + 2 + 1
+    with pytest.raises(ValueError, match="depth"):
+        next(read_ahead(iter(()), depth=0))

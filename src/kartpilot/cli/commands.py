@@ -45,7 +45,7 @@ from kartpilot.runtime.config import load_stack_config, sim_lane_preset
 from kartpilot.runtime.scenarios import run_scenario
 from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import SimRun, run_simulation
-from kartpilot.sensors.base import StereoSource
+from kartpilot.sensors.base import StereoSource, read_ahead
 from kartpilot.sensors.donkeycar import DonkeyTub
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
@@ -106,7 +106,7 @@ def _place_localised(args: argparse.Namespace, source: StereoSource) -> tuple[Tr
     mount = mount_pose(z_m=args.camera_height, pitch_down_deg=args.camera_pitch_down)
     camera = source.rig.camera.on_body(mount)
     localizer = MonoLocalizer(camera, database, stack.mono_vo, replace(stack.drive.mono, camera=database.camera_name))
-    frames = tqdm(source.frame_sets((database.camera_name, "right")), total=len(source), unit="frame",
+    frames = tqdm(read_ahead(source.frame_sets((database.camera_name, "right"))), total=len(source), unit="frame",
                   desc=f"mono VO + places {source.name}", disable=args.no_progress or None, leave=False)
     run = run_mono_localizer(frames, localizer, source.name)
     print(f"{len(run.trajectory)} frames, {run.placed_frames} placed on the database, {run.place_fixes} place fixes "
@@ -138,7 +138,7 @@ def odometry(args: argparse.Namespace) -> int:
                 last[:] = [step]
 
         def frames() -> Iterator[FrameSet | int]:
-            for item in source.frame_sets():
+            for item in read_ahead(source.frame_sets()):  # the next frames decoded while VO runs
                 if view is not None and not isinstance(item, int):
                     view.write_frames(item)
                 yield item

@@ -28,7 +28,7 @@ from kartpilot.eval.trajectory_metrics import evaluate_trajectory
 from kartpilot.odometry.mono_vo import GroundConfig, MonoVO, MonoVOConfig
 from kartpilot.odometry.run import VORun, run_vo
 from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
-from kartpilot.sensors.base import StereoSource
+from kartpilot.sensors.base import StereoSource, read_ahead
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
 
@@ -90,7 +90,7 @@ def score_stereo_source(source: StereoSource, config: StereoVOConfig | None = No
     """Stereo VO with ``config`` over every ``stride``-th frame of ``source``, against its truth (:func:`_scored`),
     and whether the attitude prior applied (the rig has a mount)."""
     vo = StereoVO(source.rig, config)
-    run = run_vo(source.frame_sets(stride=stride), vo, source.name)
+    run = run_vo(read_ahead(source.frame_sets(stride=stride)), vo, source.name)
     return {**_scored(run, source), "attitude_prior": vo.attitude_prior}
 
 

@@ -8,8 +8,11 @@ with rectified images, so the pipeline cannot tell them apart.
 from __future__ import annotations
 
 import abc
-from collections.abc import Iterator
+import queue
+import threading
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import TypeVar, cast
 
 import cv2
 import numpy as np
@@ -19,7 +22,9 @@ from kartpilot.core.errors import DataError, KartpilotError
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import FrameSet, Image, StereoFrame
 
-__all__ = ["StereoSource", "read_gray", "read_image"]
+__all__ = ["StereoSource", "read_ahead", "read_gray", "read_image"]
+
+T = TypeVar("T")
 
 
 class StereoSource(abc.ABC):
@@ -58,6 +63,51 @@ class StereoSource(abc.ABC):
                 yield index
                 continue
             yield frame.as_frame_set(*cameras)
+
+
+def read_ahead(items: Iterable[T], depth: int = 2) -> Iterator[T]:
+    """``items`` as they come, the next ``depth`` of them read in a thread while the caller works on the current
+    one: a dataset's frames are decoded from disk (two 1226x370 PNGs of KITTI, about 9 ms) while VO runs on the
+    last (OpenCV's decoding lets go of the interpreter), so the two take the time of the longer, not of both. An
+    error in reading is raised here, at the item it stopped at; when the caller stops early, the thread stops."""
+    if depth < 1:
+        raise ValueError(f"read_ahead needs a depth of at least 1, got {depth}")
+    ready: queue.Queue[tuple[str, object]] = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(kind: str, value: object) -> bool:
+        while not stop.is_set():
+            try:
+                ready.put((kind, value), timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def read() -> None:
+        try:
+            for item in items:
+                if not put("item", item):
+                    return
+        except BaseException as exc:  # handed to the caller, raised there
+            put("error", exc)
+            return
+        put("end", None)
+
+    thread = threading.Thread(target=read, name="read-ahead", daemon=True)
+    thread.start()
+    try:
+        while True:
+            kind, value = ready.get()
+            if kind == "end":
+                return
+            if kind == "error":
+                assert isinstance(value, BaseException)
+                raise value
+            yield cast(T, value)
+    finally:
+        stop.set()
+        thread.join(timeout=5.0)
 
 
 def read_gray(path: str | Path) -> Image:
