@@ -124,6 +124,11 @@ class GroundConfig:
             raise ConfigError("mono_vo.ground: 0 < near_heights < far_heights and half_width_heights > 0")
 
 
+FIRST_STEP_HEIGHTS = tuple(float(v) for v in np.geomspace(0.1, 4.0, 20))
+"""The step lengths, in camera heights, that :meth:`MonoVO._first_ground` tries before the first scale is known
+(0.1 to 4: at KITTI's 1.65 m, 0.17 to 6.6 m between frames)."""
+
+
 @dataclass(frozen=True)
 class MonoVOConfig:
     """Attributes:
@@ -675,6 +680,33 @@ class MonoVO:
             self.timing_ms["pitch"] = self.timing_ms.get("pitch", 0.0) + (time.perf_counter() - t1) * 1e3
         return self._estimate(index, stamp_ns, "ok", "standing" if length < 1e-3 else "")
 
+    def _first_ground(self, previous: Image, gray: Image, q0: F32, rotation: Array, t: Array
+                      ) -> tuple[Array, int] | None:
+        """The road's first fit where tracking it from where it was found nothing: with no scale yet there is no
+        prediction, and where the steps between frames are long (a car at 20 m/s, or every second frame at 10 Hz)
+        the near road moves farther than KLT's pyramid reaches, so no scale is ever found. Each step length of
+        :data:`FIRST_STEP_HEIGHTS` (in camera heights) predicts where the road went; the length whose fit holds
+        the most road points wins."""
+        g = self.config.ground
+        klt = KltConfig(self.config.klt.window_px, 2, self.config.klt.max_fb_error_px, self.config.klt.iterations)
+
+        def fit_from(length_m: float) -> tuple[Array, int] | None:
+            homography = self.k @ (rotation + np.outer(t * length_m, self._normal()) / g.camera_height_m) @ self.k_inv
+            guess = cv2.perspectiveTransform(q0.reshape(-1, 1, 2), homography).reshape(-1, 2).astype(np.float32)
+            q1, ok = track_klt(previous, gray, q0, klt, guess)
+            return fit_ground_homography(q0[ok], q1[ok], rotation, t, self.k, g, self._rng, self._prior_normal)
+
+        best: tuple[Array, int] | None = None
+        for heights in FIRST_STEP_HEIGHTS:
+            fit = fit_from(heights * g.camera_height_m)
+            if fit is not None and (best is None or fit[1] > best[1]):
+                best = fit
+        if best is None:
+            return None
+        # once more from the length the best fit gives: a step between two tried lengths is tracked from its own
+        again = fit_from(g.camera_height_m * float(np.linalg.norm(best[0])))
+        return again if again is not None and again[1] >= best[1] else best
+
     def _ground(self, previous: Image, gray: Image, rotation: Array, t: Array) -> int:
         """Track the road from its predicted position and update the scale; the road inliers."""
         g = self.config.ground
@@ -693,6 +725,8 @@ class MonoVO:
                                                               self.config.klt.iterations)
         q1, ok = track_klt(previous, gray, q0, klt, guess)
         fit = fit_ground_homography(q0[ok], q1[ok], rotation, t, self.k, g, self._rng, self._prior_normal)
+        if fit is None and self.scale_m <= 0:
+            fit = self._first_ground(previous, gray, q0, rotation, t)
         if fit is None:
             return 0
         m, count = fit
