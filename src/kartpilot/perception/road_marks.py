@@ -363,8 +363,9 @@ def _row_thresholds(tophat: np.ndarray, valid: np.ndarray, config: RoadMarkConfi
 
 def _row_middle_sum(values: np.ndarray, inside: np.ndarray) -> np.ndarray:
     """Twice each row's median of its ``values`` where ``inside`` (each row holds some; whole numbers under 2^16,
-    those outside larger than every inside one), the sum of its two middle values: sorted (a stable sort of 16-bit
-    values counts, where a float sort compares), the inside values come first and their middle is read off."""
+    those outside larger than every inside one), the sum of its two middle values: sorted as whole numbers (no NaN
+    to carry, as a float sort of the inside values with NaN outside had), the inside values come first and their
+    middle is read off."""
     ordered = np.sort(values, axis=1)
     count = np.count_nonzero(inside, axis=1)
     rows = np.arange(len(values))
