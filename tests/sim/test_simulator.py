@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import ActuatorCommand
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
 from kartpilot.runtime.session import SessionOutputs
@@ -139,3 +140,49 @@ def test_the_video_overlay_names_the_supervisor_s_state_and_fault_on_every_frame
     text, alarm = overlay_lines(sim, supervisor)[-1]
     assert alarm and text.startswith("supervisor: fault") and "no frame" in text
     assert not any("supervisor" in line for line, _ in overlay_lines(sim))
+
+
+def test_shot_noise_grows_with_the_light_and_keeps_its_level() -> None:
+    """A sensor counts photons: the noise's variance grows with the level, so the sunlit road is noisier than its
+    shade (at strength 0.5: sigma 3.2 grey levels at 20, 10 at 200)."""
+    from kartpilot.sim.simulator import add_shot_noise
+
+    unit = np.random.default_rng(0).standard_normal((64, 64, 3), dtype=np.float32)
+    dark = add_shot_noise(np.full((64, 64, 3), 20, np.uint8), 0.5, unit).astype(np.float64)
+    bright = add_shot_noise(np.full((64, 64, 3), 200, np.uint8), 0.5, unit).astype(np.float64)
+    assert abs(dark.mean() - 20) < 0.3 and abs(bright.mean() - 200) < 0.5
+    assert dark.std() == pytest.approx(np.sqrt(0.5 * 20), rel=0.1)
+    assert bright.std() == pytest.approx(np.sqrt(0.5 * 200), rel=0.1)
+
+
+def test_an_mjpg_frame_loses_detail_with_its_quality() -> None:
+    from kartpilot.sim.simulator import jpeg_roundtrip
+
+    image = np.random.default_rng(1).integers(0, 256, (48, 64, 3), dtype=np.uint8)  # fine texture: smeared first
+    errors = [float(np.abs(jpeg_roundtrip(image, q).astype(int) - image).mean()) for q in (100, 80, 20)]
+    assert jpeg_roundtrip(image, 80).shape == image.shape and jpeg_roundtrip(image, 80).dtype == np.uint8
+    assert 0 < errors[0] < errors[1] < errors[2]
+
+
+@pytest.mark.parametrize(("key", "value"), [("jpeg_quality", 101), ("jpeg_quality", -1), ("shot_noise", -0.1),
+                                            ("shot_noise", float("nan"))])
+def test_the_camera_effects_refuse_what_no_camera_does(key: str, value: float) -> None:
+    from kartpilot.sim.simulator import CameraEffectsConfig
+
+    with pytest.raises(ConfigError, match=f"sim.effects.{key}"):
+        CameraEffectsConfig(**{key: value})
+
+
+def test_the_simulator_delivers_its_frames_through_the_sensor_and_the_mjpg_stream() -> None:
+    """Off by default (every simulated result so far is without them); on, the frames the stack reads are the
+    compressed, noisier ones, of the camera's own size."""
+    assert CameraEffectsConfig().jpeg_quality == 0 and CameraEffectsConfig().shot_noise == 0.0
+    base = SimConfig(track="utrack", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0)
+    honest = SimConfig(track="utrack", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0,
+                       effects=CameraEffectsConfig(jpeg_quality=80, shot_noise=0.5))
+    with Simulator(base) as plain, Simulator(honest) as camera:
+        a, b = plain.read(), camera.read()
+    assert a is not None and b is not None
+    plain_image, camera_image = a.images["center"], b.images["center"]
+    assert camera_image.shape == plain_image.shape == (480, 848, 3) and camera_image.dtype == np.uint8
+    assert 2.0 < float(np.abs(camera_image.astype(int) - plain_image).mean()) < 15.0

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
+import cv2
 import numpy as np
 
 from kartpilot.calibration.lens import lens_distortion
@@ -27,7 +28,8 @@ from kartpilot.sim.referee import Referee, RefereeConfig, RunResult
 from kartpilot.sim.render import RenderConfig, Renderer
 from kartpilot.sim.track import Prop, Track, load_track, project_onto
 
-__all__ = ["CameraEffectsConfig", "DisturbanceConfig", "SimConfig", "Simulator", "body_pose"]
+__all__ = ["CameraEffectsConfig", "DisturbanceConfig", "SimConfig", "Simulator", "add_shot_noise", "body_pose",
+           "jpeg_roundtrip"]
 
 
 @dataclass(frozen=True)
@@ -46,6 +48,10 @@ class CameraEffectsConfig:
             cameras' calibration carries them and the images are bent by them (empty: pinhole cameras).
         light_change_at_s, light_change_gain: from this time on (0: never) the light changes by this factor,
             at once, as when the kart drives out of a building's shadow (the thesis's runs met such changes).
+        shot_noise: a real sensor's noise grows with the light it counts (photon shot noise): its variance is
+            ``noise_sigma**2 + shot_noise * level`` in grey levels (0: the same noise in the dark and the sun).
+        jpeg_quality: each frame compressed and decompressed as JPEG at this quality, as a USB camera's MJPG
+            stream delivers it (the SDC kart's cameras: MJPG at 848x480); 0: none.
     """
 
     exposure_gain: float = 1.0
@@ -59,8 +65,14 @@ class CameraEffectsConfig:
     lens_distortion: tuple[float, ...] = ()
     light_change_at_s: float = 0.0
     light_change_gain: float = 1.0
+    shot_noise: float = 0.0
+    jpeg_quality: int = 0
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.shot_noise) and self.shot_noise >= 0):
+            raise ConfigError(f"sim.effects.shot_noise must be a finite number >= 0, got {self.shot_noise}")
+        if not 0 <= self.jpeg_quality <= 100:
+            raise ConfigError(f"sim.effects.jpeg_quality must be 0 (none) or 1 to 100, got {self.jpeg_quality}")
         if not (self.light_change_at_s >= 0 and self.light_change_gain > 0 and self.exposure_gain > 0):
             raise ConfigError("sim.effects.light_change_at_s must not be negative; the gains must be positive")
         if len(self.lens_distortion) not in DISTORTION_COUNTS or not all(map(math.isfinite, self.lens_distortion)):
@@ -101,6 +113,22 @@ class SimConfig:
     """A scenario's objects, added to the track's own (``track.props``)."""
 
 
+def add_shot_noise(image: Image, strength: float, unit_noise: np.ndarray) -> Image:
+    """``image`` with noise whose variance is ``strength`` times each pixel's level (grey levels; photon shot
+    noise: a sunlit road is noisier in absolute terms than its shade), drawn from ``unit_noise`` (unit normal, of
+    the image's shape)."""
+    level = image.astype(np.float32)
+    return np.clip(level + np.sqrt(strength * level) * unit_noise, 0, 255).round().astype(np.uint8)
+
+
+def jpeg_roundtrip(image: Image, quality: int) -> Image:
+    """``image`` compressed as JPEG at ``quality`` (1 to 100) and decompressed: what an MJPG camera delivers."""
+    ok, encoded = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ConfigError(f"JPEG could not encode a {image.shape} image")
+    return cv2.imdecode(encoded, cv2.IMREAD_UNCHANGED)
+
+
 def body_pose(state: VehicleState) -> Array:
     """The 4x4 world pose of the body frame (rear axle centre on the ground)."""
     pose = np.eye(4)
@@ -137,6 +165,7 @@ class Simulator:
         self._rng = np.random.default_rng(config.seed)
         self._vibration_phase = self._rng.uniform(0, 2 * np.pi, 2)
         self._noise_bank = self._make_noise_bank() if config.effects.noise_sigma > 0 and config.render_images else []
+        self._unit_bank = self._make_unit_bank() if config.effects.shot_noise > 0 and config.render_images else []
         self._renderer: Renderer | None = None
         if config.render_images:
             pinholes = {name: replace(cam, distortion=()) for name, cam in self.cameras.items()}
@@ -327,7 +356,20 @@ class Simulator:
             h, w = out.shape[:2]
             dy, dx = (int(v) for v in self._rng.integers(0, 32, 2))
             out = np.clip(out.astype(np.int16) + bank[dy:dy + h, dx:dx + w], 0, 255).astype(np.uint8)
+        if self._unit_bank:
+            bank = self._unit_bank[int(self._rng.integers(len(self._unit_bank)))]
+            h, w = out.shape[:2]
+            dy, dx = (int(v) for v in self._rng.integers(0, 32, 2))
+            out = add_shot_noise(out, effects.shot_noise, bank[dy:dy + h, dx:dx + w])
+        if effects.jpeg_quality:
+            out = jpeg_roundtrip(out, effects.jpeg_quality)
         return out
+
+    def _make_unit_bank(self) -> list[np.ndarray]:
+        """A few images of unit normal noise, cropped at random offsets each frame (as the noise bank)."""
+        h = max(c.height_px for c in self.cameras.values()) + 32
+        w = max(c.width_px for c in self.cameras.values()) + 32
+        return [self._rng.standard_normal((h, w, 3), dtype=np.float32) for _ in range(4)]
 
     def _make_noise_bank(self) -> list[np.ndarray]:
         """A few noise images, cropped at random offsets each frame: seeded, and cheap per frame."""
