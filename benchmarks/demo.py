@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from common import write_json
-from vo_table import put_between_markers
+from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = (ROOT / "README.md", ROOT / "docs" / "getting-started.md")
@@ -43,7 +43,7 @@ def main() -> int:
     if args.docs:
         results = json.loads(Path(args.out).read_text(encoding="utf-8"))
         for page in PAGES:
-            put_between_markers(page, render(results), f"<!-- {MARKER} -->", f"<!-- /{MARKER} -->")
+            put_at_marker(page, render(results), MARKER)
         return 0
     exe = shutil.which("kartpilot", path=str(Path(sys.executable).parent)) or "kartpilot"
     with tempfile.TemporaryDirectory() as tmp:

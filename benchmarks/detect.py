@@ -51,7 +51,7 @@ from kartpilot.perception.matching import MatchConfig, match_descriptors
 from kartpilot.perception.obstacles import detect_barriers, detect_car, detect_people, horizon_row
 from kartpilot.perception.road_marks import camera_for_image, detect_road_marks
 from kartpilot.perception.signals import SignalConfig, detect_signals, road_colour
-from vo_table import put_between_markers
+from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
 LABELS = ROOT / "tests" / "data" / "rdw_objects.json"
@@ -996,8 +996,7 @@ def main() -> int:
     parser.add_argument("--render", type=Path, help="write this JSON's tables into docs/detection.md")
     args = parser.parse_args()
     if args.render:
-        put_between_markers(PAGE, render(json.loads(args.render.read_text())), "<!-- detection -->",
-                            "<!-- /detection -->")
+        put_at_marker(PAGE, render(json.loads(args.render.read_text())), "detection")
         return 0
     write_json(args.out, {"labelled": labelled(args.data), "frames": venue_frames(args.data),
                           "city": city_drive(args.data), "pasted": pasted(args.data), "altered": altered(args.data),

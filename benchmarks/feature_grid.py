@@ -25,7 +25,7 @@ from kartpilot.odometry.stereo_vo import StereoVO, StereoVOConfig
 from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.kitti import KittiOdometrySource
-from vo_table import put_between_markers
+from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "stereo-vo.md"
@@ -54,8 +54,7 @@ def main() -> int:
     parser.add_argument("--render", type=Path, help="write this JSON's table into docs/stereo-vo.md")
     args = parser.parse_args()
     if args.render:
-        put_between_markers(PAGE, render(json.loads(args.render.read_text())), "<!-- feature-grid -->",
-                            "<!-- /feature-grid -->")
+        put_at_marker(PAGE, render(json.loads(args.render.read_text())), "feature-grid")
         return 0
     sources: list[tuple[str, str, StereoSource]] = []
     if (args.data / "kitti-odometry").is_dir():

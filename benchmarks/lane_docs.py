@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from vo_table import put_between_markers
+from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "docs" / "results"
@@ -111,7 +111,7 @@ SECTIONS = {"lane-ablation": ("lane_ablation", ablation), "lane-race": ("lane_ra
 
 def main() -> int:
     for marker, (name, render) in SECTIONS.items():
-        put_between_markers(PAGE, render(_load(name)), f"<!-- {marker} -->", f"<!-- /{marker} -->")
+        put_at_marker(PAGE, render(_load(name)), marker)
     return 0
 
 

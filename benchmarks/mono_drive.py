@@ -41,7 +41,7 @@ from kartpilot.runtime.simulate import run_simulation, run_supervised_drive
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.render import RenderConfig
 from kartpilot.sim.simulator import SimConfig
-from vo_table import put_between_markers
+from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "mono-vo.md"
@@ -99,8 +99,7 @@ def main() -> None:
     parser.add_argument("--render", type=Path, help="write this JSON's table into docs/mono-vo.md")
     args = parser.parse_args()
     if args.render:
-        put_between_markers(PAGE, render(json.loads(args.render.read_text())), "<!-- mono-drive -->",
-                            "<!-- /mono-drive -->")
+        put_at_marker(PAGE, render(json.loads(args.render.read_text())), "mono-drive")
         return
     results: dict[str, object] = {"machine": platform.processor() or platform.machine(), "seconds": args.seconds}
     with tempfile.TemporaryDirectory() as tmp:

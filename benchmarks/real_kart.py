@@ -26,7 +26,7 @@ from kartpilot.calibration.ground import BirdseyeView, calibrate_ground, ground_
 from kartpilot.eval.lanes import boundary_errors
 from kartpilot.perception.lanes import LaneConfig, detect_lanes
 from kartpilot.runtime.lane_policy import LANE_PRESETS
-from vo_table import put_between_markers
+from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
 TRUTH = ROOT / "tests" / "data" / "rdw_lelystad_lane_truth.json"
@@ -258,8 +258,7 @@ def main() -> int:
     parser.add_argument("--render", type=Path, help="write this JSON's tables into docs/real-kart.md")
     args = parser.parse_args()
     if args.render:
-        put_between_markers(PAGE, render(json.loads(args.render.read_text())), "<!-- real-kart-lanes -->",
-                            "<!-- /real-kart-lanes -->")
+        put_at_marker(PAGE, render(json.loads(args.render.read_text())), "real-kart-lanes")
         return 0
     write_json(args.out, measure(args.data))
     return 0

@@ -23,7 +23,7 @@ from typing import Any
 from common import write_json
 from kartpilot.runtime.scenarios import run_scenario
 from kartpilot.sim.scenarios import SCENARIOS
-from vo_table import put_between_markers
+from vo_table import put_at_marker
 
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "scenarios.md"
 DEVELOPMENT_SEEDS = {"overtake": (1, 2), "pedestrian": (1, 7)}  # the seeds each was developed on, where not 1 alone
@@ -93,8 +93,7 @@ def main() -> int:
     parser.add_argument("--render", type=Path, help="write this JSON's table into docs/scenarios.md")
     args = parser.parse_args()
     if args.render:
-        put_between_markers(PAGE, render(json.loads(args.render.read_text())), "<!-- scenarios -->",
-                            "<!-- /scenarios -->")
+        put_at_marker(PAGE, render(json.loads(args.render.read_text())), "scenarios")
         return 0
     drives = [(name, seed) for name in SCENARIOS for seed in SEEDS]
     with multiprocessing.get_context("spawn").Pool(args.workers, maxtasksperchild=1) as pool:

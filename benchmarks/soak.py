@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from common import write_json
-from vo_table import put_between_markers
+from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "live-and-replay.md"
@@ -129,7 +129,7 @@ def main() -> int:
     parser.add_argument("--render", type=Path, help="write this JSON's table into docs/live-and-replay.md")
     args = parser.parse_args()
     if args.render:
-        put_between_markers(PAGE, render(json.loads(args.render.read_text())), "<!-- soak -->", "<!-- /soak -->")
+        put_at_marker(PAGE, render(json.loads(args.render.read_text())), "soak")
         return 0
     write_json(args.out, soak(args.minutes))
     return 0

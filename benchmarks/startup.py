@@ -28,7 +28,7 @@ import numpy as np
 
 from common import write_json
 from kartpilot.cli.main import build_parser
-from vo_table import put_between_markers
+from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "contributing.md"
@@ -100,8 +100,7 @@ def main() -> int:
     parser.add_argument("--docs", action="store_true", help="only put the table from --out into the docs")
     args = parser.parse_args()
     if args.docs:
-        put_between_markers(PAGE, render(json.loads(Path(args.out).read_text(encoding="utf-8"))),
-                            f"<!-- {MARKER} -->", f"<!-- /{MARKER} -->")
+        put_at_marker(PAGE, render(json.loads(Path(args.out).read_text(encoding="utf-8"))), MARKER)
         return 0
     exe = shutil.which("kartpilot", path=str(Path(sys.executable).parent)) or "kartpilot"
     rows = []

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from common import write_json
-from vo_table import put_between_markers
+from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "contributing.md"
@@ -82,8 +82,8 @@ def main() -> int:
     args = parser.parse_args()
     if args.docs:
         results = json.loads(Path(args.out).read_text(encoding="utf-8"))
-        put_between_markers(PAGE, render(results), f"<!-- {MARKER} -->", f"<!-- /{MARKER} -->")
-        put_between_markers(README, render_readme(results), f"<!-- {README_MARKER} -->", f"<!-- /{README_MARKER} -->")
+        put_at_marker(PAGE, render(results), MARKER)
+        put_at_marker(README, render_readme(results), README_MARKER)
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         report = Path(tmp) / "junit.xml"

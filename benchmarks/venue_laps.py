@@ -26,7 +26,7 @@ from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.simulate import run_supervised_drive
 from kartpilot.sim.referee import RefereeConfig
 from kartpilot.sim.simulator import SimConfig
-from vo_table import put_between_markers
+from vo_table import put_at_marker
 
 TRACK = "lelystad"
 DEVELOPMENT_SEEDS = (1,)
@@ -73,8 +73,7 @@ def main() -> int:
     parser.add_argument("--render", type=Path, help="write this JSON's table into docs/real-kart.md")
     args = parser.parse_args()
     if args.render:
-        put_between_markers(PAGE, render(json.loads(args.render.read_text())), "<!-- venue-laps -->",
-                            "<!-- /venue-laps -->")
+        put_at_marker(PAGE, render(json.loads(args.render.read_text())), "venue-laps")
         return 0
     with multiprocessing.get_context("spawn").Pool(args.workers, maxtasksperchild=1) as pool:
         rows = pool.map(one_lap, DRIVES, chunksize=1)

@@ -34,7 +34,7 @@ from kartpilot.runtime.loop import Outputs, run_loop
 from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.simulator import SimConfig
-from vo_table import put_between_markers
+from vo_table import put_at_marker
 
 RATE_HZ = 30.0
 
@@ -127,8 +127,7 @@ def main() -> int:
     parser.add_argument("--docs", action="store_true", help="only put the table from --out into docs/viewing.md")
     args = parser.parse_args()
     if args.docs:
-        put_between_markers(PAGE, render(json.loads(Path(args.out).read_text(encoding="utf-8"))),
-                            f"<!-- {MARKER} -->", f"<!-- /{MARKER} -->")
+        put_at_marker(PAGE, render(json.loads(Path(args.out).read_text(encoding="utf-8"))), MARKER)
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         recording = Path(tmp) / "drive"

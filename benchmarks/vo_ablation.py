@@ -30,7 +30,7 @@ from kartpilot.core.config import merge_config
 from kartpilot.eval.vo_clips import real_clips, score_stereo, score_stereo_source
 from kartpilot.odometry.stereo_vo import StereoVOConfig
 from kartpilot.record.recording import RecordingStereoSource
-from vo_table import put_between_markers
+from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "stereo-vo.md"
@@ -101,8 +101,7 @@ def main() -> int:
     parser.add_argument("--render", type=Path, help="write this JSON's table into docs/stereo-vo.md")
     args = parser.parse_args()
     if args.render:
-        put_between_markers(PAGE, render(json.loads(args.render.read_text())), "<!-- vo-ablation -->",
-                            "<!-- /vo-ablation -->")
+        put_at_marker(PAGE, render(json.loads(args.render.read_text())), "vo-ablation")
         return 0
     cv2.setNumThreads(1)
     write_json(args.out, run(args.data, args.cache, args.seeds))

@@ -70,6 +70,11 @@ def put_between_markers(path: Path, table: str, start_marker: str = START, end_m
     print(f"updated {path}")
 
 
+def put_at_marker(path: Path, text: str, name: str) -> None:
+    """:func:`put_between_markers` with the markers every page uses: ``<!-- name -->`` and ``<!-- /name -->``."""
+    put_between_markers(path, text, f"<!-- {name} -->", f"<!-- /{name} -->")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("results", help="the JSON vo_accuracy.py wrote")
