@@ -42,7 +42,7 @@ import math
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import cv2
@@ -688,12 +688,10 @@ class MonoVO:
         :data:`FIRST_STEP_HEIGHTS` (in camera heights) predicts where the road went; the length whose fit holds
         the most road points wins."""
         g = self.config.ground
-        klt = KltConfig(self.config.klt.window_px, 2, self.config.klt.max_fb_error_px, self.config.klt.iterations)
+        klt = replace(self.config.klt, pyramid_levels=2)
 
         def fit_from(length_m: float) -> tuple[Array, int] | None:
-            homography = self.k @ (rotation + np.outer(t * length_m, self._normal()) / g.camera_height_m) @ self.k_inv
-            guess = cv2.perspectiveTransform(q0.reshape(-1, 1, 2), homography).reshape(-1, 2).astype(np.float32)
-            q1, ok = track_klt(previous, gray, q0, klt, guess)
+            q1, ok = track_klt(previous, gray, q0, klt, self._road_moved(q0, rotation, t, length_m))
             return fit_ground_homography(q0[ok], q1[ok], rotation, t, self.k, g, self._rng, self._prior_normal)
 
         best: tuple[Array, int] | None = None
@@ -707,6 +705,13 @@ class MonoVO:
         again = fit_from(g.camera_height_m * float(np.linalg.norm(best[0])))
         return again if again is not None and again[1] >= best[1] else best
 
+    def _road_moved(self, q0: F32, rotation: Array, t: Array, length_m: float) -> F32:
+        """Where road points ``q0`` go for a step of ``length_m`` along the unit translation ``t`` (the road plane's
+        homography at the camera's height)."""
+        g = self.config.ground
+        homography = self.k @ (rotation + np.outer(t * length_m, self._normal()) / g.camera_height_m) @ self.k_inv
+        return cv2.perspectiveTransform(q0.reshape(-1, 1, 2), homography).reshape(-1, 2).astype(np.float32)
+
     def _ground(self, previous: Image, gray: Image, rotation: Array, t: Array) -> int:
         """Track the road from its predicted position and update the scale; the road inliers."""
         g = self.config.ground
@@ -715,14 +720,8 @@ class MonoVO:
         if corners is None:
             return 0
         q0 = corners.reshape(-1, 2).astype(np.float32)
-        guess = None
-        if self.scale_m > 0:
-            homography = self.k @ (rotation + np.outer(t * self.scale_m, self._normal()) / g.camera_height_m) @ \
-                self.k_inv
-            guess = cv2.perspectiveTransform(q0.reshape(-1, 1, 2), homography).reshape(-1, 2).astype(np.float32)
-        klt = self.config.klt if guess is None else KltConfig(self.config.klt.window_px, 1,
-                                                              self.config.klt.max_fb_error_px,
-                                                              self.config.klt.iterations)
+        guess = self._road_moved(q0, rotation, t, self.scale_m) if self.scale_m > 0 else None
+        klt = self.config.klt if guess is None else replace(self.config.klt, pyramid_levels=1)
         q1, ok = track_klt(previous, gray, q0, klt, guess)
         fit = fit_ground_homography(q0[ok], q1[ok], rotation, t, self.k, g, self._rng, self._prior_normal)
         if fit is None and self.scale_m <= 0:
