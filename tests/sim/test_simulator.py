@@ -142,30 +142,11 @@ def test_the_video_overlay_names_the_supervisor_s_state_and_fault_on_every_frame
     assert not any("supervisor" in line for line, _ in overlay_lines(sim))
 
 
-def test_shot_noise_grows_with_the_light_and_keeps_its_level() -> None:
-    """A sensor counts photons: the noise's variance grows with the level, so the sunlit road is noisier than its
-    shade (at strength 0.5: sigma 3.2 grey levels at 20, 10 at 200)."""
-    from kartpilot.sim.simulator import add_shot_noise
-
-    unit = np.random.default_rng(0).standard_normal((64, 64, 3), dtype=np.float32)
-    dark = add_shot_noise(np.full((64, 64, 3), 20, np.uint8), 0.5, unit).astype(np.float64)
-    bright = add_shot_noise(np.full((64, 64, 3), 200, np.uint8), 0.5, unit).astype(np.float64)
-    assert abs(dark.mean() - 20) < 0.3 and abs(bright.mean() - 200) < 0.5
-    assert dark.std() == pytest.approx(np.sqrt(0.5 * 20), rel=0.1)
-    assert bright.std() == pytest.approx(np.sqrt(0.5 * 200), rel=0.1)
-
-
-def test_an_mjpg_frame_loses_detail_with_its_quality() -> None:
-    from kartpilot.sim.simulator import jpeg_roundtrip
-
-    image = np.random.default_rng(1).integers(0, 256, (48, 64, 3), dtype=np.uint8)  # fine texture: smeared first
-    errors = [float(np.abs(jpeg_roundtrip(image, q).astype(int) - image).mean()) for q in (100, 80, 20)]
-    assert jpeg_roundtrip(image, 80).shape == image.shape and jpeg_roundtrip(image, 80).dtype == np.uint8
-    assert 0 < errors[0] < errors[1] < errors[2]
-
-
 @pytest.mark.parametrize(("key", "value"), [("jpeg_quality", 101), ("jpeg_quality", -1), ("shot_noise", -0.1),
-                                            ("shot_noise", float("nan"))])
+                                            ("shot_noise", float("nan")), ("rolling_shutter_s", -0.01),
+                                            ("rolling_shutter_s", float("inf")), ("exposure_blur_samples", 1),
+                                            ("exposure_blur_samples", 40), ("auto_exposure_s", float("nan")),
+                                            ("auto_exposure_level", 300), ("rectification_residual_px", 9.0)])
 def test_the_camera_effects_refuse_what_no_camera_does(key: str, value: float) -> None:
     from kartpilot.sim.simulator import CameraEffectsConfig
 

@@ -50,6 +50,7 @@ from kartpilot.sensors.donkeycar import DonkeyTub
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
 from kartpilot.sim.referee import RunResult
+from kartpilot.sim.simulator import real_camera
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
 
 if TYPE_CHECKING:
@@ -259,6 +260,8 @@ def simulate(args: argparse.Namespace) -> int:
         stack = load_stack_config(args.config, sim_lane_preset(args.preset, config.track))
     if args.cameras:
         config = replace(config, cameras=tuple(c.strip() for c in args.cameras.split(",") if c.strip()))
+    if args.real_camera:
+        config = replace(config, effects=real_camera(config.vehicle))
     if args.laps is not None:
         config = replace(config, referee=replace(config.referee, laps=args.laps))
     if args.no_cones:
