@@ -71,6 +71,26 @@ def test_the_posted_limit_caps_the_speed_until_another_sign():
     assert top <= 10 / 3.6 + 1e-9 and top > 9 / 3.6 * 0.95
 
 
+def test_a_higher_limit_holds_from_its_sign_and_a_lower_one_before_it():
+    """10 km/h from a sign at 10 m, 20 km/h from one at 40 m: the kart keeps to 10 until its front reaches the
+    second sign (read from 15 m away, first as 15, then as 20), then speeds up; the signs drop out of view 3 m
+    before them, as a sign beside the road does."""
+    config = BehaviourConfig(limit_kmh=20, front_m=1.5)
+
+    def scene(x, t):
+        front = x + 1.5
+        signs = [(10.0, "10"), (40.0, "15" if 40.0 - front > 10 else "20")]
+        return [_at("speed_sign", s - x, value) for s, value in signs if 3.0 < s - front < 15.0]
+
+    log = drive(config, scene, seconds=25)
+    between = [v for t, x, v, s in log if 10.0 < x + 1.5 < 40.0]
+    after = [v for t, x, v, s in log if x + 1.5 > 46.0]
+    assert max(between) <= 10 / 3.6 + 1e-9
+    assert after and max(after) > 15 / 3.6  # up to the new limit, not the misread 15
+    first_faster = next(x + 1.5 for t, x, v, s in log if x + 1.5 > 15.0 and v > 10 / 3.6 + 1e-6)
+    assert first_faster >= 40.0
+
+
 @pytest.mark.parametrize("speed_kmh", [10.0, 20.0])
 @pytest.mark.parametrize("line_m", [12.0, 25.0])
 def test_a_red_light_stops_the_kart_before_the_line_and_green_lets_it_go(speed_kmh, line_m):

@@ -12,7 +12,9 @@ States:
 - ``wait_start``: standing at the start until a green light is seen (``start_on_green``; else straight to
   ``drive``).
 - ``drive``: at the posted limit (the last speed sign read, ``limit_kmh`` until one is) or the mode's speed,
-  whichever is lower.
+  whichever is lower. A lower limit holds from the moment its sign is read (the kart is down to it by the sign);
+  a higher one from where the kart's front reaches its sign (the event: "keep to the posted speed limit until a
+  new sign is given"), as the sign's distance said when it was last read, the nearest reading the surest.
 - ``stop_red``: a red light and a stop line ahead (before the light, where its line lies): braking to stop
   ``stop_margin_m`` before the line; ``wait_red``
   once stopped; back to ``drive`` on green.
@@ -143,6 +145,8 @@ class BehaviourState:
     manoeuvre_end_m: float = math.nan
     red_seen_s: float = 0.0
     green_seen_s: float = 0.0
+    rising_limit_kmh: float = math.nan  # a higher limit read ahead, and the metres driven at which it holds
+    rising_at_m: float = math.nan
 
     @classmethod
     def start(cls, config: BehaviourConfig) -> BehaviourState:
@@ -205,6 +209,22 @@ def _nearest(detections: list[Detection], label: str, state: str | None = None) 
     return min(found, key=lambda d: d.distance_m) if found else None
 
 
+def _posted_limit(config: BehaviourConfig, state: BehaviourState, sign: Detection | None) -> BehaviourState:
+    """The limit after this frame's nearest sign: a lower one at once, a higher one kept until the kart's front
+    reaches its sign (each new reading of it, nearer, replaces the last)."""
+    s = state
+    if sign is not None and sign.state.isdigit():
+        value = float(sign.state)
+        current = s.limit_kmh if math.isfinite(s.limit_kmh) else config.limit_kmh
+        if value > current:
+            s = replace(s, rising_limit_kmh=value, rising_at_m=s.odometer_m + sign.distance_m - config.front_m)
+        else:
+            s = replace(s, limit_kmh=value, rising_limit_kmh=math.nan, rising_at_m=math.nan)
+    if math.isfinite(s.rising_at_m) and s.odometer_m >= s.rising_at_m:
+        s = replace(s, limit_kmh=s.rising_limit_kmh, rising_limit_kmh=math.nan, rising_at_m=math.nan)
+    return s
+
+
 def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: list[Detection], speed_mps: float,
                    dt_s: float) -> tuple[BehaviourDecision, BehaviourState]:
     """One step: the decision and the next state, from this frame's detections (placed on the ground, distances
@@ -213,9 +233,7 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
         speed_mps = 0.0
     odometer = state.odometer_m + max(speed_mps, 0.0) * dt_s
     s = replace(state, odometer_m=odometer)
-    sign = _nearest(detections, "speed_sign")
-    if sign is not None and sign.state.isdigit():
-        s = replace(s, limit_kmh=float(sign.state))
+    s = _posted_limit(config, s, _nearest(detections, "speed_sign"))
     cruise = (s.limit_kmh if math.isfinite(s.limit_kmh) else config.limit_kmh) / 3.6 * (1.0 - config.limit_margin)
     green = _nearest(detections, "traffic_light", "green")
     red = _nearest(detections, "traffic_light", "red")

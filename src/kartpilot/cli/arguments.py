@@ -154,9 +154,13 @@ def _general(sub: argparse._SubParsersAction) -> None:
     sim.add_argument("--vehicle", choices=("rc-kart", "sdc-kart"))
     sim.add_argument("--driver", choices=("centerline", "commands", "lanes"), default="centerline",
                      help="lanes: the lane-following pipeline on the rendered cameras (sdc-kart)")
-    sim.add_argument("--scenario", choices=SCENARIOS,
-                     help="one of the event's scenarios on the venue track, closed loop with the event's rules, "
-                          "scored as the event does (--seed varies it; exit 1 on a fault)")
+    sim.add_argument("--scenario", metavar="NAME|FILE",
+                     help="one of the event's scenarios (" + ", ".join(SCENARIOS) + ") or a scenario file "
+                          "(docs/scenarios.md), on the venue track, closed loop with the event's rules, scored as "
+                          "the event does (--seed varies a named one; exit 1 on a fault)")
+    sim.add_argument("--save-scenario", type=output_file, metavar="FILE",
+                     help="--scenario: write the scenario as run (props placed, seed) to this file, which "
+                          "reproduces it exactly")
     sim.add_argument("--preset", choices=LANE_PRESETS,
                      help="lanes: the lane pipeline's preset (default: the track's, lane_preset in its file)")
     sim.add_argument("--speed-mode", type=number(above=0),  # lanes on the sdc-kart: a known-good mode by default

@@ -50,6 +50,7 @@ from kartpilot.sensors.donkeycar import DonkeyTub
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
 from kartpilot.sim.referee import RunResult
+from kartpilot.sim.scenarios import scenario_or_file, write_scenario_file
 from kartpilot.sim.simulator import real_camera
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
 
@@ -237,7 +238,10 @@ def _scenario(args: argparse.Namespace) -> int:
     stack = load_stack_config(args.config, args.preset or "kart")
     outputs = SessionOutputs(args.record, args.result, args.video, progress=not args.no_progress, view=args.view)
     outputs.check()
-    result = run_scenario(args.scenario, args.seed if args.seed is not None else 1, stack, outputs=outputs)
+    plan = scenario_or_file(args.scenario, args.seed)
+    if args.save_scenario:
+        print(f"scenario written to {write_scenario_file(args.save_scenario, plan)}")
+    result = run_scenario(plan, None, stack, outputs=outputs)
     if args.record:
         print(f"recorded to {args.record} (kartpilot replay {args.record} --pipeline lanes gives the same decisions)")
     verdict = "passed" if result["passed"] else "failed: " + "; ".join(result["faults"])

@@ -32,9 +32,11 @@ SCENARIO_SPEED_KMH = 15.0
 """The speed mode the scenarios run at (the event's limits are 10 to 20 km/h)."""
 
 
-def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_rate_hz: float = 15.0,
-                 max_time_s: float | None = None, outputs: SessionOutputs | None = None) -> dict[str, Any]:
-    """Drive one scenario on one seed; its result in the session result's ``scenarios`` form (``name``,
+def run_scenario(name: str | Scenario, seed: int | None = None, stack: StackConfig | None = None,
+                 camera_rate_hz: float = 15.0, max_time_s: float | None = None,
+                 outputs: SessionOutputs | None = None) -> dict[str, Any]:
+    """Drive one scenario: a built-in one by name on ``seed``, or a :class:`Scenario` (from a file; ``seed``, if
+    given, replaces its simulator's seed); its result in the session result's ``scenarios`` form (``name``,
     ``seed``, ``passed``, ``faults``). The kart's measured speed (its 0x440 report) and steering angle are the
     simulator's. ``max_time_s`` ends the drive earlier than the scenario's own time (a test's short drive: then
     judged as far as it went).
@@ -46,10 +48,14 @@ def run_scenario(name: str, seed: int, stack: StackConfig | None = None, camera_
     the scenario's faults so far; ``view`` a Rerun view; ``result_path`` the result as ``{"scenarios": [...]}``;
     ``progress`` a bar over the scenario's time."""
     cv2.setNumThreads(1)
-    plan = scenario(name, seed)
+    if isinstance(name, Scenario):
+        plan = name if seed is None else replace(name, seed=seed)
+    else:
+        plan = scenario(name, 1 if seed is None else seed)
+    seed, name = plan.seed, plan.name
     policy_config = _rules_for(stack or load_stack_config(None, "kart"), plan)
     track = _course_for(plan)
-    config = SimConfig(track="lelystad", vehicle="sdc-kart", seed=seed, camera_rate_hz=camera_rate_hz,
+    config = SimConfig(track=plan.track, vehicle="sdc-kart", seed=seed, camera_rate_hz=camera_rate_hz,
                        speed_mode_mps=SCENARIO_SPEED_KMH / 3.6,
                        max_time_s=plan.duration_s if max_time_s is None else min(max_time_s, plan.duration_s),
                        referee=RefereeConfig(laps=plan.laps, may_cross_dashed=plan.overtake or plan.park))
@@ -157,7 +163,7 @@ def _rules_for(stack: StackConfig, plan: Scenario) -> LanePolicyConfig:
 
 def _course_for(plan: Scenario) -> Track:
     """The venue track with the scenario's props, barriers and dashed lines, starting where the plan says."""
-    spec = load_track_spec("lelystad")
+    spec = load_track_spec(plan.track)
     track = build_track(replace(spec, props=plan.props, barrier_blocks=spec.barrier_blocks + plan.barriers,
                                 dashed=spec.dashed + plan.dashed))
     return replace(track, spec=replace(track.spec, start_s_m=start_pose_s(track, plan)))

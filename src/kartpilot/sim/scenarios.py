@@ -18,20 +18,31 @@ simulator's seed, the textures and the camera's noise). Four of the 2024 event's
   dashed (the bay's entry); the kart parks forward in it; faults: touched a barrier, did not end stopped wholly
   inside the bay.
 - ``event``: all six in a row on one drive (:func:`_event`), judged by every rule above.
+
+A scenario is also a YAML file (:func:`load_scenario_file`, documented in ``docs/scenarios.md``): the track, where
+the kart starts, what it is told, each prop, barrier and dashed stretch; the referee's marks are derived from them
+(:func:`derive_marks`) unless the file gives its own. :func:`write_scenario_file` writes any scenario, a seeded
+built-in one included, as the file that reproduces it exactly.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
+from kartpilot.core.config import config_to_dict, load_yaml_mapping, merge_config
 from kartpilot.core.errors import ConfigError
-from kartpilot.sim.track import PROP_SIZES_M, BarrierBlock, Dashed, Prop, Track
+from kartpilot.core.files import write_text_atomic
+from kartpilot.sim.track import PROP_SIZES_M, BarrierBlock, Dashed, Prop, Track, TrackSpec, build_track, load_track_spec
 
-__all__ = ["SCENARIOS", "Scenario", "ScenarioReferee", "footprints_touch", "scenario"]
+__all__ = ["MARKS", "SCENARIOS", "Scenario", "ScenarioReferee", "check_scenario", "derive_marks", "footprints_touch",
+           "load_scenario_file", "scenario", "scenario_or_file", "write_scenario_file"]
 
 SCENARIOS = ("start-on-green", "speed-limit", "red-light", "pedestrian", "overtake", "parking", "event")
 
@@ -53,6 +64,26 @@ class Scenario:
     barriers: tuple[BarrierBlock, ...] = ()  # added to the track's own
     dashed: tuple[Dashed, ...] = ()
     marks: dict[str, float] = field(default_factory=dict)  # where on the route the referee looks (metres)
+    track: str = "lelystad"
+
+
+MARKS = {
+    "start_s": "where along the route the kart starts, m (default: the track's start)",
+    "start_green_at_s": "the start light turns green at this time; moving before it is a fault",
+    "line_s": "the stop line the kart must stop before at red, m along the route",
+    "red_from_s": "the line's light is red from this time (default 0) ...",
+    "red_until_s": "... until this time",
+    "sign_s": "a speed limit applies from 1.5 m past this sign, m",
+    "limit_kmh": "... this limit",
+    "limit_until_s": "... until this point, m (the next sign)",
+    "zebra_s": "the zebra crossing: no moving within 3 m before it while a person is on the road, m",
+    "car_s": "the car to overtake, m",
+    "back_by_s": "the kart is back in its lane (within 0.5 m of its centre) by here, m",
+    "bay_s": "the parking bay's start along the route, m",
+    "bay_end_s": "its end, m",
+    "outer_m": "its outer edge beyond the right line, m",
+}
+"""The referee's marks a scenario file may give (each derived from the props when it does not)."""
 
 
 def scenario(name: str, seed: int) -> Scenario:
@@ -253,3 +284,156 @@ def footprints_touch(a: np.ndarray, b: np.ndarray) -> bool:
             if pa.max() < pb.min() or pb.max() < pa.min():
                 return False
     return True
+
+
+# --- scenario files ---------------------------------------------------------------------------------------------
+
+def _blank(name: str) -> Scenario:
+    return Scenario(name, 1, (), 60.0)
+
+
+_ALWAYS = {"traffic_light": ("kind", "s_m", "offset_m", "phases"),
+           "speed_sign": ("kind", "s_m", "offset_m", "value_kmh"), "person": ("kind", "s_m", "offset_m"),
+           "car": ("kind", "s_m", "offset_m"),
+           "barriers": ("side", "s_m", "offset_m"), "dashed": ("side", "from_s_m", "to_s_m")}
+"""What a written scenario file keeps of each object even where it is the default (the rest: only what differs)."""
+
+
+def load_scenario_file(path: str | Path) -> Scenario:
+    """A scenario from its YAML file: every key checked (an unknown key, a wrong type, a prop off the track, a
+    light whose phases do not add up: one error naming it), the referee's marks derived from the props, and the
+    file's own ``marks`` over them."""
+    path = Path(path)
+    mapping = dict(load_yaml_mapping(path))
+    marks = mapping.pop("marks", None)
+    plan = merge_config(_blank(path.stem), mapping, "scenario")
+    if marks is not None:
+        if not isinstance(marks, dict):
+            raise ConfigError("config key 'scenario.marks' must be a mapping")
+        for key, value in marks.items():
+            if key not in MARKS:
+                raise ConfigError(f"unknown config key 'scenario.marks.{key}' (known here: {', '.join(MARKS)})")
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ConfigError(f"config key 'scenario.marks.{key}' must be a finite number, got {value!r}")
+    spec = load_track_spec(plan.track)
+    given = {k: float(v) for k, v in (marks or {}).items()}
+    plan = replace(plan, marks={**derive_marks(replace(plan, marks=given), spec), **given})
+    check_scenario(plan, spec)
+    return plan
+
+
+def write_scenario_file(path: str | Path, plan: Scenario) -> Path:
+    """``plan`` as the YAML file that :func:`load_scenario_file` reads back to the same scenario (written whole or
+    not at all)."""
+    full = config_to_dict(plan)
+    defaults = {"props": config_to_dict(Prop()), "barriers": config_to_dict(BarrierBlock()),
+                "dashed": config_to_dict(Dashed())}
+    for key, default in defaults.items():  # each object with what is its own (a light's phases, a person's walk)
+        full[key] = [{k: v for k, v in item.items() if v != default[k] or k in _ALWAYS.get(item.get("kind", key), ())}
+                     for item in full[key]]
+    data = {"name": plan.name, "seed": plan.seed, "track": plan.track,
+            **{k: v for k, v in full.items() if k not in ("name", "seed", "track", "marks")},
+            "marks": {k: float(v) for k, v in plan.marks.items()}}
+    header = f"# kartpilot scenario {plan.name!r} (seed {plan.seed}): kartpilot sim --scenario {Path(path).name}\n"
+    return write_text_atomic(Path(path), header + yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+
+
+def scenario_or_file(name_or_path: str, seed: int | None = None) -> Scenario:
+    """A built-in scenario by name (on ``seed``, 1 by default), or a scenario file by path (``seed``, if given, sets
+    the simulator's seed: its textures and noise, not the props)."""
+    if name_or_path in SCENARIOS:
+        return scenario(name_or_path, 1 if seed is None else seed)
+    path = Path(name_or_path)
+    if path.suffix not in (".yaml", ".yml"):
+        raise ConfigError(f"unknown scenario {name_or_path!r}: give one of {', '.join(SCENARIOS)} or a scenario "
+                          "file (.yaml)")
+    plan = load_scenario_file(path)
+    return plan if seed is None else replace(plan, seed=seed)
+
+
+def derive_marks(plan: Scenario, spec: TrackSpec) -> dict[str, float]:
+    """Where the referee looks, from the props and the track: the start light (the first light ahead of the start
+    when the kart is told to start on green: its first red), the stop line before a light (the track's stop line
+    up to 10 m before it: the light's next red), the zebra nearest a person, the car, the parking bay between the
+    first two barriers on the right (judged on the lap the kart is told to park on), one speed limit (the first
+    sign's, until the next); where the kart starts is ``plan.marks['start_s']``, if given. A file that wants
+    otherwise gives its own ``marks``."""
+    marks = {"start_s": plan.marks["start_s"]} if "start_s" in plan.marks else {}
+    lights = sorted((p for p in plan.props if p.kind == "traffic_light"), key=lambda p: p.s_m)
+    reds_used = 0
+    if plan.start_on_green and lights and lights[0].phases[0][0] == "red":
+        marks["start_green_at_s"] = lights[0].phases[0][1]
+        reds_used = 1
+    lines = [m.s_m for m in spec.road_marks if m.kind == "stop_line"]
+    for light in lights:
+        line = [s for s in lines if 0.0 <= light.s_m - s <= 10.0]
+        if not line:
+            continue
+        windows, t = [], 0.0
+        for colour, seconds in light.phases:
+            if colour == "red":
+                windows.append((t, t + seconds))
+            t += seconds
+        windows = windows[reds_used if light is lights[0] else 0:]
+        if windows:
+            marks["line_s"] = max(line)
+            if windows[0][0] > 0:
+                marks["red_from_s"] = windows[0][0]
+            marks["red_until_s"] = windows[0][1]
+        break
+    signs = sorted((p for p in plan.props if p.kind == "speed_sign"), key=lambda p: p.s_m)
+    if signs:
+        marks["sign_s"], marks["limit_kmh"] = signs[0].s_m, float(signs[0].value_kmh)
+        if len(signs) > 1:
+            marks["limit_until_s"] = signs[1].s_m
+    zebras = [m.s_m for m in spec.road_marks if m.kind == "zebra"]
+    for person in (p for p in plan.props if p.kind == "person"):
+        if zebras:
+            marks["zebra_s"] = min(zebras, key=lambda z: abs(z - person.s_m))
+            break
+    cars = [p for p in plan.props if p.kind == "car"]
+    if cars and plan.overtake:
+        marks["car_s"] = cars[0].s_m
+        marks["back_by_s"] = cars[0].s_m + 22.0
+    right = sorted((b for b in plan.barriers if b.side == "right"), key=lambda b: b.s_m)
+    if plan.park and len(right) >= 2:
+        lap = 0.0
+        if spec.centerline.closed and plan.park_after_m > right[0].s_m:
+            loop = build_track(spec).route.length_m
+            lap = loop * math.ceil((plan.park_after_m - right[0].s_m) / loop)
+        marks.update(bay_s=right[0].s_m + right[0].length_m + lap, bay_end_s=right[1].s_m + lap,
+                     outer_m=right[0].offset_m + right[0].depth_m + 0.3)
+    return marks
+
+
+def check_scenario(plan: Scenario, spec: TrackSpec) -> None:
+    """One clear error for what no event could hold: a prop off the track, a light whose phases do not alternate
+    or are never all seen, a car off the road, a time or lap that is not positive."""
+    if not (plan.duration_s > 0 and plan.laps >= 1):
+        raise ConfigError("scenario: duration_s must be positive and laps at least 1")
+    track = build_track(spec)
+    length = track.route.length_m
+    for i, prop in enumerate(plan.props):
+        where = f"scenario.props[{i}] ({prop.kind})"
+        if not (0.0 <= prop.s_m < length):
+            raise ConfigError(f"{where}: s_m {prop.s_m:g} is off the track ({plan.track} is {length:.0f} m long)")
+        half = float(track.route.half_width_m[track.route.index_at(prop.s_m)])
+        reach = half if prop.kind == "car" else half + 8.0
+        if abs(prop.offset_m) > reach or (prop.kind == "person" and abs(prop.walk_to_offset_m) > half + 8.0):
+            place = "on the road" if prop.kind == "car" else "within 8 m of the road"
+            raise ConfigError(f"{where}: offset_m {prop.offset_m:g} is off the track (a {prop.kind} stands "
+                              f"{place}: at most {reach:.1f} m from the centre line here)")
+        if prop.kind == "traffic_light":
+            colours = [colour for colour, _ in prop.phases]
+            if any(a == b for a, b in itertools.pairwise(colours)):
+                raise ConfigError(f"{where}: the phases do not add up: {colours} (red and green take turns)")
+            if sum(seconds for _, seconds in prop.phases[:-1]) >= plan.duration_s:
+                raise ConfigError(f"{where}: the phases do not add up: the last ({colours[-1]}) starts after "
+                                  f"{sum(seconds for _, seconds in prop.phases[:-1]):g} s, beyond the scenario's "
+                                  f"{plan.duration_s:g} s")
+    for i, block in enumerate(plan.barriers):
+        if not 0.0 <= block.s_m < length:
+            raise ConfigError(f"scenario.barriers[{i}]: s_m {block.s_m:g} is off the track ({length:.0f} m long)")
+    start = plan.marks.get("start_s", spec.start_s_m)
+    if not 0.0 <= start < length:
+        raise ConfigError(f"scenario.marks.start_s {start:g} is off the track ({length:.0f} m long)")
