@@ -139,3 +139,37 @@ def test_the_real_camera_of_a_stereo_kart_differs_from_the_ideal_one_as_measured
     print(f"\nvertical offset of the real pair: {offset:+.3f} px (residual {real.rectification_residual_px} px)")
     assert offset == pytest.approx(-real.rectification_residual_px, abs=0.08)
     assert abs(float(honest.images["left"].mean()) - real.auto_exposure_level) < 25.0
+
+
+def test_a_knocked_mount_tilts_the_camera_by_its_angles_and_raises_it() -> None:
+    from kartpilot.sim.simulator import mount_off
+
+    mount = CAMERA.pose_body_cam_array
+    knocked = mount_off(mount, CameraEffectsConfig(mount_pitch_deg=1.5, mount_roll_deg=-1.0, mount_height_m=0.03))
+    axis, axis_knocked = mount[:3, 2], knocked[:3, 2]
+    assert math.degrees(math.asin(-axis_knocked[2])) - math.degrees(math.asin(-axis[2])) == pytest.approx(1.5,
+                                                                                                        abs=0.05)
+    assert knocked[2, 3] - mount[2, 3] == pytest.approx(0.03)
+    right, right_knocked = mount[:3, 0], knocked[:3, 0]  # the image's x axis: the camera's right
+    assert math.degrees(math.asin(right_knocked[2])) - math.degrees(math.asin(right[2])) == pytest.approx(1.0,
+                                                                                                        abs=0.05)
+
+
+def test_a_camera_pitched_down_sees_the_far_scene_higher_in_its_image() -> None:
+    """1.5 deg down about the camera itself: the whole image moves up by about f tan(1.5 deg), 16.8 px for the
+    kart's 640 px lens (a rotation about the camera moves near and far alike); the calibration keeps the rig's
+    mount."""
+    import cv2
+
+    base = SimConfig(track="lelystad", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0,
+                     effects=CameraEffectsConfig(noise_sigma=0.0))
+    knocked = SimConfig(**{**base.__dict__, "effects": CameraEffectsConfig(noise_sigma=0.0, mount_pitch_deg=1.5)})
+    with Simulator(base) as a, Simulator(knocked) as b:
+        first, second = a.read(), b.read()
+        assert b.cameras["center"] == a.cameras["center"]
+    assert first is not None and second is not None
+    middle = [cv2.cvtColor(f.images["center"][100:400, 100:750], cv2.COLOR_BGR2GRAY).astype(np.float32)
+              for f in (first, second)]
+    (dx, dy), _ = cv2.phaseCorrelate(middle[0], middle[1])
+    print(f"\nthe image moved {dy:+.1f} px (expected {-CAMERA.fx_px * math.tan(math.radians(1.5)):+.1f})")
+    assert dy == pytest.approx(-CAMERA.fx_px * math.tan(math.radians(1.5)), abs=1.5) and abs(dx) < 1.0

@@ -35,7 +35,8 @@ from kartpilot.sim.referee import Referee, RefereeConfig, RunResult
 from kartpilot.sim.render import RenderConfig, Renderer
 from kartpilot.sim.track import Prop, Track, load_track, project_onto
 
-__all__ = ["CameraEffectsConfig", "DisturbanceConfig", "SimConfig", "Simulator", "body_pose", "real_camera"]
+__all__ = ["CameraEffectsConfig", "DisturbanceConfig", "SimConfig", "Simulator", "body_pose", "mount_off",
+           "real_camera"]
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,10 @@ class CameraEffectsConfig:
         rectification_residual_px: the vertical offset a calibrated stereo pair keeps after rectification: the
             first camera's image moves down by half of it, the others' up by half, each resampled as
             rectification resamples (0: perfectly rectified and never resampled).
+        mount_pitch_deg, mount_roll_deg, mount_height_m: every camera sits this far off from where the rig says
+            (knocked on the way to the start): pitched down (+), rolled with its right side down (+), higher (+).
+            The images come from where the cameras are; the stack, the recording's calibration and the
+            referee keep the rig's mount; the ground truth is where they are.
     """
 
     exposure_gain: float = 1.0
@@ -90,8 +95,15 @@ class CameraEffectsConfig:
     auto_exposure_s: float = 0.0
     auto_exposure_level: float = 110.0
     rectification_residual_px: float = 0.0
+    mount_pitch_deg: float = 0.0
+    mount_roll_deg: float = 0.0
+    mount_height_m: float = 0.0
 
     def __post_init__(self) -> None:
+        for key, most in (("mount_pitch_deg", 10.0), ("mount_roll_deg", 10.0), ("mount_height_m", 0.2)):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and abs(value) <= most):
+                raise ConfigError(f"sim.effects.{key} must be within +-{most:g}, got {value}")
         for key in ("rolling_shutter_s", "auto_exposure_s", "exposure_time_s"):
             value = getattr(self, key)
             if not (math.isfinite(value) and 0 <= value <= 1):
@@ -162,6 +174,19 @@ def real_camera(vehicle: str) -> CameraEffectsConfig:
                                rectification_residual_px=0.2)
 
 
+def mount_off(pose_body_cam: Array, effects: CameraEffectsConfig) -> Array:
+    """Where a camera the rig puts at ``pose_body_cam`` is, off by ``effects``' mount pitch, roll (about the body's
+    axes, at the camera) and height."""
+    pitch, roll = math.radians(effects.mount_pitch_deg), math.radians(effects.mount_roll_deg)
+    cp, sp, cr, sr = math.cos(pitch), math.sin(pitch), math.cos(roll), math.sin(roll)
+    about_y = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])  # + pitch: the optical axis down
+    about_x = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])  # + roll: the right side down
+    pose = np.array(pose_body_cam, dtype=float)
+    pose[:3, :3] = about_y @ about_x @ pose[:3, :3]
+    pose[2, 3] += effects.mount_height_m
+    return pose
+
+
 def body_pose(state: VehicleState) -> Array:
     """The 4x4 world pose of the body frame (rear axle centre on the ground)."""
     pose = np.eye(4)
@@ -188,6 +213,7 @@ class Simulator:
         names = config.cameras or tuple(name for name, _ in self.vehicle.cameras)
         lens = tuple(config.effects.lens_distortion)
         self.cameras = {name: replace(self.vehicle.camera(name), distortion=lens) for name in names}
+        self._mounts = {name: mount_off(cam.pose_body_cam_array, config.effects) for name, cam in self.cameras.items()}
         self._lenses = {name: remap for name, cam in self.cameras.items()
                         if (remap := lens_distortion(cam)) is not None} if config.render_images else {}
         self.dt_s = 1.0 / config.camera_rate_hz
@@ -269,7 +295,7 @@ class Simulator:
     def camera_pose(self, name: str, state: VehicleState | None = None) -> Array:
         """World pose of a camera, including the vibration of its mount."""
         state = state or self.state
-        return body_pose(state) @ self._vibration(state) @ self.cameras[name].pose_body_cam_array
+        return body_pose(state) @ self._vibration(state) @ self._mounts[name]
 
     def object_truth(self, camera: str) -> list[Detection]:
         """The scenario's objects as ``camera`` sees them now, exactly: each prop (a light with its phase, a sign
