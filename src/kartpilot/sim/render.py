@@ -33,9 +33,9 @@ from kartpilot.core.errors import KartpilotError
 from kartpilot.core.geometry import Array
 from kartpilot.core.types import Image
 from kartpilot.sim import textures
-from kartpilot.sim.track import PROP_SIZES_M, SAMPLE_SPACING_M, Prop, Track, scenery_boxes
+from kartpilot.sim.track import PROP_SIZES_M, SAMPLE_SPACING_M, Prop, Track, roadside_trees, scenery_boxes
 
-__all__ = ["RenderConfig", "Renderer", "lighting_for_time"]
+__all__ = ["RenderConfig", "Renderer", "lighting_for_time", "shadow_polygons", "sun_direction"]
 
 # state-cache false: Panda3D's cache of render states made a drawing depend on what an earlier renderer in the
 # process drew (an object's edge a pixel column off), and through it the tests that ran before; a fresh process
@@ -74,6 +74,11 @@ class RenderConfig:
             track tells one place from another (:func:`kartpilot.sim.track.scenery_boxes`).
         sky: ``track`` (the track's own, ``TrackSpec.sky``), ``clear`` (a sun that casts its light) or
             ``overcast`` (light from the whole sky, a grey sky: the venue's frames).
+        trees_spacing_m: trees and lamp poles beside the road about this far apart (0: none;
+            :func:`kartpilot.sim.track.roadside_trees`), near enough to throw their shadows across the lane.
+        shadows: under a clear sky, hard shadows on the ground of the trees, poles, buildings, barriers and props
+            that stand still (a shadowed patch gets the sky's light only: as dark as the sun is bright). Off by
+            default: every simulated figure before them was measured without.
     """
 
     time_of_day_h: float = 13.0
@@ -85,6 +90,37 @@ class RenderConfig:
     texture_seed: int = 0
     scenery_spacing_m: float = 0.0
     sky: Literal["track", "clear", "overcast"] = "track"
+    trees_spacing_m: float = 0.0
+    shadows: bool = False
+
+
+def sun_direction(time_of_day_h: float, sun_azimuth_deg: float) -> Array:
+    """The unit vector along the sun's light (from the sun toward the ground) in the world frame."""
+    elevation, _, _ = lighting_for_time(time_of_day_h)
+    az, el = math.radians(sun_azimuth_deg), math.radians(max(elevation, 2.0))
+    return np.array([-math.cos(az) * math.cos(el), -math.sin(az) * math.cos(el), -math.sin(el)])
+
+
+def shadow_polygons(boxes: Array, bottoms_m: Array, light: Array) -> list[Array]:
+    """The shadows on the flat ground of boxes (rows ``x, y, yaw, width, depth, height`` standing from
+    ``bottoms_m`` up) in light travelling along ``light``: each the convex hull of its corners cast along the light
+    onto z = 0, as (K, 2) polygons (a box is convex, so is its shadow)."""
+    import cv2
+
+    light = np.asarray(light, float)
+    if light[2] >= -1e-6:
+        return []
+    out = []
+    for (x, y, yaw, width, depth, height), bottom in zip(np.asarray(boxes, float), bottoms_m, strict=True):
+        c, s = math.cos(yaw), math.sin(yaw)
+        foot = np.array([[x + dx * c - dy * s, y + dx * s + dy * c]
+                         for dx in (-width / 2, width / 2) for dy in (-depth / 2, depth / 2)])
+        corners = [np.c_[foot, np.full(4, z)] for z in (bottom, bottom + height)]
+        points = np.vstack(corners)
+        cast = points[:, :2] - points[:, 2:3] / light[2] * light[None, :2]
+        hull = cv2.convexHull(cast.astype(np.float32))[:, 0].astype(float)
+        out.append(hull)
+    return out
 
 
 def lighting_for_time(time_of_day_h: float, overcast: bool = False) -> tuple[float, tuple[float, float, float], float]:
@@ -282,6 +318,7 @@ class Renderer:
                     node = solids.attach_new_node(_wall_mesh(core, part, spec.barrier_height_m))
                     node.set_texture(wall_tex)
                     node.set_two_sided(True)
+        blocks = np.zeros((0, 6))
         if track.barrier_blocks:
             blocks = np.array([_box_of(footprint, block.height_m)
                                for footprint, block in zip(track.barrier_blocks, spec.barrier_blocks, strict=True)])
@@ -300,7 +337,58 @@ class Renderer:
                 node = solids.attach_new_node(_boxes_mesh(core, mine))
                 node.set_texture(self._texture_of(textures.facade_texture(seed + 100 + k)))
                 node.set_two_sided(True)
+        casters: list[tuple[Array, Array]] = [(boxes, np.zeros(len(boxes)))]
+        trees = roadside_trees(track, self.config.trees_spacing_m, seed + 6)
+        if len(trees):
+            trunks = np.c_[trees[:, :2], np.zeros(len(trees)), trees[:, 2], trees[:, 2], trees[:, 3]]
+            leafy = trees[:, 4] > 0
+            crowns = np.c_[trees[leafy, :2], np.zeros(leafy.sum()), trees[leafy, 4], trees[leafy, 4],
+                           0.8 * trees[leafy, 4]]
+            for part, bottoms, colour in ((trunks, np.zeros(len(trunks)), (0.33, 0.25, 0.18)),
+                                          (crowns, trees[leafy, 3], (0.3, 0.45, 0.2))):
+                if len(part):
+                    node = solids.attach_new_node(_boxes_mesh(core, part, bottoms))
+                    node.set_texture_off(10)
+                    node.set_color(*colour, 1.0)
+                    node.set_two_sided(True)
+                    casters.append((part, bottoms))
+        if track.barrier_blocks:
+            casters.append((blocks, np.zeros(len(blocks))))
+        standing = [p for p in spec.props if p.kind != "person"]
+        casters += [(np.array([self._prop_box(track, p)]), np.zeros(1)) for p in standing]
+        if self.config.shadows and not self._overcast:
+            self._add_shadows(casters)
         self._light(solids)
+
+    def _prop_box(self, track: Track, prop: Prop) -> list[float]:
+        """A prop as the box its shadow is cast from: the car's body; a sign's or a light's pole and head, as one
+        thin box as tall as the prop."""
+        foot, facing = track.prop_frame(prop, 0.0)
+        width, depth, height = PROP_SIZES_M[prop.kind]
+        across = facing + math.pi / 2
+        if prop.kind == "car":
+            return [float(foot[0]), float(foot[1]), across, width, depth, height]
+        return [float(foot[0]), float(foot[1]), across, 0.3 if prop.kind == "traffic_light" else 0.6, 0.05, height]
+
+    def _add_shadows(self, casters: list[tuple[Array, Array]]) -> None:
+        """The casters' hard shadows as dark decals over every ground layer: a shadowed patch keeps the sky's light
+        and loses the sun's."""
+        core = self._core
+        light = sun_direction(self.config.time_of_day_h, self.config.sun_azimuth_deg)
+        polygons = [p for boxes, bottoms in casters if len(boxes) for p in shadow_polygons(boxes, bottoms, light)]
+        if not polygons:
+            return
+        elevation, colour, ambient = lighting_for_time(self.config.time_of_day_h, self._overcast)
+        sun_on_ground = float(np.mean(colour)) * math.sin(math.radians(max(elevation, 2.0)))
+        darkness = sun_on_ground / (sun_on_ground + ambient)
+        node = self.root.attach_new_node(_polygons_mesh(core, tuple(polygons)))
+        node.set_texture_off(10)
+        node.set_light_off(10)
+        node.set_color(0.0, 0.0, 0.0, darkness)
+        node.set_transparency(core.TransparencyAttrib.M_alpha)
+        node.set_bin("background", 7)
+        node.set_depth_write(False)
+        node.set_depth_test(False)
 
     def set_time(self, time_s: float) -> None:
         """Move the scenario's props to where they are at a time of the run: people walking, lights' phases."""
@@ -408,13 +496,12 @@ class Renderer:
 
     def _make_lights(self) -> tuple[Any, Any]:
         core = self._core
-        elevation, colour, ambient_level = lighting_for_time(self.config.time_of_day_h, self._overcast)
+        _, colour, ambient_level = lighting_for_time(self.config.time_of_day_h, self._overcast)
         ambient = core.AmbientLight("sky")
         ambient.set_color(core.LColor(ambient_level, ambient_level, ambient_level, 1))
         sun = core.DirectionalLight("sun")
         sun.set_color(core.LColor(*colour, 1))
-        az, el = math.radians(self.config.sun_azimuth_deg), math.radians(max(elevation, 2.0))
-        sun.set_direction(core.LVector3(-math.cos(az) * math.cos(el), -math.sin(az) * math.cos(el), -math.sin(el)))
+        sun.set_direction(core.LVector3(*sun_direction(self.config.time_of_day_h, self.config.sun_azimuth_deg)))
         return self.root.attach_new_node(ambient), self.root.attach_new_node(sun)
 
     def _light(self, node: Any) -> None:
@@ -738,14 +825,15 @@ def _box_of(footprint: Array, height_m: float) -> list[float]:
 _FACADES = 12  # distinct facade textures, handed out to the scenery boxes in turn
 
 
-def _boxes_mesh(core: Any, boxes: Array) -> Any:
-    """Boxes (rows ``x, y, yaw, width, depth, height``) with four textured sides and a roof; each side's
-    texture spans the side once."""
+def _boxes_mesh(core: Any, boxes: Array, bottoms_m: Array | None = None) -> Any:
+    """Boxes (rows ``x, y, yaw, width, depth, height``, standing from ``bottoms_m`` up, the ground by default) with
+    four textured sides and a roof; each side's texture spans the side once."""
+    bottoms = np.zeros(len(boxes)) if bottoms_m is None else np.asarray(bottoms_m, float)
     vertices: list[list[float]] = []
     normals: list[Array] = []
     uvs: list[list[float]] = []
     triangles: list[list[int]] = []
-    for x, y, yaw, width, depth, height in boxes:
+    for (x, y, yaw, width, depth, height), z0 in zip(boxes, bottoms, strict=True):
         c, s = math.cos(yaw), math.sin(yaw)
         footprint = [(-width / 2, -depth / 2), (width / 2, -depth / 2), (width / 2, depth / 2), (-width / 2, depth / 2)]
         corners = np.array([[x + dx * c - dy * s, y + dx * s + dy * c] for dx, dy in footprint])
@@ -754,12 +842,12 @@ def _boxes_mesh(core: Any, boxes: Array) -> Any:
             edge = b - a
             normal = np.array([edge[1], -edge[0], 0.0]) / max(float(np.hypot(*edge)), 1e-9)
             base = len(vertices)
-            vertices += [[*a, 0.0], [*b, 0.0], [*b, height], [*a, height]]
+            vertices += [[*a, z0], [*b, z0], [*b, z0 + height], [*a, z0 + height]]
             normals += [normal] * 4
             uvs += [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]
             triangles += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
         base = len(vertices)
-        vertices += [[*p, height] for p in corners]
+        vertices += [[*p, z0 + height] for p in corners]
         normals += [np.array([0.0, 0.0, 1.0])] * 4
         uvs += [[0.0, 0.0], [0.2, 0.0], [0.2, 0.2], [0.0, 0.2]]
         triangles += [[base, base + 1, base + 2], [base, base + 2, base + 3]]

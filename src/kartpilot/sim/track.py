@@ -62,6 +62,7 @@ __all__ = [
     "load_track",
     "load_track_spec",
     "project_onto",
+    "roadside_trees",
     "scenery_boxes",
 ]
 
@@ -744,3 +745,31 @@ def scenery_boxes(track: Track, spacing_m: float, seed: int, min_offset_m: float
             boxes.append([centre[0], centre[1], yaw, width, depth, height])
         s += spacing_m * float(rng.uniform(0.6, 1.4))
     return np.array(boxes).reshape(-1, 6)
+
+
+def roadside_trees(track: Track, spacing_m: float, seed: int, min_offset_m: float = 1.0,
+                   max_offset_m: float = 4.0) -> Array:
+    """Trees and lamp poles beside the road, near enough to throw their shadows across it when the sun is low, as
+    ``(N, 5)`` rows ``x, y, trunk_m, height_m, crown_m``: a trunk ``trunk_m`` thick and ``height_m`` tall, and a
+    crown ``crown_m`` wide on top of it (0: a pole). One every ``spacing_m`` along the route (jittered), on a random
+    side, ``min_offset_m`` to ``max_offset_m`` beyond the road's edge; one that would stand on any road piece is
+    left out."""
+    if spacing_m <= 0:
+        return np.zeros((0, 5))
+    rng = np.random.default_rng(seed)
+    road = _RoadIndex((track.route, *track.branches))
+    route = track.route
+    rows: list[list[float]] = []
+    s = float(rng.uniform(0, spacing_m))
+    while s < route.length_m - 1.0:
+        i = route.index_at(s)
+        side = 1.0 if rng.random() < 0.5 else -1.0
+        pole = rng.random() < 0.3
+        trunk, height = (0.12, rng.uniform(4.0, 6.0)) if pole else (rng.uniform(0.2, 0.4), rng.uniform(1.8, 3.0))
+        crown = 0.0 if pole else rng.uniform(2.0, 4.0)
+        offset = route.half_width_m[i] + rng.uniform(min_offset_m, max_offset_m) + max(crown, trunk) / 2
+        centre = route.xy_m[i] + side * offset * route.normal()[i]
+        if not road.inside(centre[None], max(crown, trunk) / 2 + 0.3).any():
+            rows.append([float(centre[0]), float(centre[1]), trunk, height, crown])
+        s += spacing_m * float(rng.uniform(0.6, 1.4))
+    return np.array(rows).reshape(-1, 5)
