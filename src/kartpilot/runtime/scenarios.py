@@ -48,17 +48,11 @@ def run_scenario(name: str | Scenario, seed: int | None = None, stack: StackConf
     the scenario's faults so far; ``view`` a Rerun view; ``result_path`` the result as ``{"scenarios": [...]}``;
     ``progress`` a bar over the scenario's time."""
     cv2.setNumThreads(1)
-    if isinstance(name, Scenario):
-        plan = name if seed is None else replace(name, seed=seed)
-    else:
-        plan = scenario(name, 1 if seed is None else seed)
+    plan = _plan(name, seed)
     seed, name = plan.seed, plan.name
     policy_config = _rules_for(stack or load_stack_config(None, "kart"), plan)
     track = _course_for(plan)
-    config = SimConfig(track=plan.track, vehicle="sdc-kart", seed=seed, camera_rate_hz=camera_rate_hz,
-                       speed_mode_mps=SCENARIO_SPEED_KMH / 3.6,
-                       max_time_s=plan.duration_s if max_time_s is None else min(max_time_s, plan.duration_s),
-                       referee=RefereeConfig(laps=plan.laps, may_cross_dashed=plan.overtake or plan.park))
+    config = _sim_config(plan, camera_rate_hz, max_time_s)
     referee = ScenarioReferee(plan)
     with Simulator(config, track=track) as sim:
         policy = LanePolicy(sim.cameras, policy_config, camera_rate_hz, sim.vehicle.max_steer_rad)
@@ -90,12 +84,27 @@ def run_scenario(name: str | Scenario, seed: int | None = None, stack: StackConf
                 if sink is not None:
                     sink.close()
         result = referee.result(judge.front_s_m)
+        result["states"] = judge.states
         if sim.referee.disqualified:
             result["faults"].append(str(sim.referee.reason))
             result["passed"] = False
     if outputs.result_path is not None:
         write_json_atomic(outputs.result_path, {"scenarios": [result]})
     return result
+
+
+def _sim_config(plan: Scenario, camera_rate_hz: float, max_time_s: float | None) -> SimConfig:
+    """The simulated SDC kart for ``plan``: its world and camera, the scenarios' speed mode, its time."""
+    return SimConfig(track=plan.track, vehicle="sdc-kart", seed=plan.seed, render=plan.render, effects=plan.effects,
+                     camera_rate_hz=camera_rate_hz, speed_mode_mps=SCENARIO_SPEED_KMH / 3.6,
+                     max_time_s=plan.duration_s if max_time_s is None else min(max_time_s, plan.duration_s),
+                     referee=RefereeConfig(laps=plan.laps, may_cross_dashed=plan.overtake or plan.park))
+
+
+def _plan(name: str | Scenario, seed: int | None) -> Scenario:
+    if isinstance(name, Scenario):
+        return name if seed is None else replace(name, seed=seed)
+    return scenario(name, 1 if seed is None else seed)
 
 
 class _Judge:
@@ -113,6 +122,7 @@ class _Judge:
         self.length_m = sim.track.route.length_m
         self.front_s_m, self.parked_s = math.nan, 0.0
         self._lap_m, self._last_s_m = 0.0, math.nan
+        self.states: list[list[Any]] = []  # each change of the rules' state or limit: [time, state, limit km/h]
 
     def __call__(self, frames: FrameSet, command: ActuatorCommand) -> None:
         sim, length = self.sim, self.length_m
@@ -127,6 +137,10 @@ class _Judge:
         self.referee.step(sim.time_s, self.front_s_m, sim.state.vx_mps, sim.dt_s, _touching(kart, self.props),
                           here.offset_m, np.array([[a, c.offset_m] for a, c in zip(along, corners, strict=True)]))
         behaviour = self.policy.last_behaviour
+        if behaviour is not None:
+            limit = self.policy.behaviour.limit_kmh
+            if not self.states or self.states[-1][1:] != [behaviour.state, limit]:
+                self.states.append([round(sim.time_s, 2), behaviour.state, limit])
         parked = behaviour is not None and behaviour.state == "parked"
         self.parked_s = self.parked_s + sim.dt_s if parked and abs(sim.state.vx_mps) < 0.05 else 0.0
 

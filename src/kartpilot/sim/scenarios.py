@@ -39,6 +39,8 @@ import yaml
 from kartpilot.core.config import config_to_dict, load_yaml_mapping, merge_config
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.files import write_text_atomic
+from kartpilot.sim.render import RenderConfig
+from kartpilot.sim.simulator import CameraEffectsConfig
 from kartpilot.sim.track import PROP_SIZES_M, BarrierBlock, Dashed, Prop, Track, TrackSpec, build_track, load_track_spec
 
 __all__ = ["MARKS", "SCENARIOS", "Scenario", "ScenarioReferee", "check_scenario", "derive_marks", "footprints_touch",
@@ -65,6 +67,8 @@ class Scenario:
     dashed: tuple[Dashed, ...] = ()
     marks: dict[str, float] = field(default_factory=dict)  # where on the route the referee looks (metres)
     track: str = "lelystad"
+    render: RenderConfig = field(default_factory=RenderConfig)  # the sky, the sun, trees and shadows
+    effects: CameraEffectsConfig = field(default_factory=CameraEffectsConfig)  # the camera, its mount
 
 
 MARKS = {
@@ -331,10 +335,12 @@ def write_scenario_file(path: str | Path, plan: Scenario) -> Path:
     for key, default in defaults.items():  # each object with what is its own (a light's phases, a person's walk)
         full[key] = [{k: v for k, v in item.items() if v != default[k] or k in _ALWAYS.get(item.get("kind", key), ())}
                      for item in full[key]]
+    for key, world in (("render", config_to_dict(RenderConfig())), ("effects", config_to_dict(CameraEffectsConfig()))):
+        full[key] = {k: v for k, v in full[key].items() if v != world[k]}
     data = {"name": plan.name, "seed": plan.seed, "track": plan.track,
-            **{k: v for k, v in full.items() if k not in ("name", "seed", "track", "marks")},
+            **{k: v for k, v in full.items() if k not in ("name", "seed", "track", "marks") and v != {}},
             "marks": {k: float(v) for k, v in plan.marks.items()}}
-    header = f"# kartpilot scenario {plan.name!r} (seed {plan.seed}): kartpilot sim --scenario {Path(path).name}\n"
+    header = f"# kartpilot scenario {plan.name!r} (seed {plan.seed}): kartpilot sim --scenario THIS_FILE\n"
     return write_text_atomic(Path(path), header + yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
 
 

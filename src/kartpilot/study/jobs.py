@@ -36,8 +36,8 @@ import cv2
 import numpy as np
 
 from kartpilot.control.path_follow import PathFollowState, path_follow_step
-from kartpilot.core.config import config_to_dict
-from kartpilot.core.errors import DataError
+from kartpilot.core.config import config_to_dict, merge_config
+from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, FrameSet, VehiclePose
 from kartpilot.core.vehicle import get_vehicle
@@ -51,16 +51,20 @@ from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.experiment import TeachRepeatConfig, run_teach_repeat
 from kartpilot.runtime.lane_policy import LanePolicy
 from kartpilot.runtime.loop import run_loop
+from kartpilot.runtime.scenarios import run_scenario
 from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.kitti import KittiOdometrySource
 from kartpilot.sim.drivers import CenterlineDriverConfig
+from kartpilot.sim.scenarios import Scenario, scenario, write_scenario_file
 from kartpilot.sim.simulator import SimConfig, Simulator
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
+from kartpilot.sim.variation import DayRanges, vary
 from kartpilot.study.spec import REAL_SOURCES, Cell, JobParams, code_version, params_of, stack_of
 
-__all__ = ["DEPTH_EDGES_M", "GRID_COLS", "GRID_ROWS", "JOBS", "Job", "JobContext", "lane_drive", "run_cell", "wobbled"]
+__all__ = ["DEPTH_EDGES_M", "GRID_COLS", "GRID_ROWS", "JOBS", "Job", "JobContext", "lane_drive", "run_cell",
+           "scenario_event", "wobbled"]
 
 GRID_ROWS, GRID_COLS = 4, 6
 """The image grid the final points are counted over (the thesis's bar graphs, its Fig. 11 and 12)."""
@@ -340,12 +344,40 @@ def teach_repeat_job(cell: Cell, context: JobContext) -> dict[str, Any]:
             "steer_rate_rms_radps": result["steer_rate_rms_radps"]}
 
 
+def _scenario_event(plan: Scenario, stack: StackConfig) -> dict[str, Any]:
+    cv2.setNumThreads(1)
+    return run_scenario(plan, None, stack)
+
+
+def scenario_event(name: str, seed: int, ranges: DayRanges) -> Scenario:
+    """The event a sweep's cell drives: the built-in scenario ``name`` on ``seed``, varied as the day of ``seed``
+    sets it."""
+    return vary(scenario(name, seed), seed, ranges)
+
+
+def scenario_job(cell: Cell, context: JobContext) -> dict[str, Any]:
+    """One event of a scenario sweep (``params``: ``scenario``, ``variation``): the built-in scenario on the cell's
+    seed, varied by :func:`kartpilot.sim.variation.vary`, driven closed loop in a child process; its verdict,
+    faults, the rules' states and the event as the file that reproduces it."""
+    if "scenario" not in cell.params:
+        raise ConfigError("a scenario cell needs params.scenario: kartpilot.study.sweep makes such cells")
+    ranges = merge_config(DayRanges(), cell.params.get("variation", {}), "variation")
+    plan = scenario_event(str(cell.params["scenario"]), cell.seed, ranges)
+    result = _in_child(_scenario_event, plan, stack_of(cell))
+    with tempfile.TemporaryDirectory() as folder:
+        text = write_scenario_file(Path(folder) / "event.yaml", plan).read_text(encoding="utf-8")
+    return {"scenario": plan.name, "passed": bool(result["passed"]), "faults": list(result["faults"]),
+            "states": result.get("states", []), "scenario_file": text,
+            "sunny": plan.render.sky == "clear", "duration_s": plan.duration_s}
+
+
 JOBS: dict[str, Job] = {
     "stereo_vo": Job(stereo_vo_job, "stereo VO over a simulated recording or a real dataset"),
     "two_view": Job(two_view_job, "the monocular front end (features, matching, essential matrix) per frame pair"),
     "lanes": Job(lanes_job, "the lane follower closed loop in the simulator"),
     "path_follow": Job(path_follow_job, "the path follower on the centre line with the true pose"),
     "teach_repeat": Job(teach_repeat_job, "teach, reference from stereo VO, repeat closed loop (the thesis's run)"),
+    "scenario": Job(scenario_job, "one event of a scenario sweep: a built-in scenario varied as the day may"),
 }
 
 

@@ -51,7 +51,7 @@ BUILT_IN = ("features", "filters", "detectors", "robustness", "lanes", "controll
 
 REAL_SOURCES = ("kitti-06", "kitti-raw-city")
 
-JOB_NAMES = ("stereo_vo", "two_view", "lanes", "path_follow", "teach_repeat")
+JOB_NAMES = ("stereo_vo", "two_view", "lanes", "path_follow", "teach_repeat", "scenario")
 """The jobs a part may name: a spec is checked against these without importing the jobs (which import the
 whole stack, and this module: ``study.jobs.JOBS`` runs exactly these)."""
 
