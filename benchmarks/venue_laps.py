@@ -25,6 +25,7 @@ from common import write_json
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.runtime.simulate import run_supervised_drive
 from kartpilot.sim.referee import RefereeConfig
+from kartpilot.sim.render import RenderConfig
 from kartpilot.sim.simulator import SimConfig
 from vo_table import put_at_marker
 
@@ -33,11 +34,13 @@ DEVELOPMENT_SEEDS = (1,)
 DRIVES = [(15.0, seed) for seed in (1, 2, 3, 4, 5)] + [(30.0, seed) for seed in (1, 2, 3, 4, 5)]
 
 
-def one_lap(drive: tuple[float, int]) -> dict[str, Any]:
-    mode_kmh, seed = drive
+def one_lap(drive: tuple[float, int] | tuple[float, int, RenderConfig]) -> dict[str, Any]:
+    """One lap at a speed mode on a seed (and under a sky: ``benchmarks/sunny_venue.py``)."""
+    mode_kmh, seed = drive[0], drive[1]
+    render = drive[2] if len(drive) > 2 else RenderConfig()  # type: ignore[misc]
     stack = load_stack_config(None, "kart")
     stack = replace(stack, lane_policy=replace(stack.lane_policy, speed_mps=mode_kmh / 3.6))
-    config = SimConfig(track=TRACK, vehicle="sdc-kart", seed=seed, camera_rate_hz=30.0,
+    config = SimConfig(track=TRACK, vehicle="sdc-kart", seed=seed, camera_rate_hz=30.0, render=render,
                        speed_mode_mps=mode_kmh / 3.6, referee=RefereeConfig(laps=1), max_time_s=200.0)
     start = time.perf_counter()
     result = run_supervised_drive(config, "lanes", stack, "virtual").result

@@ -94,13 +94,36 @@ def test_out_of_range_side_gain_is_refused_by_name():
 def test_at_a_split_the_preferred_side_is_followed():
     config = LaneFollowConfig(smoothing=0.0, max_steer_rate_radps=100.0, split_preference="right")
     warmup = [observation(100, 860)] * 10
-    # the left boundary jumps far out (a branch opens on the left) while the right one stays
-    decisions, _ = run(config, [*warmup, *[observation(-600, 860)] * config.split_confirm_frames])
+    # the left boundary moves out frame by frame (a branch opens on the left) while the right one stays
+    opening = [observation(100 - 60 * k, 860) for k in range(1, 13)]
+    decisions, _ = run(config, [*warmup, *opening])
     assert decisions[-1].reason == "split"
-    assert abs(decisions[-1].steer_rad) < 0.1  # keeps following the right boundary, does not veer left
+    assert all(abs(d.steer_rad) < 0.1 for d in decisions)  # keeps following the right boundary, never veers left
     # one side missing: a remembered lane width stands in for it
     decisions, _ = run(config, [*warmup, observation(100, 860, left=False)])
     assert decisions[-1].steer_rad == pytest.approx(0.0, abs=0.02)
+
+
+def test_a_boundary_that_leaps_is_a_bad_fit_not_a_split():
+    """A sweep's event touched the right line: near a stop line, in a blurred frame, the right boundary's fit
+    leapt 1,270 px out for some frames; the lane looked half as wide again, the split rule took the false
+    boundary for the branch to follow, and the kart steered into the right line. A boundary that leaps more than
+    a share of the lane's width in a frame is not believed: the other boundary and the usual width stand in."""
+    config = LaneFollowConfig(smoothing=0.0, max_steer_rate_radps=100.0)
+    warmup = [observation(100, 860)] * 10
+    leaps = [observation(100, 2100), observation(100, 1900), observation(100, 2200), observation(100, 2000)]
+    decisions, state = run(config, [*warmup, *leaps, observation(100, 860)])
+    assert all(d.reason == "centre" for d in decisions)
+    assert all(abs(d.steer_rad) < 0.02 for d in decisions)
+    assert state.lane_width_bottom_px == pytest.approx(760.0)  # the false width was not learnt
+    # without the check (a leap as large as the lane itself allowed), the same frames were a split to the right
+    loose = replace(config, boundary_jump=10.0)
+    decisions, _ = run(loose, [*warmup, *leaps])
+    assert decisions[-1].reason == "split" and decisions[-1].steer_rad < -0.1
+    # a boundary that really moved is believed again after hold_frames
+    moved = [observation(100, 1500)] * (config.hold_frames + 2)
+    decisions, state = run(config, [*warmup, *moved])
+    assert state.bottoms_px[1] == pytest.approx(1500.0) and state.jumps == 0
 
 
 def far_split(left_top_shift: float, right_top_shift: float = 0.0) -> LaneObservation:

@@ -52,6 +52,11 @@ class LaneFollowConfig:
         split_hold_s: how long the split's rule holds after the last widening seen.
         split_gate: at a split, the kept boundary may not jump toward the other side by more than this
             fraction of the image's width at the far row (the fork's inner line is not it).
+        boundary_jump: a boundary whose bottom moved more than this share of the lane's usual width since the
+            last frame it was believed is a bad fit (a stop line's end, a shadow's edge, a blurred frame), not
+            the road: the other boundary and the usual width stand in for it, and it neither votes for a split
+            nor teaches the width. A kart moves a boundary's bottom a few per cent of the width a frame, a
+            split's widening too; after ``hold_frames`` such frames in a row the new place is believed.
         side_rule: how a side camera's steer away from a boundary meets the centre camera's: ``blend`` adds it
             (``side_gain`` times the maximum steer at the nearest), so in a corner the centre's turn is eased
             rather than reversed; ``override`` replaces the centre's steer (the thesis's rule), which in a
@@ -83,6 +88,7 @@ class LaneFollowConfig:
     split_hold_s: float = 1.5
     split_confirm_frames: int = 3
     split_gate: float = 0.05
+    boundary_jump: float = 0.3
     side_rule: Literal["blend", "override"] = "blend"
     side_gain: float = 1.0
     both_sides: Literal["nearer", "left_first"] = "nearer"
@@ -93,6 +99,7 @@ class LaneFollowConfig:
                   "throttle_split": 0 <= self.throttle_split <= 1, "full_confidence": 0 <= self.full_confidence <= 1,
                   "split_far_row": 0 <= self.split_far_row < 1, "split_confirm_frames": self.split_confirm_frames >= 1,
                   "split_hold_s": self.split_hold_s >= 0, "split_gate": self.split_gate >= 0,
+                  "boundary_jump": self.boundary_jump > 0,
                   "side_gain": self.side_gain >= 0}
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
@@ -103,7 +110,8 @@ class LaneFollowConfig:
 class LaneFollowState:
     """What the follower remembers: its last steer, how long it has seen nothing, the lane's usual width at
     the region's bottom, top and far row, how long a split still lasts, the boundary kept there and for how
-    many frames it has not been seen, and for how many frames in a row the lane has looked wider."""
+    many frames it has not been seen, for how many frames in a row the lane has looked wider, and where each
+    boundary's bottom was last believed (and for how many frames in a row one has jumped from it)."""
 
     steer_rad: float = 0.0
     frames_without_lane: int = 0
@@ -114,6 +122,8 @@ class LaneFollowState:
     kept_line: LaneLine | None = None
     kept_age: int = 0
     split_votes: int = 0
+    bottoms_px: tuple[float, float] = (math.nan, math.nan)
+    jumps: int = 0
 
 
 @dataclass(frozen=True)
@@ -160,7 +170,11 @@ def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: L
     far_row = left.y_top + config.split_far_row * (left.y_bottom - left.y_top)
     preferred = config.split_preference
     virtual = False
-    if centre.both_detected:
+    jumped_side, bottoms, jumps = _jumped(config, state, centre, width_b)
+    if jumped_side:  # one boundary leapt: a bad fit; the other and the usual width stand in for it
+        left, right = _keep_one_side("left" if jumped_side == "right" else "right", left, right, width_b, width_t)
+        target, virtual = _aim(centre, left, right), True
+    elif centre.both_detected:
         now_b, now_t = right.x_bottom - left.x_bottom, right.x_top - left.x_top
         now_f = right.x_at(far_row) - left.x_at(far_row)
         if (width_b > 0 and now_b > config.split_width_ratio * width_b) or (
@@ -189,7 +203,7 @@ def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: L
             left, right = _keep_one_side(preferred, kept if preferred == "left" else left,
                                          kept if preferred == "right" else right, width_b, width_t)
             target, virtual = _aim(centre, left, right), True
-    elif not centre.both_detected and config.missing_side == "lane_width" and width_b > 0:
+    elif not centre.both_detected and config.missing_side == "lane_width" and width_b > 0 and not jumped_side:
         seen = "right" if centre.right_source == "detected" else "left"
         left, right = _keep_one_side(seen, left, right, width_b, width_t)
         target, virtual = _aim(centre, left, right), True
@@ -209,7 +223,25 @@ def lane_follow_step(config: LaneFollowConfig, state: LaneFollowState, centre: L
         steer = _smoothed(config, state, side_steer - steer_right, dt_s)
         throttle = min(config.throttle_turn, _throttle(config, steer, ahead, centre.confidence, reason == "split"))
     return LaneDecision(steer, throttle, 0.0, side or reason), LaneFollowState(
-        steer, 0, width_b, width_t, width_f, max(0.0, split_left_s - dt_s), kept, kept_age, votes)
+        steer, 0, width_b, width_t, width_f, max(0.0, split_left_s - dt_s), kept, kept_age, votes, bottoms, jumps)
+
+
+def _jumped(config: LaneFollowConfig, state: LaneFollowState, centre: LaneObservation, width_b: float
+            ) -> tuple[str, tuple[float, float], int]:
+    """Which detected boundary, if one, leapt since it was last believed (``boundary_jump``), the boundaries'
+    bottoms to believe from now on, and how many frames in a row one has leapt."""
+    now = (centre.left.x_bottom if centre.left_source == "detected" else math.nan,
+           centre.right.x_bottom if centre.right_source == "detected" else math.nan)
+    if width_b <= 0 or state.jumps >= config.hold_frames:
+        return "", now, 0
+    leap = config.boundary_jump * width_b
+    moved = [abs(a - b) > leap for a, b in zip(now, state.bottoms_px, strict=True)]  # NaN: not a leap
+    if moved[0] != moved[1] and centre.both_detected:
+        side = "left" if moved[0] else "right"
+        kept = (state.bottoms_px[0], now[1]) if side == "left" else (now[0], state.bottoms_px[1])
+        return side, kept, state.jumps + 1
+    believed = [n if math.isfinite(n) else b for n, b in zip(now, state.bottoms_px, strict=True)]
+    return "", (believed[0], believed[1]), 0
 
 
 def _plausible(now_px: float, usual_px: float) -> bool:

@@ -1,0 +1,21 @@
+"""Every failure a scenario sweep found and we fixed, driven again from the file that reproduced it: a fix is kept
+by its case (tests/data/scenarios/, each file saying what failed and what fixed it)."""
+
+from pathlib import Path
+
+import pytest
+
+from kartpilot.runtime.scenarios import run_scenario
+from kartpilot.sim.scenarios import load_scenario_file
+
+FILES = sorted((Path(__file__).resolve().parents[1] / "data" / "scenarios").glob("*.yaml"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("path", FILES, ids=[p.stem for p in FILES])
+def test_a_fixed_failure_stays_fixed(path):
+    plan = load_scenario_file(path)
+    # judged as far as it went: the first 12 s hold every failure kept here
+    result = run_scenario(plan, None, max_time_s=12.0)
+    print(f"\n{path.stem}: {result['faults'] or 'passed'}")
+    assert not [fault for fault in result["faults"] if not fault.startswith("did not")], result["faults"]
