@@ -39,9 +39,9 @@ def test_every_range_is_drawn_within_its_bounds_and_the_seed_decides_the_event(t
 
 
 def test_a_range_that_is_no_range_is_refused_naming_it():
-    with pytest.raises(ConfigError, match="variation.mount_pitch_deg"):
+    with pytest.raises(ConfigError, match=r"variation\.mount_pitch_deg"):
         DayRanges(mount_pitch_deg=(1.0, -1.0))
-    with pytest.raises(ConfigError, match="variation.sun_share"):
+    with pytest.raises(ConfigError, match=r"variation\.sun_share"):
         DayRanges(sun_share=1.5)
     with pytest.raises(ConfigError, match="sign_values_kmh"):
         DayRanges(sign_values_kmh=(30,))
