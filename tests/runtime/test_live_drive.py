@@ -125,8 +125,10 @@ def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(p
     def person():  # the operator's phone: pairs once, then drives
         deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline:
-            try:
-                with urllib.request.urlopen(url + "?pair=test-code") as reply:
+            try:  # the page's pairing button
+                pairing = urllib.request.Request(url + "pair", b'{"code": "test-code"}',
+                                                 {"Content-Type": "application/json"})
+                with urllib.request.urlopen(pairing, timeout=1.0) as reply:
                     cookie["Cookie"] = reply.headers["Set-Cookie"].split(";")[0]
                 break
             except OSError:

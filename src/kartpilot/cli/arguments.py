@@ -435,6 +435,9 @@ def _drive(sub: argparse._SubParsersAction) -> None:
                                                                   "(/dev/input/js0)")
     drive_parser.add_argument("--web", metavar="PORT", type=number(int, minimum=1, maximum=65535),
                               help="--live: serve the kart's web page on this port")
+    drive_parser.add_argument("--web-host", metavar="ADDRESS", default="127.0.0.1",
+                              help="--web: the address the page listens on (default 127.0.0.1: this machine only; "
+                                   "the hotspot's address to serve the phones on it; 0.0.0.0: every interface)")
     drive_parser.add_argument("--duration", type=number(above=0), help="--sim, --live: seconds to drive at most")
     drive_parser.add_argument("--inject", action="append", metavar="KIND@SECONDS",
                               help="--sim: inject a fault (camera-freeze, black-frame, vo-failure, can-bus-off, "

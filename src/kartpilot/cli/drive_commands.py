@@ -176,7 +176,8 @@ def drive(args: argparse.Namespace) -> int:
         if args.cameras_json:
             rig = replace(rig, camera_maps=tuple(args.cameras_json))
         setup = LiveDriveSetup(rig, args.pipeline, vehicle, route, args.gamepad, args.web,
-                               SessionOutputs(args.record, args.result, view=args.view), args.duration)
+                               SessionOutputs(args.record, args.result, view=args.view), args.duration,
+                               web_host=args.web_host)
         summary = run_live_drive(setup, replace(stack, can=can))
         print(json.dumps({k: summary[k] for k in ("ended", "seconds", "final_state", "error")}))
         for transition in summary["transitions"]:

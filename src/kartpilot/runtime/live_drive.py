@@ -78,6 +78,7 @@ class LiveDriveSetup:
     outputs: SessionOutputs = field(default_factory=SessionOutputs)
     duration_s: float | None = None
     web_pair_code: str = ""  # empty: a random one-time code, printed with the pairing address
+    web_host: str = "127.0.0.1"  # where the page listens: the hotspot's address to serve phones on it
 
 
 def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
@@ -174,9 +175,12 @@ def _people(setup: LiveDriveSetup, stack: StackConfig, closing: ExitStack
         operators.append(gamepad)
     web = None
     if setup.web_port is not None:
-        web = WebOperator(WebConfig(port=setup.web_port, pair_code=setup.web_pair_code))
+        web = WebOperator(WebConfig(host=setup.web_host, port=setup.web_port, pair_code=setup.web_pair_code),
+                          on_code=lambda code: print(f"web page: the next client pairs at {server.url}?pair={code}",
+                                                     flush=True))
         server = WebServer(web).start()
         closing.callback(server.close)
         operators.append(web)
-        print(f"web page: {server.url} (view only); the operator opens, once, {server.pairing_url}")
+        print(f"web page: {', '.join(server.urls())} (view only); the operator opens {server.pairing_url} and "
+              "presses the pairing button", flush=True)
     return CombinedOperator(operators), web
