@@ -115,7 +115,9 @@ def simulated_rows(cache: Path) -> list[dict[str, Any]]:
         vo = MonoVO(lens, MonoVOConfig(ground=GroundConfig(camera_height_m=height)), "center",
                     get_vehicle("sdc-kart"))
         run = run_vo(iter(RecordingFrameSource(folder, ["center"]).read, None), vo, folder.name)
-        metrics = evaluate_trajectory(reader.camera_poses("center"), run.trajectory)
+        truth = reader.camera_poses("center")
+        assert truth is not None, f"{folder} has no ground truth"
+        metrics = evaluate_trajectory(truth, run.trajectory)
         images = (frames.images["center"] for frames in iter(RecordingFrameSource(folder, ["center"]).read, None))
         row = {"kind": "simulated", "camera": camera, "clip": "sdc-assen seed 3", "vo": "mono",
                "end_drift_percent": metrics.end_drift_percent, "ate_rmse_m": metrics.ate_rmse_m,

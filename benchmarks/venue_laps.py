@@ -37,7 +37,7 @@ DRIVES = [(15.0, seed) for seed in (1, 2, 3, 4, 5)] + [(30.0, seed) for seed in 
 def one_lap(drive: tuple[float, int] | tuple[float, int, RenderConfig]) -> dict[str, Any]:
     """One lap at a speed mode on a seed (and under a sky: ``benchmarks/sunny_venue.py``)."""
     mode_kmh, seed = drive[0], drive[1]
-    render = drive[2] if len(drive) > 2 else RenderConfig()  # type: ignore[misc]
+    render = drive[2] if len(drive) > 2 else RenderConfig()
     stack = load_stack_config(None, "kart")
     stack = replace(stack, lane_policy=replace(stack.lane_policy, speed_mps=mode_kmh / 3.6))
     config = SimConfig(track=TRACK, vehicle="sdc-kart", seed=seed, camera_rate_hz=30.0, render=render,
