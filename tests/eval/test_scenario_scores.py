@@ -31,6 +31,16 @@ def test_each_fault_gets_the_cause_the_rules_record_points_to(fault, states, cau
     assert failure_causes(_result([fault], states)) == [(fault, cause)]
 
 
+def test_a_stop_for_an_object_the_scenario_does_not_hold_is_seen_what_is_not_there():
+    """The first sweep's pedestrians: the kart stopped for a red light in a scenario without one (a face before a
+    tree's dark crown, taken for a lamp in its housing), then never went on."""
+    result = {"faults": ["did not go on after the pedestrian had crossed"], "kinds": ["person"],
+              "states": [[0, "drive", 20], [0.2, "stop_red", 20], [5.9, "wait_red", 20]]}
+    assert failure_causes(result) == [(result["faults"][0], "seen what is not there")]
+    held = {**result, "kinds": ["person", "traffic_light"]}
+    assert failure_causes(held) == [(result["faults"][0], "wrong decision")]
+
+
 def test_a_pass_rate_s_interval_is_honest_at_the_ends():
     rate, low, high = pass_rate(50, 50)
     assert rate == 1.0 and high == 1.0 and 0.9 < low < 0.95  # 50 of 50 does not prove 100 %

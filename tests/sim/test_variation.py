@@ -26,7 +26,10 @@ def test_every_range_is_drawn_within_its_bounds_and_the_seed_decides_the_event(t
     lights = [p for e in events for p in e.props if p.kind == "traffic_light"]
     signs = [p for e in events for p in e.props if p.kind == "speed_sign"]
     people = [p for e in events for p in e.props if p.kind == "person"]
-    assert {p.offset_m > 0 for p in lights} == {True, False} and {p.offset_m > 0 for p in signs} == {True, False}
+    assert {p.offset_m > 0 for p in lights} == {False} and {p.offset_m > 0 for p in signs} == {True, False}
+    widened = [p for seed in range(20) for p in vary(scenario("red-light", seed), seed,
+                                                     DayRanges(light_left_share=0.5)).props]
+    assert {p.offset_m > 0 for p in widened} == {True, False}
     assert {p.value_kmh for p in signs} == {10, 15, 20}
     assert {p.offset_m > 0 for p in people} == {True, False}
     assert all(p.offset_m * p.walk_to_offset_m < 0 for p in people)  # across the road, whichever side

@@ -11,7 +11,10 @@ and of the limit they held, ``result["states"]``) says where in the chain it wen
 - **wrong decision**: they saw it and decided wrongly (left before green, never went on at green or after the
   pedestrian);
 - **controller**: the decision was right and the kart did not carry it out (stopped too near or too far from the
-  line, touched the car or a barrier, not back in the lane, not wholly in the bay, a line touched).
+  line, touched the car or a barrier, not back in the lane, not wholly in the bay, a line touched);
+- **seen what is not there**: the rules entered a state for an object the scenario does not hold (a red light's
+  stop in a scenario without a light, a yield without a person): every fault of that event is put down to it
+  (the result's ``kinds``, the kinds of its props, tell).
 """
 
 from __future__ import annotations
@@ -21,9 +24,12 @@ from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-__all__ = ["CAUSES", "failure_causes", "pass_rate", "sweep_summary"]
+__all__ = ["CAUSES", "failure_causes", "pass_rate", "phantom_states", "sweep_summary"]
 
-CAUSES = ("not seen", "seen late", "wrong decision", "controller")
+CAUSES = ("not seen", "seen late", "wrong decision", "controller", "seen what is not there")
+
+_OBJECT_OF_STATE = {"stop_red": "traffic_light", "wait_red": "traffic_light", "yield": "person",
+                    "overtake": "car", "wait_car": "car", "park": "barrier", "parked": "barrier"}
 
 
 def _visited(result: Mapping[str, Any], *states: str) -> bool:
@@ -38,6 +44,9 @@ def _lowered(result: Mapping[str, Any]) -> bool:
 
 def failure_causes(result: Mapping[str, Any]) -> list[tuple[str, str]]:
     """Each fault of a scenario's result with its cause (:data:`CAUSES`)."""
+    kinds = result.get("kinds")
+    if kinds is not None and phantom_states(result, kinds):
+        return [(fault, "seen what is not there") for fault in result.get("faults", ())]
     out = []
     for fault in result.get("faults", ()):
         if fault.startswith("left before green"):
@@ -60,6 +69,14 @@ def failure_causes(result: Mapping[str, Any]) -> list[tuple[str, str]]:
             cause = "controller"
         out.append((fault, cause))
     return out
+
+
+def phantom_states(result: Mapping[str, Any], kinds: Iterable[str]) -> list[str]:
+    """The rules' states of a result that answer an object the scenario does not hold (``kinds``: its props'
+    kinds, and ``barrier`` for a bay)."""
+    held = set(kinds)
+    return [row[1] for row in result.get("states", ()) if row[1] in _OBJECT_OF_STATE
+            and _OBJECT_OF_STATE[row[1]] not in held]
 
 
 def pass_rate(passed: int, total: int, z: float = 1.96) -> tuple[float, float, float]:

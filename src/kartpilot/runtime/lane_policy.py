@@ -99,9 +99,11 @@ class LanePolicyConfig:
         events: the event's rules above lane following (:mod:`kartpilot.behaviour.events`): the objects in the
             centre camera (``detector``; people off by default, the HOG detector's cost) turn into a speed cap and
             stops before a red light's line or a crossing (``behaviour``). Needs ``speed_mps`` and the measured
-            speed. The event's course is a closed one-way track: a speed sign or a light counts on either side of
-            the road (``detector.signals.sign_side`` and ``light_side``: ``any``; on a public road, one on the left
-            is the other direction's).
+            speed. The event's course is a closed one-way track: a speed sign counts on either side of the road
+            (``detector.signals.sign_side: any``; on a public road, one on the left is the other direction's). A
+            light counts on the right only, where the event has put it (``light_side: right``): a face before a
+            tree's dark crown reads as a red lamp in its housing (the first scenario sweep's pedestrians), and
+            on either side there are twice the faces.
         manoeuvre: the path follower that steers a manoeuvre the rules plan (an overtake, parking), on the pose dead
             reckoned from the measured speed and the steering; ``wheelbase_m`` is the kart's (the sdc-kart's);
             the lanes steer again once the path is back within ``handover_m`` of the lane's centre.
@@ -120,7 +122,7 @@ class LanePolicyConfig:
     speed_pi: SpeedPIConfig = field(default_factory=SpeedPIConfig)
     events: bool = False
     detector: DetectorConfig = field(default_factory=lambda: DetectorConfig(
-        people=False, signals=SignalConfig(sign_side="any", light_side="any")))
+        people=False, signals=SignalConfig(sign_side="any")))
     behaviour: BehaviourConfig = field(default_factory=BehaviourConfig)
     manoeuvre: PathFollowConfig = field(default_factory=PathFollowConfig)
     wheelbase_m: float = 1.05

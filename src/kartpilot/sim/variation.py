@@ -40,7 +40,9 @@ class DayRanges:
         noise_sigma: the sensor's noise, grey levels.
         blur_share: the share of events whose camera blurs over its 8 ms exposure.
         drop_probability: a camera's frame lost now and then.
-        light_left_share, sign_left_share: the share of lights and signs standing on the left of the road.
+        light_left_share, sign_left_share: the share of lights and signs standing on the left of the road. A
+            light on the left is 0 by default: the event has put it on the right, and the rules count a light on
+            the right only (``lane_policy``'s detector); widen it to test a light on the left.
         sign_values_kmh: a speed sign's value, drawn from these.
         person_left_share: the share of pedestrians who start on the left.
         walk_speed_mps: a pedestrian's pace.
@@ -57,7 +59,7 @@ class DayRanges:
     noise_sigma: Span = (1.0, 4.0)
     blur_share: float = 0.5
     drop_probability: Span = (0.0, 0.03)
-    light_left_share: float = 0.5
+    light_left_share: float = 0.0
     sign_left_share: float = 0.5
     sign_values_kmh: tuple[int, ...] = (10, 15, 20)
     person_left_share: float = 0.5

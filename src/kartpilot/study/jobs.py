@@ -368,6 +368,7 @@ def scenario_job(cell: Cell, context: JobContext) -> dict[str, Any]:
         text = write_scenario_file(Path(folder) / "event.yaml", plan).read_text(encoding="utf-8")
     return {"scenario": plan.name, "passed": bool(result["passed"]), "faults": list(result["faults"]),
             "states": result.get("states", []), "scenario_file": text,
+            "kinds": sorted({p.kind for p in plan.props} | ({"barrier"} if plan.barriers else set())),
             "sunny": plan.render.sky == "clear", "duration_s": plan.duration_s}
 
 
