@@ -144,6 +144,19 @@ def test_arming_driving_and_the_emergency_stop_from_a_real_browser(served):
         browser.find_element(By.ID, "rearm").click()
         browser.find_element(By.ID, "manual").click()
         assert _wait(lambda: supervisor.state == "manual")
+        # a team mate pairs with the fresh code; the holder's page offers to hand over, and does
+        status, mate = _pair(server)
+        assert status == 200 and _role(server, mate) == "paired"
+        assert _wait(lambda: browser.find_element(By.ID, "handing").is_displayed())
+        browser.find_element(By.ID, "handover").click()
+        assert _wait(lambda: _role(server, mate) == "holder")
+        assert _post(server.url + "input", {"throttle": 0.0}, mate) == 200
+        # the mate's phone dies: its link is lost, and the browser pairs again with the fresh code
+        assert _wait(lambda: not web(0).connected, timeout_s=3.0)
+        browser.get(server.pairing_url)
+        browser.find_element(By.ID, "pair").click()
+        assert _wait(lambda: web.view()["link_age_s"] is not None and web(0).connected)  # holding, posting
+        assert _role(server, mate) == "paired"
         browser.get("about:blank")  # the phone leaves the page: the link is lost
         assert _wait(lambda: supervisor.state == "fault", timeout_s=3.0)
         assert "operator link lost (web)" in supervisor.reason
