@@ -7,6 +7,7 @@ import json
 import socket
 import threading
 import time
+import urllib.error
 import urllib.request
 from dataclasses import replace
 
@@ -125,13 +126,15 @@ def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(p
     def person():  # the operator's phone: pairs once, then drives
         deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline:
-            try:  # the page's pairing button
+            try:  # the page's pairing button; the code pairs once, so its reply is waited for (a busy machine)
                 pairing = urllib.request.Request(url + "pair", b'{"code": "test-code"}',
                                                  {"Content-Type": "application/json"})
-                with urllib.request.urlopen(pairing, timeout=1.0) as reply:
+                with urllib.request.urlopen(pairing, timeout=10.0) as reply:
                     cookie["Cookie"] = reply.headers["Set-Cookie"].split(";")[0]
                 break
-            except OSError:
+            except urllib.error.HTTPError:
+                raise
+            except OSError:  # the page is not up yet
                 time.sleep(0.05)
         _post(url + "input", {"hold": True}, cookie)
         _post(url + "request", {"request": "autonomous"}, cookie)

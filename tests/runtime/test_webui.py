@@ -347,6 +347,16 @@ def test_a_crowd_of_slow_connections_and_large_bodies_does_not_come_between_the_
     assert 1 <= len(refused) <= 3  # one address: logged once (and again only after log_every_s)
 
 
+def test_a_pairing_is_answered_even_when_the_fresh_code_cannot_be_told():
+    """A live drive's printer of the fresh code named the server before it existed: the pairing raised, its reply
+    was never sent, and the operator's phone could not pair again with the spent code (a clean-clone run)."""
+    def broken(code: str) -> None:
+        raise NameError("server")
+
+    web = WebOperator(WebConfig(pair_code="one"), on_code=broken)
+    assert web.pair("one", "10.0.0.2") and web.role(None) == "viewer" and web.pair_code != "one"
+
+
 def test_the_page_listens_where_it_is_told():
     web = WebOperator(WebConfig(port=0))
     server = WebServer(web)

@@ -175,10 +175,10 @@ def _people(setup: LiveDriveSetup, stack: StackConfig, closing: ExitStack
         operators.append(gamepad)
     web = None
     if setup.web_port is not None:
-        web = WebOperator(WebConfig(host=setup.web_host, port=setup.web_port, pair_code=setup.web_pair_code),
-                          on_code=lambda code: print(f"web page: the next client pairs at {server.url}?pair={code}",
-                                                     flush=True))
-        server = WebServer(web).start()
+        web = WebOperator(WebConfig(host=setup.web_host, port=setup.web_port, pair_code=setup.web_pair_code))
+        server = WebServer(web)  # told each fresh code before it serves a pairing (it names the server's address)
+        web.on_code = lambda code: print(f"web page: the next client pairs at {server.url}?pair={code}", flush=True)
+        server.start()
         closing.callback(server.close)
         operators.append(web)
         print(f"web page: {', '.join(server.urls())} (view only); the operator opens {server.pairing_url} and "

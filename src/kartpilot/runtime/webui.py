@@ -256,7 +256,10 @@ class WebOperator:
         log.info("web page: %s paired from %s%s", self._sessions[session], address,
                  ", and holds the controls" if took else " (the controls stay with the holder)")
         if self.on_code is not None:
-            self.on_code(fresh)
+            try:  # the terminal's printer: its failure must not lose the pairing's reply
+                self.on_code(fresh)
+            except Exception:
+                log.exception("web page: the fresh pairing code could not be told")
         return session
 
     def role(self, session: str | None) -> str:
