@@ -152,18 +152,3 @@ def test_the_camera_effects_refuse_what_no_camera_does(key: str, value: float) -
 
     with pytest.raises(ConfigError, match=f"sim.effects.{key}"):
         CameraEffectsConfig(**{key: value})
-
-
-def test_the_simulator_delivers_its_frames_through_the_sensor_and_the_mjpg_stream() -> None:
-    """Off by default (every simulated result so far is without them); on, the frames the stack reads are the
-    compressed, noisier ones, of the camera's own size."""
-    assert CameraEffectsConfig().jpeg_quality == 0 and CameraEffectsConfig().shot_noise == 0.0
-    base = SimConfig(track="utrack", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0)
-    honest = SimConfig(track="utrack", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0,
-                       effects=CameraEffectsConfig(jpeg_quality=80, shot_noise=0.5))
-    with Simulator(base) as plain, Simulator(honest) as camera:
-        a, b = plain.read(), camera.read()
-    assert a is not None and b is not None
-    plain_image, camera_image = a.images["center"], b.images["center"]
-    assert camera_image.shape == plain_image.shape == (480, 848, 3) and camera_image.dtype == np.uint8
-    assert 2.0 < float(np.abs(camera_image.astype(int) - plain_image).mean()) < 15.0
