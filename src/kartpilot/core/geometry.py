@@ -19,6 +19,7 @@ from kartpilot.core.errors import ConfigError
 __all__ = [
     "Array",
     "Pose2D",
+    "arc_2d",
     "between_2d",
     "compose_2d",
     "cross_matrix",
@@ -162,6 +163,17 @@ def planar_pose(x_m: float, y_m: float, yaw_rad: float) -> Array:
     pose[:2, :2] = [[c, -s], [s, c]]
     pose[:2, 3] = x_m, y_m
     return pose
+
+
+def arc_2d(speed_mps: float, yaw_rate_radps: float, dt_s: float) -> tuple[float, float, float]:
+    """The planar motion ``(dx, dy, dyaw)``, in the frame it starts from, of ``dt_s`` at a constant speed along x
+    and a constant yaw rate: an arc integrated exactly, a line when the yaw rate is 0 (negative ``dt_s``: the
+    motion that led here)."""
+    turn = yaw_rate_radps * dt_s
+    if abs(turn) < 1e-9:
+        return speed_mps * dt_s, 0.0, turn
+    radius = speed_mps / yaw_rate_radps
+    return radius * math.sin(turn), radius * (1.0 - math.cos(turn)), turn
 
 
 def compose_2d(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 
+from kartpilot.core.geometry import arc_2d, compose_2d
 from kartpilot.core.types import VehiclePose
 
 __all__ = ["dead_reckon"]
@@ -18,13 +19,6 @@ def dead_reckon(pose: VehiclePose, speed_mps: float, steer_rad: float, wheelbase
     speed = speed_mps if math.isfinite(speed_mps) else 0.0
     steer = steer_rad if math.isfinite(steer_rad) else 0.0
     yaw_rate = speed * math.tan(steer) / wheelbase_m
-    turn = yaw_rate * dt_s
-    if abs(turn) < 1e-9:
-        dx, dy = speed * dt_s, 0.0
-    else:
-        radius = speed / yaw_rate
-        dx, dy = radius * math.sin(turn), radius * (1.0 - math.cos(turn))
-    c, s = math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)
-    return VehiclePose(pose.stamp_ns if stamp_ns is None else stamp_ns, pose.x_m + c * dx - s * dy,
-                       pose.y_m + s * dx + c * dy, math.remainder(pose.yaw_rad + turn, math.tau), speed, yaw_rate,
-                       "bridged", "dead reckoning")
+    x, y, yaw = compose_2d((pose.x_m, pose.y_m, pose.yaw_rad), arc_2d(speed, yaw_rate, dt_s))
+    return VehiclePose(pose.stamp_ns if stamp_ns is None else stamp_ns, x, y, yaw, speed, yaw_rate, "bridged",
+                       "dead reckoning")

@@ -27,7 +27,7 @@ import numpy as np
 
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.geometry import Array
+from kartpilot.core.geometry import Array, arc_2d, planar_pose
 from kartpilot.core.types import Image
 
 __all__ = ["add_shot_noise", "auto_exposure_gain", "body_motion", "jpeg_roundtrip", "mean_level", "motion_maps",
@@ -56,17 +56,7 @@ def jpeg_roundtrip(image: Image, quality: int) -> Image:
 def body_motion(speed_mps: float, yaw_rate_radps: float, dt_s: float) -> Array:
     """The 4x4 pose of the body ``dt_s`` later (negative: earlier) in its frame now, for a planar motion at a
     constant speed along the body's x axis and a constant yaw rate (an arc; a line when the yaw rate is 0)."""
-    yaw = yaw_rate_radps * dt_s
-    if abs(yaw) < 1e-9:
-        x, y = speed_mps * dt_s, 0.0
-    else:
-        radius = speed_mps / yaw_rate_radps
-        x, y = radius * math.sin(yaw), radius * (1.0 - math.cos(yaw))
-    pose = np.eye(4)
-    c, s = math.cos(yaw), math.sin(yaw)
-    pose[:2, :2] = [[c, -s], [s, c]]
-    pose[:2, 3] = x, y
-    return pose
+    return planar_pose(*arc_2d(speed_mps, yaw_rate_radps, dt_s))
 
 
 def motion_maps(camera: PinholeCamera, speed_mps: float, yaw_rate_radps: float,
