@@ -18,6 +18,7 @@ import datetime
 import json
 import os
 import platform
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -34,45 +35,32 @@ from kartpilot.odometry.mono_vo import GroundConfig, MonoVO, MonoVOConfig
 from kartpilot.odometry.run import run_vo
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
 from kartpilot.record.replay import RecordingFrameSource
-from kartpilot.runtime.session import SessionOutputs
-from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
-from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.simulator import SimConfig, real_camera
+from vo_accuracy import record_once
 from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "simulator.md"
 
 
-def _pairs(source: StereoSource, every: int = 5, count: int = 20) -> list[tuple[np.ndarray, np.ndarray]]:
-    pairs = []
-    for k, frames in enumerate(source.frame_sets()):
-        if isinstance(frames, int) or k % every:
-            continue
-        pairs.append((frames.images["left"], frames.images["right"]))
-        if len(pairs) == count:
-            break
-    return pairs
+def camera_figures(source: StereoSource, every: int = 5, count: int = 20) -> dict[str, float]:
+    """The pair's vertical offset (median over ``count`` pairs, every ``every``-th frame) and the brightness steps
+    of the left camera over the whole clip, in one pass over it."""
+    offsets: list[float] = []
 
+    def lefts() -> Iterator[np.ndarray]:
+        for k, frames in enumerate(source.frame_sets()):
+            if isinstance(frames, int):
+                continue
+            if k % every == 0 and len(offsets) < count:
+                offsets.append(vertical_offset_px(frames.images["left"], frames.images["right"])[0])
+            yield frames.images["left"]
 
-def camera_figures(source: StereoSource) -> dict[str, float]:
-    """The pair's vertical offset (median over 20 pairs, every 5th frame) and the brightness steps of the left
-    camera over the whole clip."""
-    offsets = [vertical_offset_px(left, right)[0] for left, right in _pairs(source)]
-    lefts = (frames.images["left"] for frames in source.frame_sets() if not isinstance(frames, int))
-    return {"vertical_offset_px": float(np.nanmedian(offsets)), "brightness_steps_percent":
-            brightness_steps_percent(lefts)}
-
-
-def _recorded(folder: Path, config: SimConfig, speed_mps: float) -> Path:
-    if not (folder / "manifest.json").is_file():
-        print(f"recording {folder.name} ...")
-        run_simulation(config, "centerline", driver_config=CenterlineDriverConfig(speed_mps=speed_mps),
-                       outputs=SessionOutputs(record_dir=folder))
-    return folder
+    steps = brightness_steps_percent(lefts())
+    return {"vertical_offset_px": float(np.nanmedian(offsets)), "brightness_steps_percent": steps}
 
 
 def real_rows(data: Path) -> list[dict[str, Any]]:
@@ -96,7 +84,7 @@ def simulated_rows(cache: Path) -> list[dict[str, Any]]:
                                max_time_s=80.0, seed=seed)
             if camera == "real":
                 config = replace(config, effects=real_camera("rc-kart"))
-            folder = _recorded(cache / f"utrack-rc-stereo-80s-{seed}{'-real' if camera == 'real' else ''}",
+            folder = record_once(cache / f"utrack-rc-stereo-80s-{seed}{'-real' if camera == 'real' else ''}",
                                config, 2.0)
             source = RecordingStereoSource(folder)
             row = {"kind": "simulated", "camera": camera, "clip": f"utrack seed {seed}" + (" (tuned)" if seed == 1
@@ -108,7 +96,7 @@ def simulated_rows(cache: Path) -> list[dict[str, Any]]:
                            max_time_s=70.0, seed=3)
         if camera == "real":
             config = replace(config, effects=real_camera("sdc-kart"))
-        folder = _recorded(cache / f"assen-sdc-centre-70s-3{'-real' if camera == 'real' else ''}", config, 4.0)
+        folder = record_once(cache / f"assen-sdc-centre-70s-3{'-real' if camera == 'real' else ''}", config, 4.0)
         reader = RecordingReader(folder)
         lens = reader.cameras["center"]
         height = float(lens.pose_body_cam_array[2, 3])

@@ -95,8 +95,9 @@ def _mono(frames: Iterator[FrameSet | int], camera: PinholeCamera, camera_name: 
     return run_vo(frames, vo, name)
 
 
-def _recorded(folder: Path, config: SimConfig, speed_mps: float) -> Path:
-    """Record a centre-line drive once (kept in the cache for later runs)."""
+def record_once(folder: Path, config: SimConfig, speed_mps: float) -> Path:
+    """Record a centre-line drive once (kept in the cache for later runs; ``benchmarks/honest_camera.py`` shares
+    the cache)."""
     if not (folder / "manifest.json").is_file():
         print(f"recording {folder.name} ...")
         run_simulation(config, "centerline", driver_config=CenterlineDriverConfig(speed_mps=speed_mps),
@@ -144,7 +145,7 @@ def simulated_rows(cache: Path, seeds: list[int], quick: bool) -> list[dict[str,
     rows = []
     utrack_s = 40.0 if quick else 80.0
     for seed in seeds:
-        folder = _recorded(cache / f"utrack-rc-stereo-{utrack_s:g}s-{seed}",
+        folder = record_once(cache / f"utrack-rc-stereo-{utrack_s:g}s-{seed}",
                            SimConfig(track="utrack", vehicle="rc-kart", cameras=("left", "right"), camera_rate_hz=10.0,
                                      max_time_s=utrack_s, seed=seed), 2.0)
         source = RecordingStereoSource(folder)
@@ -157,7 +158,7 @@ def simulated_rows(cache: Path, seeds: list[int], quick: bool) -> list[dict[str,
         if seed not in seeds:
             continue
         name = f"assen-sdc-centre-{assen_s:g}s-{seed}" + ("" if speed == 4.0 else f"-{speed:g}mps")
-        folder = _recorded(cache / name, SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",),
+        folder = record_once(cache / name, SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",),
                                                     camera_rate_hz=10.0, max_time_s=assen_s, seed=seed), speed)
         reader = RecordingReader(folder)
         camera = reader.cameras["center"]
