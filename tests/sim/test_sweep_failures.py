@@ -18,7 +18,6 @@ def test_a_fixed_failure_stays_fixed(path):
     plan = load_scenario_file(path)
     # judged as far as it went: the first 12 s hold every failure kept here
     result = run_scenario(plan, None, max_time_s=12.0)
-    kinds = {p.kind for p in plan.props} | ({"barrier"} if plan.barriers else set())
     print(f"\n{path.stem}: {result['faults'] or 'passed'}; the rules' states {[row[1] for row in result['states']]}, "
-          f"for objects the scenario does not hold: {phantom_states(result, kinds) or 'none'}")
+          f"for objects the scenario does not hold: {phantom_states(result, plan.kinds) or 'none'}")
     assert not [fault for fault in result["faults"] if not fault.startswith("did not")], result["faults"]

@@ -44,7 +44,7 @@ from kartpilot.sim.simulator import CameraEffectsConfig
 from kartpilot.sim.track import PROP_SIZES_M, BarrierBlock, Dashed, Prop, Track, TrackSpec, build_track, load_track_spec
 
 __all__ = ["MARKS", "SCENARIOS", "Scenario", "ScenarioReferee", "check_scenario", "derive_marks", "footprints_touch",
-           "load_scenario_file", "scenario", "scenario_or_file", "write_scenario_file"]
+           "load_scenario_file", "scenario", "scenario_or_file", "scenario_text", "write_scenario_file"]
 
 SCENARIOS = ("start-on-green", "speed-limit", "red-light", "pedestrian", "overtake", "parking", "event")
 
@@ -69,6 +69,11 @@ class Scenario:
     track: str = "lelystad"
     render: RenderConfig = field(default_factory=RenderConfig)  # the sky, the sun, trees and shadows
     effects: CameraEffectsConfig = field(default_factory=CameraEffectsConfig)  # the camera, its mount
+
+    @property
+    def kinds(self) -> list[str]:
+        """The kinds of object the scenario holds: its props' kinds, and ``barrier`` for a bay's."""
+        return sorted({p.kind for p in self.props} | ({"barrier"} if self.barriers else set()))
 
 
 MARKS = {
@@ -326,9 +331,8 @@ def load_scenario_file(path: str | Path) -> Scenario:
     return plan
 
 
-def write_scenario_file(path: str | Path, plan: Scenario) -> Path:
-    """``plan`` as the YAML file that :func:`load_scenario_file` reads back to the same scenario (written whole or
-    not at all)."""
+def scenario_text(plan: Scenario) -> str:
+    """``plan`` as the YAML text that :func:`load_scenario_file` reads back to the same scenario."""
     full = config_to_dict(plan)
     defaults = {"props": config_to_dict(Prop()), "barriers": config_to_dict(BarrierBlock()),
                 "dashed": config_to_dict(Dashed())}
@@ -341,7 +345,12 @@ def write_scenario_file(path: str | Path, plan: Scenario) -> Path:
             **{k: v for k, v in full.items() if k not in ("name", "seed", "track", "marks") and v != {}},
             "marks": {k: float(v) for k, v in plan.marks.items()}}
     header = f"# kartpilot scenario {plan.name!r} (seed {plan.seed}): kartpilot sim --scenario THIS_FILE\n"
-    return write_text_atomic(Path(path), header + yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+    return header + yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
+
+
+def write_scenario_file(path: str | Path, plan: Scenario) -> Path:
+    """:func:`scenario_text` written whole or not at all."""
+    return write_text_atomic(Path(path), scenario_text(plan))
 
 
 def scenario_or_file(name_or_path: str, seed: int | None = None) -> Scenario:

@@ -57,7 +57,7 @@ from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.kitti import KittiOdometrySource
 from kartpilot.sim.drivers import CenterlineDriverConfig
-from kartpilot.sim.scenarios import Scenario, scenario, write_scenario_file
+from kartpilot.sim.scenarios import Scenario, scenario, scenario_text
 from kartpilot.sim.simulator import SimConfig, Simulator
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
 from kartpilot.sim.variation import DayRanges, vary
@@ -364,11 +364,10 @@ def scenario_job(cell: Cell, context: JobContext) -> dict[str, Any]:
     ranges = merge_config(DayRanges(), cell.params.get("variation", {}), "variation")
     plan = scenario_event(str(cell.params["scenario"]), cell.seed, ranges)
     result = _in_child(_scenario_event, plan, stack_of(cell))
-    with tempfile.TemporaryDirectory() as folder:
-        text = write_scenario_file(Path(folder) / "event.yaml", plan).read_text(encoding="utf-8")
+    text = scenario_text(plan)
     return {"scenario": plan.name, "passed": bool(result["passed"]), "faults": list(result["faults"]),
             "states": result.get("states", []), "scenario_file": text,
-            "kinds": sorted({p.kind for p in plan.props} | ({"barrier"} if plan.barriers else set())),
+            "kinds": plan.kinds,
             "sunny": plan.render.sky == "clear", "duration_s": plan.duration_s}
 
 
