@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -143,14 +143,25 @@ def detect_features(image: Image, detector: cv2.Feature2D, binary: bool, config:
     """Detect, bucket and describe keypoints in a grayscale image."""
     if image.ndim != 2 or image.dtype != np.uint8:
         raise PerceptionError(f"expected an 8-bit grayscale image, got {image.dtype} {image.shape}")
-    keypoints = detector.detect(image, None)
+    # SIFT describes its keypoints on the scale space it found them in, so one pass builds that once: the same
+    # keypoints and descriptors as describing the kept ones afterwards (checked on real frames of three cameras), in
+    # a quarter to a third less time. The binary detectors' one pass keeps other keypoints than detect does, so they
+    # describe only the kept ones, after bucketing.
+    descriptors: NDArray[Any] | None = None
+    if binary:
+        keypoints = detector.detect(image, None)
+    else:
+        keypoints, descriptors = detector.detectAndCompute(image, None)
     if keypoints:
         points = cv2.KeyPoint_convert(keypoints).reshape(-1, 2)
         responses = np.fromiter((kp.response for kp in keypoints), dtype=np.float32, count=len(keypoints))
         kept = bucket_keypoints(points, responses, (image.shape[1], image.shape[0]),
                                 config.grid_rows, config.grid_cols, config.max_features)
         keypoints = [keypoints[i] for i in kept]
-        keypoints, descriptors = detector.compute(image, keypoints)
+        if descriptors is None:
+            keypoints, descriptors = detector.compute(image, keypoints)
+        else:
+            descriptors = descriptors[kept]
     if not keypoints or descriptors is None:
         dim, dtype = (32, np.uint8) if binary else (128, np.float32)
         return Features(np.zeros((0, 2), np.float32), np.zeros((0, dim), dtype),
