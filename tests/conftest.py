@@ -8,11 +8,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import yaml
 
 from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.geometry import mount_pose
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+TRACKS = Path(__file__).resolve().parents[1] / "src" / "kartpilot" / "sim" / "tracks"
 
 
 # the SDC kart's centre camera: 60 cm above the road, 1.2 m ahead of the rear axle, pitched 12 degrees down
@@ -46,6 +48,16 @@ class SteppedClock:
 
     def advance(self, seconds: float) -> None:
         self.ns += round(seconds * 1e9)
+
+
+def track_starting_at(folder: Path, name: str, start_s_m: float) -> str:
+    """A built-in track's file as it is, with its start moved ``start_s_m`` along its route: a closed-loop drive
+    through the stretch a test is about, without the metres before it. Returns the file's path."""
+    spec = yaml.safe_load((TRACKS / f"{name}.yaml").read_text())
+    spec["start_s_m"] = start_s_m
+    path = folder / f"{name}-from-{start_s_m:g}m.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    return str(path)
 
 
 def data_path(*parts: str) -> Path:

@@ -4,6 +4,7 @@ with place fixes from a taught drive, through the supervisor and the CAN layer."
 from dataclasses import replace
 
 import pytest
+from tests.conftest import track_starting_at
 
 from kartpilot.cli.main import main
 from kartpilot.odometry.places import build_places
@@ -24,11 +25,13 @@ SIM = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), came
 
 @pytest.mark.slow
 def test_one_camera_follows_the_taught_drive_through_the_bends_on_place_fixes(tmp_path):
-    """Taught at 5 m/s on the centre line over 55 s, repeated for 50 s at 5 m/s: about 230 m of sdc-assen, through
-    its first sharp bend and the hairpin, where monocular VO alone (even metric) would have left the track. The
-    simulated clock waits for the pipeline, so a busy machine changes nothing here. The whole lap is measured by
-    benchmarks/mono_drive.py."""
-    run_simulation(replace(SIM, max_time_s=55.0, seed=1), "centerline",
+    """Taught at 5 m/s on the centre line, repeated at 5 m/s, both from 80 m along sdc-assen (the track as it is,
+    its start moved): the straight into its first sharp bend, the bend (110 to 190 m, down to a 25 m radius), and
+    out of it, where monocular VO alone (even metric) would leave the track. The straight before 80 m proves
+    nothing the straight after the bend does not. The simulated clock waits for the pipeline, so a busy machine
+    changes nothing here. The whole lap is measured by benchmarks/mono_drive.py."""
+    sim = replace(SIM, track=track_starting_at(tmp_path, "sdc-assen", 80.0))
+    run_simulation(replace(sim, max_time_s=32.0, seed=1), "centerline",
                    driver_config=CenterlineDriverConfig(speed_mps=5.0),
                    outputs=SessionOutputs(record_dir=tmp_path / "teach"))
     teach = RecordingReader(tmp_path / "teach")
@@ -36,15 +39,15 @@ def test_one_camera_follows_the_taught_drive_through_the_bends_on_place_fixes(tm
                           "center")
     drive = DriveConfig(path=PathConfig(cruise_speed_mps=5.0, max_lateral_accel_mps2=2.0))
     stack = StackConfig(drive=drive)
-    run = run_supervised_drive(replace(SIM, seed=2), "mono-vo", stack, bus="virtual", duration_s=50.0,
+    run = run_supervised_drive(replace(sim, seed=2), "mono-vo", stack, bus="virtual", duration_s=28.0,
                                route=Route(places=places))
     payload = run.payload
     print(f"\nmono-vo: {payload['distance_m']:.1f} m, centre offset max {payload['max_center_offset_m']:.2f} m, "
           f"{payload['relocalised_frames']} place fixes used, {payload['bridged_frames']} bridged")
     assert run.error is None and not payload["disqualified"]
     assert payload["final_state"] == "autonomous"
-    assert payload["distance_m"] > 200.0
-    assert payload["relocalised_frames"] >= 150
+    assert payload["distance_m"] > 120.0  # past 200 m along the route: the bend behind it
+    assert payload["relocalised_frames"] >= 84  # 0.3 of the 280 frames
     assert payload["max_center_offset_m"] < 0.5
 
 

@@ -23,7 +23,7 @@ REPORTS = {0x440, 0x1E5, 0x710, 0x720, 0x730}
 def drive(tmp_path_factory):
     folder = tmp_path_factory.mktemp("rdw") / "drive"
     code = main(["drive", "--sim", "sdc-assen", "--vehicle", "sdc-kart", "--pipeline", "lanes", "--speed-mode", "15",
-                 "--bus", "virtual", "--duration", "20", "--rate", "15", "--record", str(folder), "--no-progress"])
+                 "--bus", "virtual", "--duration", "12", "--rate", "15", "--record", str(folder), "--no-progress"])
     assert code == 0
     return folder
 
@@ -49,7 +49,7 @@ def test_every_report_of_the_kart_is_heard_and_its_speed_is_the_simulator_s(driv
     assert heard == REPORTS
     result = json.loads((drive / "result.json").read_text())
     print(result["reason"], result["distance_m"], result["can"])
-    assert not result["disqualified"] and result["distance_m"] > 40.0
+    assert not result["disqualified"] and result["distance_m"] > 30.0  # 12 s from a standstill, up to 15 km/h
     assert result["can"]["protocol"] == "rdw" and result["can"]["speed_error_kmh_max"] <= 0.05 + 1e-9
     db = load_rdw_dbc()
     speeds = [decode_rdw(db, can.Message(arbitration_id=i, data=d))[1]["Speed"] for _, direction, i, d in frames

@@ -1,14 +1,10 @@
 """Acceptance: the lane-following pipeline drives the sdc-kart on sdc-assen, closed loop, through the split."""
 
-from pathlib import Path
-
 import pytest
-import yaml
+from tests.conftest import track_starting_at
 
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.simulator import SimConfig
-
-TRACKS = Path(__file__).resolve().parents[2] / "src" / "kartpilot" / "sim" / "tracks"
 
 
 @pytest.mark.slow
@@ -17,11 +13,8 @@ def test_lane_following_drives_through_the_split_on_the_right_route(tmp_path):
     start moved), so that the bends before the split and the split itself are driven, and ends past 300 m. What the
     start of the lap holds (the first bends) is driven by the venue and scenario drives; the whole laps at 15 and
     30 km/h are measured by benchmarks/drive.py. 15 km/h mode; 15 Hz."""
-    spec = yaml.safe_load((TRACKS / "sdc-assen.yaml").read_text())
-    spec["start_s_m"] = 100.0
-    (tmp_path / "sdc-assen.yaml").write_text(yaml.safe_dump(spec))
-    config = SimConfig(track=str(tmp_path / "sdc-assen.yaml"), vehicle="sdc-kart", speed_mode_mps=15 / 3.6,
-                       camera_rate_hz=15.0, max_time_s=60.0, seed=1)
+    config = SimConfig(track=track_starting_at(tmp_path, "sdc-assen", 100.0), vehicle="sdc-kart",
+                       speed_mode_mps=15 / 3.6, camera_rate_hz=15.0, max_time_s=60.0, seed=1)
     run = run_simulation(config, driver="lanes")
     result = run.result
     print(result)
