@@ -174,6 +174,7 @@ def measure(data: Path) -> dict[str, Any]:
         again = find_board(warped, BOARD, name)
         square = float("nan")
         if again is not None:
+            again = again.chessboard()  # the squares' sides from the inner corners
             xy = (np.column_stack([again.pixels, np.ones(len(again.pixels))]) @ zoom.ground_from_pixels().T)[:, :2]
             at = {int(i): p for i, p in zip(again.ids, xy, strict=True)}
             sides = [np.linalg.norm(at[i] - at[j]) for i in at for j in (i + 1, i + 9) if j in at and (j != i + 1 or (i + 1) % 9)]  # noqa: E501
@@ -196,7 +197,7 @@ def _against_hanze(npz: Path, views: dict, mounts: dict) -> dict[str, Any]:
     offsets, ref = team["offsets"], int(team["ref_idx"])
     out: dict[str, Any] = {}
     for k, name in ((0, "left"), (2, "right")):
-        side, centre = views[name], views["center"]
+        side, centre = views[name].chessboard(), views["center"].chessboard()
         shared = np.intersect1d(side.ids, centre.ids)
         side_px = side.pixels[np.isin(side.ids, shared)] * scale
         truth = centre.pixels[np.isin(centre.ids, shared)] * scale

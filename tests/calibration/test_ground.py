@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from tests.calibration.rendered import board_on_ground, render_board
 
-from kartpilot.calibration.board import BoardConfig, find_board
+from kartpilot.calibration.board import BoardConfig, find_board, measure_marker
 from kartpilot.calibration.ground import (
     BirdseyeView,
     calibrate_ground,
+    ground_agreement,
     ground_coverage,
     ground_points,
     mount_angles,
@@ -19,33 +22,17 @@ from kartpilot.calibration.ground import (
 )
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import CalibrationError
-from kartpilot.core.geometry import invert_pose, mount_pose
+from kartpilot.core.geometry import mount_pose
 
 BOARD = BoardConfig(kind="charuco", columns=10, rows=8, square_m=0.115, marker_m=0.086, dictionary="DICT_4X4_100")
 HANZE = Path(__file__).resolve().parents[3] / "shared" / "data" / "rdw-kart" / "hanze-calibration"
 
 
 def _render(camera: PinholeCamera, board_on_body: np.ndarray) -> np.ndarray:
-    """The board lying on the ground (its 4x4 pose on the body) as ``camera`` sees it, on grey asphalt."""
-    px_per_square = 80
-    art = BOARD.charuco_board().generateImage((BOARD.columns * px_per_square, BOARD.rows * px_per_square))
-    metres_from_art = np.diag([BOARD.square_m / px_per_square, BOARD.square_m / px_per_square, 1.0])
-    cam_board = invert_pose(camera.pose_body_cam_array) @ board_on_body
-    to_image = camera.matrix @ np.column_stack([cam_board[:3, 0], cam_board[:3, 1], cam_board[:3, 3]])
-    image = cv2.warpPerspective(art, to_image @ metres_from_art, camera.size_wh, borderValue=90)
-    mask = cv2.warpPerspective(np.full_like(art, 255), to_image @ metres_from_art, camera.size_wh)
-    ground = np.full_like(image, 90)
-    out = np.where(mask > 0, image, ground)
-    return cv2.cvtColor(out, cv2.COLOR_GRAY2BGR)
+    return render_board(camera, board_on_body, BOARD)
 
 
-def _board_on_ground(x_m: float, y_m: float, yaw_deg: float) -> np.ndarray:
-    """A board lying face up: OpenCV's board frame has z into the board, so down."""
-    yaw = np.radians(yaw_deg)
-    pose = np.eye(4)
-    pose[:3, :3] = np.array([[np.cos(yaw), np.sin(yaw), 0], [np.sin(yaw), -np.cos(yaw), 0], [0, 0, -1.0]])
-    pose[:3, 3] = (x_m, y_m, 0.0)
-    return pose
+_board_on_ground = board_on_ground
 
 
 @pytest.mark.parametrize("estimate_focal", [False, True])
@@ -89,14 +76,19 @@ def test_the_real_kart_s_three_cameras_measure_the_board_s_squares_in_the_birdse
     """The 2024 kart's three 1920x1080 cameras, one board on the ground: each camera's bird's-eye view, made
     through its recovered pose, shows squares of 0.115 m (the board found again in the warped view)."""
     images = {n: cv2.imread(str(HANZE / f"{n}.jpg")) for n in ("left", "center", "right")}
-    views = {n: find_board(im, BOARD, n) for n, im in images.items()}
+    # the markers' side as the detector places their corners (83.5 mm; the team's board says 86), as the CLI does
+    board = replace(BOARD, marker_m=measure_marker(list(images.values()), BOARD))
+    views = {n: find_board(im, board, n) for n, im in images.items()}
     mounts = calibrate_ground(views, {n: (1920, 1080) for n in images})  # type: ignore[arg-type]
     view = BirdseyeView((0.0, 2.0), (-1.2, 1.2), 400.0)
     for name, mount in mounts.items():
-        assert 0.4 < mount.height_m < 0.7 and mount.reprojection_px < 2.0
+        # the markers' own corners are placed less precisely than the inner ones: 1.6 to 2.0 px RMS over all the
+        # points, 1.1 to 1.4 over the inner corners alone
+        assert 0.4 < mount.height_m < 0.7 and mount.reprojection_px < 2.5
         warped = stitch_birdseye({name: images[name]}, {name: mount.camera}, view)
         found = find_board(warped, BOARD, name)
         assert found is not None
+        found = found.chessboard()  # the squares' sides from the inner corners
         ground = (np.column_stack([found.pixels, np.ones(len(found.pixels))]) @ view.ground_from_pixels().T)[:, :2]
         at = {int(i): p for i, p in zip(found.ids, ground, strict=True)}
         inner = BOARD.columns - 1
@@ -106,16 +98,10 @@ def test_the_real_kart_s_three_cameras_measure_the_board_s_squares_in_the_birdse
         print(f"{name}: squares {square * 1000:.1f} mm in the bird's-eye view ({len(found.ids)} corners)")
         assert square == pytest.approx(0.115, rel=0.02)
     # the side cameras' ground agrees with the centre camera's where both see the board
-    centre = views["center"]
-    for name in ("left", "right"):
-        side = views[name]
-        shared = np.intersect1d(side.ids, centre.ids)
-        assert len(shared) >= 4
-        a = ground_points(mounts[name].camera, side.pixels[np.isin(side.ids, shared)])
-        b = ground_points(mounts["center"].camera, centre.pixels[np.isin(centre.ids, shared)])
-        gap = np.linalg.norm(a - b, axis=1)
-        print(f"{name} and center: the same corners {np.median(gap) * 100:.1f} cm apart on the ground (median)")
-        assert np.median(gap) < 0.03
+    for agreement in ground_agreement(views, {n: m.camera for n, m in mounts.items()}):  # type: ignore[arg-type]
+        print(f"{agreement.first} and {agreement.second}: the same {agreement.points} points "
+              f"{agreement.median_m * 100:.1f} cm apart on the ground (median), {agreement.max_m * 100:.1f} at most")
+        assert agreement.points >= 4 and agreement.max_m < 0.03
 
 
 def test_ground_coverage_paints_a_polygon_where_the_mount_sees_it():

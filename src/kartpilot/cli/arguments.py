@@ -241,8 +241,12 @@ def _calibrate(sub: argparse._SubParsersAction) -> None:
     calibrate_parser = sub.add_parser("calibrate", help="camera intrinsics (mono) or a stereo pair from board "
                                                         "images, or the kart's steering")
     cal_sub = calibrate_parser.add_subparsers(dest="mode", required=True, metavar="MODE")
-    mono = cal_sub.add_parser("mono", help="one camera")
-    mono.add_argument("images", nargs="+")
+    mono = cal_sub.add_parser("mono", help="one camera, from photos of a board or a video of it moved before it")
+    mono.add_argument("images", nargs="*", help="photos of the board (or give --video)")
+    mono.add_argument("--video", help="a video of the board moved before the camera: its frames where the board "
+                                      "has moved since the last one kept")
+    mono.add_argument("--max-views", type=number(int, minimum=3, maximum=200), default=40,
+                      help="--video: at most this many frames, spread over the video")
     mono.add_argument("--name", default="center", help="the camera's name in the rig file")
     stereo = cal_sub.add_parser("stereo", help="a stereo pair (images paired by name: left03.jpg, right03.jpg)")
     stereo.add_argument("--left", nargs="+", required=True)
@@ -262,10 +266,14 @@ def _calibrate(sub: argparse._SubParsersAction) -> None:
                                                "one image per camera of one ChArUco board lying on the floor")
     ground.add_argument("--image", action="append", required=True, metavar="NAME=FILE",
                         help="a camera's image of the board (repeat: --image center=c.jpg --image left=l.jpg ...)")
-    ground.add_argument("--board", default="10x8", help="the board's squares COLUMNSxROWS")
-    ground.add_argument("--square", type=number(above=0), default=0.115, help="square side, m")
-    ground.add_argument("--marker", type=number(above=0), default=0.086, help="marker side, m")
-    ground.add_argument("--dictionary", default="DICT_4X4_100", help="ArUco dictionary")
+    ground.add_argument("--board", help="the board's squares COLUMNSxROWS (default: found in the images)")
+    ground.add_argument("--square", type=number(above=0), default=0.115,
+                        help="square side, m (the images cannot tell it; default: the organiser's board's 0.115)")
+    ground.add_argument("--marker", type=number(above=0),
+                        help="marker side, m (default: measured in the images against the squares)")
+    ground.add_argument("--dictionary", help="ArUco dictionary (default: found in the images)")
+    ground.add_argument("--resamples", type=number(int, minimum=0, maximum=1000), default=50,
+                        help="refits on resampled points for each figure's standard deviation (0: none)")
     ground.add_argument("--rig", help="a rig file with the cameras' intrinsics (else each focal length is estimated "
                                       "from its one view); its other contents are kept")
     ground.add_argument("--reference", default="center", help="the camera that sets the kart's forward direction")

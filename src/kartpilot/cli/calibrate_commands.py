@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -18,18 +18,30 @@ from kartpilot.actuation.can_bus import open_bus
 from kartpilot.actuation.steering_calibration import calibrate_steering, steer_of_turning_circle, sweep_values
 from kartpilot.calibration.board import (
     BoardConfig,
+    BoardView,
     MonoCalibration,
+    board_points,
     calibrate_mono,
     calibrate_stereo,
-    find_board,
+    detect_board,
+    measure_marker,
     pair_names,
     read_views,
+    views_from_frames,
 )
-from kartpilot.calibration.ground import BirdseyeView, calibrate_ground, stitch_birdseye
+from kartpilot.calibration.ground import (
+    AGREEMENT_WARN_M,
+    BirdseyeView,
+    MountSpread,
+    calibrate_ground,
+    ground_agreement,
+    stitch_birdseye,
+)
 from kartpilot.calibration.rig import Rig, load_rig, save_rig
 from kartpilot.core.errors import CalibrationError, ConfigError
 from kartpilot.core.files import write_bytes_atomic
 from kartpilot.core.geometry import invert_pose, mount_pose
+from kartpilot.core.types import Image
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.sensors.base import read_image
@@ -72,10 +84,27 @@ def _print_camera(name: str, calibration: MonoCalibration) -> None:
         print(f"  {image}: {rms:.3f} px")
 
 
+def _mono_views(args: argparse.Namespace, board: BoardConfig) -> tuple[list[BoardView], list[str], tuple[int, int]]:
+    """The board's views from the photos, or from the video's frames where the board has moved."""
+    if bool(args.images) == bool(args.video):
+        raise ConfigError("give the board's photos or --video, one of the two")
+    if not args.video:
+        return read_views(args.images, board)
+    from kartpilot.record.replay import open_frames
+
+    kind, frame_sets = open_frames(args.video)
+    if kind != "video":
+        raise ConfigError(f"--video {args.video}: a {kind}, not a video (give photos as arguments)")
+    frames = ((f"frame {fs.index}", fs.images["center"]) for fs in frame_sets)
+    views, read, size = views_from_frames(frames, board, args.max_views)
+    print(f"{args.video}: {read} frames, the board found and moved in {len(views)} kept")
+    return views, [], size
+
+
 def calibrate(args: argparse.Namespace) -> int:
     board = _board(args)
     if args.mode == "mono":
-        views, skipped, size = read_views(args.images, board)
+        views, skipped, size = _mono_views(args, board)
         result = calibrate_mono(views, size)
         rig = Rig({args.name: result.camera.on_body(_mount(args.mount))})
         summary: dict[str, Any] = {"rms_px": result.rms_px, "used": [v.name for v in views], "skipped": skipped,
@@ -133,32 +162,74 @@ def _named_images(items: list[str]) -> dict[str, Path]:
     return named
 
 
+def _ground_board(args: argparse.Namespace, images: dict[str, Image]) -> BoardConfig:
+    """The board of ``calibrate ground``: as given, or found in the images (layout, dictionary, the markers' side);
+    what was found is said."""
+    if args.board and args.dictionary:
+        board = _board(args)
+    else:
+        search = detect_board(list(images.values()), args.square, args.marker or 0.0)
+        board = search.board
+        print(f"found {board.describe()}: {search.markers} markers over the images, the layout fitting to "
+              f"{search.fit:.3f} of a marker's side" + ("; the markers' side measured against the squares"
+                                                        if search.marker_measured else ""))
+        if args.board or args.dictionary:
+            given = _board(argparse.Namespace(**{**vars(args), "marker": args.marker or board.marker_m,
+                                                 "dictionary": args.dictionary or board.dictionary,
+                                                 "board": args.board or f"{board.columns}x{board.rows}"}))
+            board = replace(given, legacy=board.legacy)
+            print(f"using {board.describe()} as given")
+        return board
+    if args.marker is None:
+        measured = measure_marker(list(images.values()), board)
+        if measured is not None:
+            board = replace(board, marker_m=measured)
+            print(f"the markers measure {measured * 1000:.1f} mm against the squares (--marker to give them)")
+    return board
+
+
+def _spread(value: float, sd: float | None, unit: str, digits: int) -> str:
+    return f"{value:.{digits}f}" + (f" +- {sd:.{digits}f}" if sd is not None and math.isfinite(sd) else "") + unit
+
+
 def calibrate_ground_command(args: argparse.Namespace) -> int:
     """Each camera's pose over the ground from one image per camera of one board lying on the floor; the rig
-    file with those poses, and the bird's-eye view of all the cameras stitched."""
-    board = _board(args)
+    file with those poses, and the bird's-eye view of all the cameras stitched, each camera's part outlined."""
     images = {name: read_image(path) for name, path in _named_images(args.image).items()}
+    board = _ground_board(args, images)
     views, sizes = {}, {}
     for name, image in images.items():
-        view = find_board(image, board, name)
-        if view is None:
-            raise CalibrationError(f"camera {name!r}: fewer than {board.min_charuco_corners} of the board's corners "
-                                   "found in its image (is it the board given by --board, --square, --dictionary?)")
+        view = board_points(image, board, name)
+        if len(view.ids) < board.min_points:
+            raise CalibrationError(f"camera {name!r}: {view.counted()} of {board.describe()} found in its image; "
+                                   f"{board.min_points} are needed (is the board in view, and the one given?)")
         views[name], sizes[name] = view, (image.shape[1], image.shape[0])
     base = load_rig(args.rig) if args.rig else None
     known = {n: c for n, c in base.cameras.items() if n in views} if base is not None else {}
-    mounts = calibrate_ground(views, sizes, known, args.reference, args.reference_x)
+    mounts = calibrate_ground(views, sizes, known, args.reference, args.reference_x, resamples=args.resamples)
+    agreement = ground_agreement(views, {n: m.camera for n, m in mounts.items()})
     cameras = dict(base.cameras) if base is not None else {}
     for name, mount in mounts.items():
         kept = cameras.get(name)
         cameras[name] = replace(mount.camera, body_mask=kept.body_mask) if kept is not None else mount.camera
     rig = replace(base, cameras=cameras) if base is not None else Rig(cameras)
-    summary = {name: {"height_m": m.height_m, "pitch_down_deg": m.pitch_down_deg, "roll_deg": m.roll_deg,
-                      "yaw_deg": m.yaw_deg, "reprojection_px": m.reprojection_px, "corners": m.corners,
-                      "fx_px": m.camera.fx_px, "intrinsics_estimated": m.intrinsics_estimated}
-               for name, m in mounts.items()}
+    summary: dict[str, Any] = {
+        "board": {"columns": board.columns, "rows": board.rows, "square_m": board.square_m,
+                  "marker_m": board.marker_m, "dictionary": board.dictionary, "legacy": board.legacy},
+        "cameras": {name: {"height_m": m.height_m, "pitch_down_deg": m.pitch_down_deg, "roll_deg": m.roll_deg,
+                           "yaw_deg": m.yaw_deg, "tilt_from_down_deg": m.tilt_deg,
+                           "axis_heading_deg": None if math.isnan(m.heading_deg) else m.heading_deg,
+                           "sd": None if m.spread is None else {k: (None if math.isnan(v) else v)
+                                                                for k, v in asdict(m.spread).items()},
+                           "reprojection_px": m.reprojection_px, "points": m.corners,
+                           "chessboard_corners": views[name].corners, "markers": views[name].markers,
+                           "fx_px": m.camera.fx_px, "fx_sd_px": m.focal_sd_px,
+                           "intrinsics_estimated": m.intrinsics_estimated}
+                    for name, m in mounts.items()},
+        "agreement": [{"cameras": [a.first, a.second], "points": a.points, "median_m": a.median_m,
+                       "max_m": a.max_m} for a in agreement]}
     birdseye = BirdseyeView((0.0, args.ahead), (-args.side, args.side), args.pixels_per_m)
-    stitched = stitch_birdseye(images, {n: m.camera for n, m in mounts.items()}, birdseye)
+    stitched = stitch_birdseye(images, {n: m.camera for n, m in mounts.items()}, birdseye, outline=True)
     save_rig(rig, args.out)
     if args.birdseye:
         _write_image(args.birdseye, stitched)
@@ -166,10 +237,21 @@ def calibrate_ground_command(args: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=1))
     else:
         for name, m in mounts.items():
+            sd = m.spread or MountSpread(*[math.nan] * 6)
             source = "estimated from this view" if m.intrinsics_estimated else "the rig's"
-            print(f"{name}: height {m.height_m:.3f} m, pitch down {m.pitch_down_deg:.2f} deg, roll "
-                  f"{m.roll_deg:.2f} deg, yaw {m.yaw_deg:+.2f} deg; {m.corners} corners, reprojection "
-                  f"{m.reprojection_px:.2f} px; fx {m.camera.fx_px:.1f} px ({source})")
+            heading = "no heading: straight down" if math.isnan(m.heading_deg) else \
+                f"heading {_spread(m.heading_deg, sd.heading_deg, ' deg', 1)}"
+            print(f"{name}: height {_spread(m.height_m * 100, sd.height_m * 100, ' cm', 1)}, pitch down "
+                  f"{_spread(m.pitch_down_deg, sd.pitch_down_deg, ' deg', 2)}, roll "
+                  f"{_spread(m.roll_deg, sd.roll_deg, ' deg', 2)}, yaw "
+                  f"{_spread(m.yaw_deg, sd.yaw_deg, ' deg', 2)}")
+            print(f"  optical axis {_spread(m.tilt_deg, sd.tilt_deg, ' deg', 2)} from straight down, {heading}; "
+                  f"{views[name].counted()}, reprojection {m.reprojection_px:.2f} px; fx "
+                  f"{_spread(m.camera.fx_px, m.focal_sd_px if m.intrinsics_estimated else None, ' px', 0)} ({source})")
+        for a in agreement:
+            warn = "  WARNING: more than " + f"{AGREEMENT_WARN_M * 100:.0f} cm" if a.max_m > AGREEMENT_WARN_M else ""
+            print(f"{a.first} and {a.second} agree on {a.points} board points: {a.median_m * 100:.1f} cm apart on the "
+                  f"ground (median), {a.max_m * 100:.1f} cm at most{warn}")
     print(f"rig written to {args.out}" + (f", bird's-eye view to {args.birdseye}" if args.birdseye else ""))
     return 0
 
