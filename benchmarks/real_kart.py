@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -21,8 +22,14 @@ import cv2
 import numpy as np
 
 from common import write_json
-from kartpilot.calibration.board import BoardConfig, find_board
-from kartpilot.calibration.ground import BirdseyeView, calibrate_ground, ground_points, stitch_birdseye
+from kartpilot.calibration.board import BoardConfig, find_board, measure_marker
+from kartpilot.calibration.ground import (
+    BirdseyeView,
+    calibrate_ground,
+    ground_agreement,
+    ground_points,
+    stitch_birdseye,
+)
 from kartpilot.eval.lanes import boundary_errors
 from kartpilot.perception.lanes import LaneConfig, detect_lanes
 from kartpilot.runtime.lane_policy import LANE_PRESETS
@@ -165,13 +172,18 @@ def measure(data: Path) -> dict[str, Any]:
                      for p, o in zip(scenes, found, strict=True)}
     hanze = data / "rdw-kart" / "hanze-calibration"
     images = {n: cv2.imread(str(hanze / f"{n}.jpg")) for n in ("left", "center", "right")}
-    views = {n: find_board(im, BOARD, n) for n, im in images.items()}
-    mounts = calibrate_ground(views, {n: (1920, 1080) for n in images})  # type: ignore[arg-type]
-    ground: dict[str, Any] = {}
+    # as `calibrate ground` does: the markers' side measured against the squares, every point of the board
+    marker = measure_marker(list(images.values()), BOARD)
+    board = replace(BOARD, marker_m=marker) if marker is not None else BOARD
+    views = {n: find_board(im, board, n) for n, im in images.items()}
+    mounts = calibrate_ground(views, {n: (1920, 1080) for n in images}, resamples=50)  # type: ignore[arg-type]
+    ground: dict[str, Any] = {"marker_measured_m": marker, "marker_given_m": BOARD.marker_m,
+                              "agreement": [asdict(a) for a in ground_agreement(
+                                  views, {n: m.camera for n, m in mounts.items()})]}  # type: ignore[arg-type]
     zoom = BirdseyeView((0.0, 2.0), (-1.2, 1.2), 400.0)
     for name, mount in mounts.items():
         warped = stitch_birdseye({name: images[name]}, {name: mount.camera}, zoom)
-        again = find_board(warped, BOARD, name)
+        again = find_board(warped, board, name)
         square = float("nan")
         if again is not None:
             again = again.chessboard()  # the squares' sides from the inner corners
@@ -180,8 +192,11 @@ def measure(data: Path) -> dict[str, Any]:
             sides = [np.linalg.norm(at[i] - at[j]) for i in at for j in (i + 1, i + 9) if j in at and (j != i + 1 or (i + 1) % 9)]  # noqa: E501
             square = float(np.mean(sides))
         ground[name] = {"height_m": mount.height_m, "pitch_down_deg": mount.pitch_down_deg, "roll_deg": mount.roll_deg,
-                        "yaw_deg": mount.yaw_deg, "fx_px": mount.camera.fx_px, "reprojection_px": mount.reprojection_px,
-                        "square_in_birdseye_m": square}
+                        "yaw_deg": mount.yaw_deg, "fx_px": mount.camera.fx_px, "fx_sd_px": mount.focal_sd_px,
+                        "reprojection_px": mount.reprojection_px, "square_in_birdseye_m": square,
+                        "points": mount.corners, "markers": views[name].markers,  # type: ignore[union-attr]
+                        "tilt_from_down_deg": mount.tilt_deg, "axis_heading_deg": mount.heading_deg,
+                        "sd": asdict(mount.spread) if mount.spread is not None else None}
     ground["hanze_comparison"] = _against_hanze(hanze / "hanze_latest.npz", views, mounts)
     out["ground"] = ground
     return out
@@ -228,13 +243,30 @@ def render(results: dict[str, Any]) -> str:
         median = f"{row['truth_median_px']:.1f} px" if "truth_median_px" in row and np.isfinite(row["truth_median_px"]) else "–"  # noqa: E501
         lines.append(f"| {name} | {row['both_found']} of {row['frames']} ({row['both_found_percent']:.0f} %) | "
                      f"{truth} | {median} | {row['fps']:.0f} |")
-    lines += ["", "| camera (Hanze kart, 1920x1080) | height | pitch down | roll | yaw | fx | reprojection | "
-              "square in the bird's-eye view |", "|---|---|---|---|---|---|---|---|"]
+    lines += ["", "| camera (Hanze kart, 1920x1080) | points | height | pitch down | roll | yaw | axis from straight "
+              "down | fx (from its one view) | reprojection | square in the bird's-eye view |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for name in ("left", "center", "right"):
         g = results["ground"][name]
-        lines.append(f"| {name} | {g['height_m']:.3f} m | {g['pitch_down_deg']:.1f}° | {g['roll_deg']:.1f}° | "
-                     f"{g['yaw_deg']:+.1f}° | {g['fx_px']:.0f} px | {g['reprojection_px']:.2f} px | "
+        sd = g.get("sd") or {}
+
+        def pm(value: float, key: str, digits: int, scale: float = 1.0, sd: dict[str, float] = sd) -> str:
+            return f"{value * scale:.{digits}f}" + (f" ± {sd[key] * scale:.{digits}f}" if key in sd else "")
+
+        lines.append(f"| {name} | {g.get('points', '–')} ({g.get('markers', 0)} markers) | "
+                     f"{pm(g['height_m'], 'height_m', 1, 100)} cm | {pm(g['pitch_down_deg'], 'pitch_down_deg', 2)}° | "
+                     f"{pm(g['roll_deg'], 'roll_deg', 2)}° | {pm(g['yaw_deg'], 'yaw_deg', 2)}° | "
+                     f"{pm(g.get('tilt_from_down_deg', float('nan')), 'tilt_deg', 2)}° | "
+                     f"{g['fx_px']:.0f} ± {g.get('fx_sd_px', float('nan')):.0f} px | {g['reprojection_px']:.2f} px | "
                      f"{1000 * g['square_in_birdseye_m']:.1f} mm (0.115 m: {100 * (g['square_in_birdseye_m'] / 0.115 - 1):+.1f} %) |")  # noqa: E501
+    ground = results["ground"]
+    if ground.get("marker_measured_m"):
+        pairs = "; ".join(f"{a['first']} and {a['second']}: {a['points']} points, {100 * a['median_m']:.1f} cm "
+                          f"(median), {100 * a['max_m']:.1f} cm at most" for a in ground.get("agreement", []))
+        lines += ["", f"The markers measure {1000 * ground['marker_measured_m']:.1f} mm against the squares (the "
+                      f"board says {1000 * ground['marker_given_m']:.0f}); each figure's ± is one standard deviation "
+                      "over 50 refits on resampled points. Where two cameras see the same board points, their ground "
+                      f"points lie apart by: {pairs}."]
     c = results["ground"]["hanze_comparison"]
     lines += ["", "Stitching against the team's: board corners seen by a side camera and by the centre camera, mapped "
                   "into the centre image (640x360) by the team's side-to-centre homography and by our poses "
