@@ -25,6 +25,7 @@ from kartpilot.calibration.rectify import StereoRectification, rectify_stereo
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import CalibrationError, ConfigError, DataError
 from kartpilot.core.geometry import Array, pose_from_rt
+from kartpilot.core.images import read_gray
 from kartpilot.core.types import Image
 
 __all__ = [
@@ -365,9 +366,10 @@ def read_views(paths: Sequence[str | Path], board: BoardConfig) -> tuple[list[Bo
     size: tuple[int, int] | None = None
     for path in paths:
         path = Path(path)
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if image is None:
-            skipped.append(f"{path.name}: unreadable")
+        try:
+            image = read_gray(path)
+        except DataError as exc:
+            skipped.append(f"{path.name}: {exc}")
             continue
         if size is None:
             size = (image.shape[1], image.shape[0])

@@ -41,7 +41,6 @@ opened (:func:`apply_camera_maps`), not when the file is read, so a rig file wri
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -52,8 +51,8 @@ import yaml
 
 from kartpilot.core.camera import CaptureSettings, PinholeCamera, body_mask_from_data
 from kartpilot.core.config import config_to_dict, merge_config
-from kartpilot.core.errors import CalibrationError, ConfigError
-from kartpilot.core.files import parse_yaml, read_text_file, write_text_atomic
+from kartpilot.core.errors import CalibrationError, ConfigError, DataError
+from kartpilot.core.files import parse_yaml, read_json_file, read_text_file, write_text_atomic
 from kartpilot.core.geometry import mount_pose
 from kartpilot.core.vehicle import SteeringCalibration
 
@@ -180,9 +179,9 @@ def load_rig(path: str | Path) -> Rig:
 def _read_camera_map(path: Path) -> dict[str, str]:
     """One organiser camera-mapping file: our camera name -> device path."""
     try:
-        data = json.loads(read_text_file(path))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise CalibrationError(f"camera map {path}: cannot read it as JSON ({exc})") from exc
+        data = read_json_file(path)
+    except DataError as exc:
+        raise CalibrationError(f"camera map: {exc}") from None
     if not isinstance(data, dict) or not data or not all(isinstance(v, str) for v in data.values()):
         raise CalibrationError(f"camera map {path}: expected an object mapping front, left, right to device paths")
     unknown = set(data) - set(ORGANISER_CAMERA_NAMES)

@@ -8,7 +8,7 @@ import csv
 import io
 import json
 import os
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -20,8 +20,10 @@ YAML_MAX_VALUES = 100_000
 """The most values a YAML file may stand for once its aliases are expanded (a config is a few hundred; "a billion
 laughs", nine anchors of ten aliases each, stands for a billion)."""
 
-__all__ = ["is_torn_last_line", "parse_yaml", "read_text_file", "write_atomic", "write_bytes_atomic",
-           "write_csv_atomic", "write_json_atomic", "write_text_atomic"]
+__all__ = ["MAX_FILE_BYTES", "MAX_JSON_DEPTH", "MAX_TEXT_BYTES", "csv_records", "is_torn_last_line",
+           "iter_csv_file", "parse_csv", "parse_json", "parse_yaml", "read_file_bytes", "read_json_file",
+           "read_text_file", "read_text_file_checks", "write_atomic", "write_bytes_atomic", "write_csv_atomic",
+           "write_json_atomic", "write_text_atomic"]
 
 
 def is_torn_last_line(content: str, line: int, last_line: int) -> bool:
@@ -31,18 +33,152 @@ def is_torn_last_line(content: str, line: int, last_line: int) -> bool:
     return line == last_line and not content.endswith("\n")
 
 
+MAX_TEXT_BYTES = 512 * 2**20
+"""The largest text file kartpilot reads whole (a config is kilobytes, a long drive's CSV tens of megabytes)."""
+
+MAX_JSON_DEPTH = 100
+"""The deepest nesting a JSON file may have (kartpilot's own files nest five deep)."""
+
+
 def read_text_file(path: str | Path) -> str:
     """A text file's contents, with Windows line ends and a byte-order mark (as other tools write them) read as
-    plain text; a file that cannot be read, is not a regular file (a pipe, a device), or is not UTF-8 text, raises
-    DataError naming it."""
-    if Path(path).exists() and not Path(path).is_file():
-        raise DataError(f"{path} is not a regular file (a pipe or a device): save it to a file first")
+    plain text; a file that is missing, a folder, not a regular file (a pipe, a device), larger than
+    :data:`MAX_TEXT_BYTES`, unreadable, or not UTF-8 text raises DataError naming it. The one door for text
+    files: JSON (:func:`read_json_file`), CSV (:func:`parse_csv`) and YAML (:func:`parse_yaml`) come through it."""
+    path = Path(path)
+    read_text_file_checks(path)
+    if path.stat().st_size > MAX_TEXT_BYTES:
+        raise DataError(f"{path} is {path.stat().st_size / 2**20:.0f} MB: more than the "
+                        f"{MAX_TEXT_BYTES // 2**20} MB of text kartpilot reads")
     try:
-        return Path(path).read_text(encoding="utf-8-sig")
+        return path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
         raise DataError(f"{path} is not a UTF-8 text file (byte {exc.start}: {exc.reason})") from None
     except OSError as exc:
         raise DataError(f"cannot read {path}: {exc.strerror or exc}") from None
+
+
+MAX_FILE_BYTES = 2 * 2**30
+"""The largest file kartpilot reads whole as bytes (an image of a recording, copied into an export)."""
+
+
+def read_file_bytes(path: str | Path) -> bytes:
+    """A file's bytes, copied as they are (an export embeds a recording's images); a missing file, a folder, a
+    pipe, or one larger than :data:`MAX_FILE_BYTES` raises DataError naming it."""
+    path = Path(path)
+    read_text_file_checks(path)
+    if path.stat().st_size > MAX_FILE_BYTES:
+        raise DataError(f"{path} is {path.stat().st_size / 2**30:.1f} GB: more than the "
+                        f"{MAX_FILE_BYTES // 2**30} GB kartpilot reads in one piece")
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise DataError(f"cannot read {path}: {exc.strerror or exc}") from None
+
+
+def parse_json(text: str, source: str | Path, allow_nan: bool = True) -> Any:
+    """JSON text as Python values; invalid JSON (with its line and column) and nesting deeper than
+    :data:`MAX_JSON_DEPTH` raise DataError naming ``source``. NaN and Infinity, which Python's JSON writes for
+    a figure that has none (kartpilot's results do), are read unless ``allow_nan`` is False."""
+    if _json_depth(text) > MAX_JSON_DEPTH:
+        raise DataError(f"{source}: nested more than {MAX_JSON_DEPTH} deep")
+
+    def no_constant(name: str) -> Any:
+        raise ValueError(f"{name} is not a JSON number")
+
+    try:
+        return json.loads(text, parse_constant=None if allow_nan else no_constant)
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{source}: not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})") from None
+    except (ValueError, RecursionError) as exc:
+        raise DataError(f"{source}: not valid JSON ({exc})") from None
+
+
+def _json_depth(text: str) -> int:
+    """The deepest nesting of brackets outside strings (a linear scan, before the parser recurses)."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for char in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif char == "\\":
+                escaped = True
+            elif char == '"':
+                in_string = False
+        elif char == '"':
+            in_string = True
+        elif char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}":
+            depth -= 1
+    return deepest
+
+
+def read_json_file(path: str | Path, allow_nan: bool = True) -> Any:
+    """A JSON file's values (see :func:`read_text_file` and :func:`parse_json`)."""
+    return parse_json(read_text_file(path), path, allow_nan)
+
+
+def parse_csv(text: str, source: str | Path, required: Sequence[str] = ()) -> list[dict[str, str]]:
+    """CSV text with a header line as one dict per row; a header without the ``required`` columns, or a row with
+    more or fewer fields than the header, raises DataError naming ``source`` and the line."""
+    reader = csv.DictReader(io.StringIO(text))
+    header = reader.fieldnames or []
+    missing = [name for name in required if name not in header]
+    if missing:
+        raise DataError(f"{source}: no column {', '.join(missing)} in its header ({', '.join(header) or 'empty'})")
+    rows = []
+    try:
+        for row in reader:
+            if None in row or any(v is None for v in row.values()):
+                raise DataError(f"{source}, line {reader.line_num}: not the header's {len(header)} fields")
+            rows.append(row)
+    except csv.Error as exc:
+        raise DataError(f"{source}, line {reader.line_num}: {exc}") from None
+    return rows
+
+
+def csv_records(text: str) -> list[dict[str, Any]]:
+    """CSV text with a header line as one dict per row, as :class:`csv.DictReader` gives them (a short row's
+    missing fields None, a long row's extra ones under None): for readers that judge a row themselves (a
+    recording's last line, cut off by a crash, is skipped rather than refused)."""
+    return list(csv.DictReader(io.StringIO(text)))
+
+
+def iter_csv_file(path: str | Path, skip_torn: bool = False) -> Iterator[dict[str, str]]:
+    """A CSV file with a header line, a row at a time (a long drive's log need not be read whole), through the
+    same checks as :func:`read_text_file`. A row with more or fewer fields than the header raises DataError
+    naming the file and line, or is skipped (``skip_torn``: a recording's rows, one of which a crash may cut)."""
+    path = Path(path)
+    read_text_file_checks(path)
+    try:
+        with path.open(encoding="utf-8-sig", newline="") as handle:
+            reader = csv.DictReader(handle)
+            width = len(reader.fieldnames or [])
+            for row in reader:
+                if None in row or any(v is None for v in row.values()):
+                    if skip_torn:
+                        continue
+                    raise DataError(f"{path}, line {reader.line_num}: not the header's {width} fields")
+                yield row
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{path} is not a UTF-8 text file (byte {exc.start}: {exc.reason})") from None
+    except csv.Error as exc:
+        raise DataError(f"{path}: {exc}") from None
+    except OSError as exc:
+        raise DataError(f"cannot read {path}: {exc.strerror or exc}") from None
+
+
+def read_text_file_checks(path: Path) -> None:
+    """What :func:`read_text_file` checks before it reads: a folder, not a regular file, missing."""
+    if path.is_dir():
+        raise DataError(f"{path} is a folder, not a file")
+    if path.exists() and not path.is_file():
+        raise DataError(f"{path} is not a regular file (a pipe or a device): save it to a file first")
+    if not path.exists():
+        raise DataError(f"file not found: {path}")
 
 
 def parse_yaml(text: str, source: str | Path) -> Any:

@@ -25,7 +25,6 @@ a sign does where its size puts it inside its window.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
@@ -37,7 +36,7 @@ import numpy as np
 from kartpilot.calibration.ground import ground_points
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import DataError
-from kartpilot.core.files import read_text_file
+from kartpilot.core.files import read_json_file, read_text_file
 from kartpilot.perception.objects import CLASSES, Detection, box_iou
 from kartpilot.perception.obstacles import ObstacleConfig
 from kartpilot.perception.road_marks import RoadMarkConfig
@@ -279,12 +278,9 @@ def read_labels(path: str | Path, sizes: Callable[[str], tuple[int, int]] | None
     if not path.is_file():
         raise DataError(f"labels not found: {path}")
     try:
-        data = json.loads(read_text_file(path))
-    except json.JSONDecodeError as exc:
-        raise DataError(f"{path}: not JSON ({exc.msg} at line {exc.lineno}); labels are a kartpilot or COCO JSON "
-                        "file, or a YOLO folder") from None
-    except RecursionError:
-        raise DataError(f"{path}: nested too deeply to be labels") from None
+        data = read_json_file(path)
+    except DataError as exc:
+        raise DataError(f"{exc}; labels are a kartpilot or COCO JSON file, or a YOLO folder") from None
     if isinstance(data, dict) and "images" in data and isinstance(data["images"], dict):
         return _kartpilot_json(data, path, class_map)
     if isinstance(data, dict) and {"images", "annotations", "categories"} <= data.keys():

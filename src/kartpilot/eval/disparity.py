@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kartpilot.core.errors import DataError
+from kartpilot.core.images import read_gray, read_image
 
 __all__ = ["DisparityScore", "bad_pixel_rate", "disparity_search_range_px", "load_middlebury_pair"]
 
@@ -63,10 +64,7 @@ def load_middlebury_pair(folder: str | Path) -> tuple[np.ndarray, np.ndarray, ND
     right = sorted(folder.glob("*_right.png")) or sorted(folder.glob("*R.jpg"))
     if not left or not right:
         raise DataError(f"no stereo pair in {folder}")
-    left_image = cv2.imread(str(left[0]), cv2.IMREAD_GRAYSCALE)
-    right_image = cv2.imread(str(right[0]), cv2.IMREAD_GRAYSCALE)
-    if left_image is None or right_image is None:
-        raise DataError(f"cannot read the pair in {folder}")
+    left_image, right_image = read_gray(left[0]), read_gray(right[0])
     npz = sorted(folder.glob("*_disp.npz"))
     if npz:
         truth = np.load(npz[0])["arr_0"].astype(np.float32)
@@ -74,7 +72,7 @@ def load_middlebury_pair(folder: str | Path) -> tuple[np.ndarray, np.ndarray, ND
         gt = sorted(folder.glob("*GT.png"))
         if not gt:
             raise DataError(f"no ground-truth disparity in {folder}")
-        truth = cv2.imread(str(gt[0]), cv2.IMREAD_UNCHANGED).astype(np.float32)
+        truth = read_image(gt[0], cv2.IMREAD_UNCHANGED).astype(np.float32)
         truth[truth == 0] = np.nan
     if truth.shape != left_image.shape or right_image.shape != left_image.shape:
         raise DataError(f"{folder}: images {left_image.shape}/{right_image.shape} and ground truth {truth.shape} "

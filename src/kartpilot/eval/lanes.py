@@ -15,9 +15,6 @@ the point's row within ``within_px`` of it; the error of a side not found is inf
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -27,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from kartpilot.core.errors import DataError
-from kartpilot.core.files import read_text_file
+from kartpilot.core.files import csv_records, parse_json, read_text_file
 from kartpilot.perception.lanes import LaneObservation
 
 __all__ = ["LaneScore", "boundary_errors", "read_lane_labels", "score_lanes"]
@@ -121,13 +118,14 @@ def _number(text: Any, where: str) -> float:
 
 
 def _from_csv(text: str, path: Path) -> dict[str, LanePoints]:
-    reader = csv.DictReader(io.StringIO(text))
+    records = csv_records(text)
+    fields = list(records[0]) if records else text.splitlines()[0].split(",") if text.strip() else []
     wanted = {"image", "side", "row", "x"}
-    if reader.fieldnames is None or not wanted <= {f.strip() for f in reader.fieldnames}:
+    if not wanted <= {str(f).strip() for f in fields if f is not None}:
         raise DataError(f"{path}: a lane label CSV starts with the header image,side,row,x (got "
-                        f"{','.join(reader.fieldnames or [])})")
+                        f"{','.join(str(f) for f in fields if f is not None)})")
     labels: dict[str, LanePoints] = {}
-    for n, line in enumerate(reader, start=2):
+    for n, line in enumerate(records, start=2):
         where = f"{path}, line {n}"
         row = {k.strip(): (v or "").strip() for k, v in line.items() if k is not None}
         side = row["side"].lower()
@@ -142,8 +140,8 @@ def _from_csv(text: str, path: Path) -> dict[str, LanePoints]:
 
 def _from_json(text: str, path: Path) -> dict[str, LanePoints]:
     try:
-        frames = json.loads(text)["frames"]
-    except (json.JSONDecodeError, RecursionError, KeyError, TypeError):
+        frames = parse_json(text, path)["frames"]
+    except (DataError, KeyError, TypeError):
         raise DataError(f"{path}: lane labels in JSON are {{\"frames\": {{IMAGE: {{\"left\": [[row, x], ...], "
                         "\"right\": [...]}}}") from None
     labels: dict[str, LanePoints] = {}

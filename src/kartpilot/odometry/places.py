@@ -52,7 +52,7 @@ from kartpilot.calibration.lens import LensRemap, undistortion
 from kartpilot.core.camera import PinholeCamera, camera_from_dict, camera_to_dict
 from kartpilot.core.config import config_to_dict, merge_config
 from kartpilot.core.errors import ConfigError, DataError, KartpilotError, PerceptionError
-from kartpilot.core.files import write_atomic
+from kartpilot.core.files import parse_json, write_atomic
 from kartpilot.core.geometry import Array, planar_pose
 from kartpilot.core.types import Image
 from kartpilot.odometry.mono_vo import beyond_ground_mask, has_mount, rotation_only
@@ -440,8 +440,8 @@ def load_places(path: str | Path) -> PlaceDatabase:
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise DataError(f"{path} is not a kartpilot place database (unreadable: {exc})") from exc
     try:
-        header = json.loads(str(arrays["header"]))
-    except (KeyError, json.JSONDecodeError) as exc:
+        header = parse_json(str(arrays["header"]), path)
+    except (KeyError, DataError) as exc:
         raise DataError(f"{path} is not a kartpilot place database (no header)") from exc
     if header.get("format") != FORMAT:
         raise DataError(f"{path} is not a kartpilot place database (format {header.get('format')!r})")

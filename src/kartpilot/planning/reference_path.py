@@ -14,7 +14,6 @@ nearest waypoint in a window ahead of the last one, so a path that passes near i
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,8 +22,8 @@ import numpy as np
 import yaml
 from scipy.ndimage import gaussian_filter1d
 
-from kartpilot.core.errors import ConfigError, PlanningError
-from kartpilot.core.files import parse_yaml, read_text_file, write_csv_atomic, write_text_atomic
+from kartpilot.core.errors import ConfigError, DataError, PlanningError
+from kartpilot.core.files import parse_csv, parse_yaml, read_text_file, write_csv_atomic, write_text_atomic
 from kartpilot.core.geometry import Array
 
 __all__ = [
@@ -237,10 +236,9 @@ def load_reference_path(source: str | Path) -> ReferencePath:
         raise PlanningError(f"{source}: no such reference path")
     try:
         if source.suffix.lower() == ".csv":
-            with source.open(newline="") as f:
-                reader = csv.reader(f)
-                header = tuple(next(reader, ()))
-                rows = [row for row in reader if row]
+            records = parse_csv(read_text_file(source), source)
+            header = tuple(records[0]) if records else COLUMNS
+            rows = [[record[c] for c in header] for record in records]
         elif source.suffix.lower() in (".yaml", ".yml"):
             data = parse_yaml(read_text_file(source), source)
             if not isinstance(data, dict):
@@ -253,7 +251,9 @@ def load_reference_path(source: str | Path) -> ReferencePath:
         if missing:
             raise PlanningError(f"{source}: missing column(s) {', '.join(missing)}")
         table = np.array([[float(row[header.index(c)]) for c in COLUMNS] for row in rows], float).reshape(-1, 6)
-    except (ValueError, IndexError, TypeError, yaml.YAMLError, UnicodeDecodeError) as exc:
+    except DataError as exc:
+        raise PlanningError(str(exc)) from None
+    except (ValueError, IndexError, TypeError, yaml.YAMLError) as exc:
         raise PlanningError(f"{source}: unreadable reference path ({exc})") from exc
     if not np.all(np.isfinite(table)):
         raise PlanningError(f"{source}: the path has non-finite values")

@@ -19,12 +19,12 @@ import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import DataError, RecordingError
 from kartpilot.core.geometry import Array, mount_pose
+from kartpilot.core.images import read_image
 from kartpilot.core.types import ActuatorCommand
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 from kartpilot.sensors.base import StereoSource
@@ -51,9 +51,7 @@ def import_donkey_tub(tub_folder: str | Path, out: str | Path, camera: PinholeCa
     a positive ``user/throttle`` is the throttle, a negative one (reverse on a Donkey car) the brake.
     """
     tub = DonkeyTub(tub_folder)
-    first = cv2.imread(str(tub.records[0].image_path), cv2.IMREAD_COLOR)
-    if first is None:
-        raise DataError(f"cannot read the tub image {tub.records[0].image_path}")
+    first = read_image(tub.records[0].image_path)
     height, width = first.shape[:2]
     metadata: dict[str, object] = {"source": "donkeycar tub", "imported_from": str(Path(tub_folder).resolve()),
                                    "max_steer_rad": max_steer_rad}

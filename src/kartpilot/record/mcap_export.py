@@ -31,7 +31,7 @@ from mcap.writer import CompressionType, Writer
 
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import RecordingError
-from kartpilot.core.files import write_atomic
+from kartpilot.core.files import read_file_bytes, write_atomic
 from kartpilot.core.geometry import quaternion_xyzw_from_pose
 from kartpilot.record.recording import RecordingReader
 
@@ -105,7 +105,7 @@ def export_mcap(folder: str | Path, out: str | Path, cameras: Sequence[str] | No
         for stamp, path in frames:
             messages.append((stamp, f"/{name}/image", "foxglove.CompressedImage",
                              {"timestamp": _time(stamp), "frame_id": name, "format": path.suffix.lstrip(".").lower(),
-                              "data": base64.b64encode(path.read_bytes()).decode("ascii")}))
+                              "data": base64.b64encode(read_file_bytes(path)).decode("ascii")}))
     truth = reader.body_poses()
     if truth is not None:
         for stamp_s, pose in zip(truth.stamps_s, truth.poses, strict=True):

@@ -23,9 +23,6 @@ a recording without them reads as one with none.
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import logging
 import math
 import queue
@@ -41,8 +38,15 @@ import numpy as np
 
 from kartpilot.calibration.rectify import stereo_setup
 from kartpilot.core.camera import PinholeCamera, StereoRig, camera_from_dict, camera_to_dict
-from kartpilot.core.errors import RecordingError
-from kartpilot.core.files import is_torn_last_line, read_text_file, write_json_atomic
+from kartpilot.core.errors import DataError, RecordingError
+from kartpilot.core.files import (
+    csv_records,
+    is_torn_last_line,
+    iter_csv_file,
+    read_json_file,
+    read_text_file,
+    write_json_atomic,
+)
 from kartpilot.core.geometry import Array, invert_pose, quaternion_xyzw_from_pose
 from kartpilot.core.trajectory import Trajectory, read_tum, write_tum
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image, StereoFrame
@@ -346,9 +350,9 @@ class RecordingReader:
         if not manifest_path.is_file():
             raise RecordingError(f"{self.folder} is not a kartpilot recording (no manifest.json)")
         try:
-            manifest = json.loads(read_text_file(manifest_path))
-        except json.JSONDecodeError as exc:
-            raise RecordingError(f"{manifest_path} is not valid JSON: {exc}") from exc
+            manifest = read_json_file(manifest_path)
+        except DataError as exc:
+            raise RecordingError(str(exc)) from None
         if manifest.get("format") != FORMAT_NAME:
             raise RecordingError(f"{manifest_path}: format is {manifest.get('format')!r}, not {FORMAT_NAME!r}")
         if int(manifest.get("version", 0)) > FORMAT_VERSION:
@@ -384,7 +388,7 @@ class RecordingReader:
             raise RecordingError(f"missing frame list {csv_path}")
         rows: list[tuple[int, Path, int]] = []
         content = read_text_file(csv_path)
-        listed = list(csv.DictReader(io.StringIO(content)))
+        listed = csv_records(content)
         for number, row in enumerate(listed, start=2):
             try:
                 path = csv_path.parent / row["file"]
@@ -419,7 +423,7 @@ class RecordingReader:
             return []
         result: list[ActuatorCommand] = []
         content = read_text_file(path)
-        rows = list(csv.DictReader(io.StringIO(content)))
+        rows = csv_records(content)
         for number, row in enumerate(rows, start=2):
             try:
                 values = (float(row["steer_rad"]), float(row["throttle"]), float(row["brake"]))
@@ -447,14 +451,7 @@ class RecordingReader:
         path = self.folder / "outputs" / f"{topic}.csv"
         if not path.is_file():
             raise RecordingError(f"recording has no output {topic!r} (has {', '.join(self.output_topics()) or 'none'})")
-        rows = []
-        with path.open(newline="") as handle:
-            reader = csv.DictReader(handle)
-            for row in reader:
-                if None in row or any(v is None for v in row.values()):
-                    continue
-                rows.append({k: _parse(v) for k, v in row.items()})
-        return rows
+        return [{k: _parse(v) for k, v in row.items()} for row in iter_csv_file(path, skip_torn=True)]
 
     def can_frames(self) -> list[tuple[int, str, int, bytes]]:
         """(stamp_ns, direction, id, data) of the recorded CAN traffic."""
@@ -462,13 +459,11 @@ class RecordingReader:
         if not path.is_file():
             return []
         frames = []
-        with path.open(newline="") as handle:
-            for row in csv.DictReader(handle):
-                try:
-                    frames.append((int(row["stamp_ns"]), row["direction"], int(row["id"], 16),
-                                   bytes.fromhex(row["data"])))
-                except (KeyError, TypeError, ValueError):
-                    continue
+        for row in iter_csv_file(path, skip_torn=True):
+            try:
+                frames.append((int(row["stamp_ns"]), row["direction"], int(row["id"], 16), bytes.fromhex(row["data"])))
+            except (KeyError, TypeError, ValueError):
+                continue
         return frames
 
     def groundtruth(self) -> Trajectory | None:

@@ -13,9 +13,9 @@ from pathlib import Path
 import cv2
 
 from kartpilot.core.errors import DataError, KartpilotError, RecordingError
+from kartpilot.core.images import read_image
 from kartpilot.core.types import FrameSet
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
-from kartpilot.sensors.base import read_image
 from kartpilot.sensors.donkeycar import DonkeyTub, is_donkey_tub
 
 __all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "RecordingFrameSource", "StereoReplaySource", "open_frames"]
@@ -135,10 +135,11 @@ class RecordingFrameSource:
         stamp, members = self._sets[index]
         images, capture = {}, {}
         for name, (path, capture_ns) in members.items():
-            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-            if image is None or image.size == 0:
+            try:
+                image = read_image(path, cv2.IMREAD_UNCHANGED)
+            except DataError as exc:
                 self.unreadable += 1
-                log.warning("frame %s of %s unreadable", path.name, name)
+                log.warning("frame %s of %s unreadable: %s", path.name, name, exc)
                 continue
             images[name], capture[name] = image, capture_ns
         return FrameSet(index, stamp, images, capture)

@@ -41,6 +41,7 @@ import rerun as rr
 
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import DataError
+from kartpilot.core.images import read_image
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image
 from kartpilot.record.recording import RecordingReader
@@ -325,10 +326,7 @@ def view_recording(folder: str | Path, target: str | Path, config: ViewConfig = 
         events += [(stamp, 3, (i, d, direction)) for stamp, direction, i, d in reader.can_frames()]
         for index, (stamp, kind, item) in enumerate(sorted(events, key=lambda e: (e[0], e[1]))):
             if kind == 0:
-                images = {name: cv2.imread(str(path), cv2.IMREAD_UNCHANGED) for name, path in item.items()}
-                unreadable = [name for name, image in images.items() if image is None]
-                if unreadable:
-                    raise DataError(f"cannot read {item[unreadable[0]]}")
+                images = {name: read_image(path, cv2.IMREAD_UNCHANGED) for name, path in item.items()}
                 view.write_frames(FrameSet(index, stamp, images))
             elif kind == 1:
                 view.send(item)

@@ -50,7 +50,9 @@ from rosbags.typesys.store import Typestore
 
 from kartpilot.core.camera import DISTORTION_COUNTS, PinholeCamera
 from kartpilot.core.errors import CalibrationError, DataError
+from kartpilot.core.files import read_file_bytes
 from kartpilot.core.geometry import Array, invert_pose, mount_pose, pose_from_quaternion, quaternion_xyzw_from_pose
+from kartpilot.core.images import decode_image as decode_encoded
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import ActuatorCommand, Image
 from kartpilot.core.vehicle import VehicleParams
@@ -165,9 +167,7 @@ def decode_image(msg: Any, msgtype: str) -> Image:
     """The BGR (or grey) pixels of an image or compressed-image message; DataError when they cannot be read."""
     if msgtype == COMPRESSED:
         data = np.asarray(msg.data, dtype=np.uint8)
-        image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-        if image is None:
-            raise DataError(f"a compressed image ({msg.format!r}) cannot be decoded")
+        image = decode_encoded(data, f"a compressed image ({msg.format!r})", cv2.IMREAD_UNCHANGED)
         if image.dtype != np.uint8:
             raise DataError(f"a compressed image of {image.dtype} pixels: only 8-bit images are cameras here")
         return image if image.ndim == 2 or image.shape[2] == 3 else cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
@@ -555,7 +555,7 @@ def _export(reader: RecordingReader, out: Path, vehicle: VehicleParams | None) -
             baseline = float((invert_pose(left) @ camera.pose_body_cam_array)[0, 3])
         calibration = camera.ros_calibration(baseline)
         for (stamp, path), capture in zip(reader.frames(name), reader.capture_stamps(name), strict=True):
-            data = np.frombuffer(path.read_bytes(), dtype=np.uint8)
+            data = np.frombuffer(read_file_bytes(path), dtype=np.uint8)
             image_format = "jpeg" if path.suffix.lower() in (".jpg", ".jpeg") else "png"
             messages.append((capture, f"/{name}/image_raw/compressed", COMPRESSED,
                              t[COMPRESSED](header=stamped(stamp, name), format=image_format, data=data)))

@@ -11,18 +11,15 @@ import abc
 import queue
 import threading
 from collections.abc import Iterable, Iterator
-from pathlib import Path
 from typing import TypeVar, cast
 
-import cv2
-import numpy as np
-
 from kartpilot.core.camera import StereoRig
-from kartpilot.core.errors import DataError, KartpilotError
+from kartpilot.core.errors import KartpilotError
+from kartpilot.core.images import MIN_IMAGE_PX, read_gray, read_image
 from kartpilot.core.trajectory import Trajectory
-from kartpilot.core.types import FrameSet, Image, StereoFrame
+from kartpilot.core.types import FrameSet, StereoFrame
 
-__all__ = ["StereoSource", "read_ahead", "read_gray", "read_image"]
+__all__ = ["MIN_IMAGE_PX", "StereoSource", "read_ahead", "read_gray", "read_image"]
 
 T = TypeVar("T")
 
@@ -110,45 +107,3 @@ def read_ahead(items: Iterable[T], depth: int = 2) -> Iterator[T]:
         thread.join(timeout=5.0)
 
 
-def read_gray(path: str | Path) -> Image:
-    """Read an image as 8-bit grayscale; a missing, corrupt or empty file raises DataError."""
-    return read_image(path, cv2.IMREAD_GRAYSCALE)
-
-
-MIN_IMAGE_PX = 32
-"""The smallest side an image may have (a Donkey Car's camera gives 160x120): below it no pipeline has a region of
-interest to look at, and OpenCV's resizing and HOG fail inside (one crashed the process)."""
-
-
-def read_image(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> Image:
-    """Read an image (BGR by default; OpenCV's ``flags``); a missing, corrupt, cut-off, empty or tiny (under
-    :data:`MIN_IMAGE_PX` a side) file raises DataError. A JPEG or PNG cut off in its writing (a full disk, a copy
-    stopped half-way) still decodes in OpenCV, with its lower part grey, so its end marker is checked first."""
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"image not found: {path}")
-    if path.stat().st_size == 0:  # OpenCV asserts on an empty buffer rather than returning None
-        raise DataError(f"the image {path} is empty (0 bytes)")
-    _check_complete(path)
-    # decoded from its bytes: OpenCV's own reader fails on a file name that is not valid UTF-8
-    image = cv2.imdecode(np.fromfile(path, np.uint8), flags)
-    if image is None or image.size == 0:
-        raise DataError(f"cannot read image (corrupt or not an image): {path}")
-    if min(image.shape[:2]) < MIN_IMAGE_PX:
-        raise DataError(f"the image {path} is {image.shape[1]}x{image.shape[0]} px: too small for a camera's view "
-                        f"(at least {MIN_IMAGE_PX} px a side)")
-    return image
-
-
-def _check_complete(path: Path) -> None:
-    """A JPEG must end with its end-of-image marker, a PNG with its IEND chunk (a few padding bytes allowed)."""
-    with path.open("rb") as f:
-        head = f.read(8)
-        f.seek(0, 2)
-        size = f.tell()
-        f.seek(max(size - 64, 0))
-        tail = f.read()
-    if head[:3] == b"\xff\xd8\xff" and b"\xff\xd9" not in tail.rstrip(b"\x00\r\n ")[-4:]:
-        raise DataError(f"the JPEG {path} is cut off: it has no end-of-image marker")
-    if head == b"\x89PNG\r\n\x1a\n" and b"IEND" not in tail[-16:]:
-        raise DataError(f"the PNG {path} is cut off: it has no IEND chunk")

@@ -9,16 +9,15 @@ and the catalogs' bookkeeping (``paths``, ``deleted_indexes``). Each catalog lin
 from __future__ import annotations
 
 import itertools
-import json
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from kartpilot.core.errors import DataError
-from kartpilot.core.files import read_text_file
+from kartpilot.core.files import parse_json, read_text_file
+from kartpilot.core.images import read_image
 from kartpilot.core.types import FrameSet
 
 __all__ = ["DonkeyTub", "TubRecord", "is_donkey_tub"]
@@ -47,9 +46,10 @@ class DonkeyTub:
         if not manifest.is_file():
             raise DataError(f"not a Donkey Car tub (no manifest.json): {self.folder}")
         try:
-            documents = [json.loads(line) for line in read_text_file(manifest).splitlines() if line.strip()]
-        except json.JSONDecodeError as exc:
-            raise DataError(f"the tub's manifest {manifest} is not JSON lines: {exc}") from exc
+            documents = [parse_json(line, f"{manifest}, line {number}")
+                         for number, line in enumerate(read_text_file(manifest).splitlines(), 1) if line.strip()]
+        except DataError as exc:
+            raise DataError(f"the tub's manifest is not JSON lines: {exc}") from None
         book = next((d for d in documents if isinstance(d, dict) and "paths" in d), None)
         if book is None:
             raise DataError(f"the tub's manifest {manifest} lists no catalogs")
@@ -63,14 +63,14 @@ class DonkeyTub:
                 if not line.strip():
                     continue
                 try:
-                    row = json.loads(line)
+                    row = parse_json(line, f"{path}, line {number}")
                     index = int(row["_index"])
                     if index in deleted:
                         continue
                     records.append(TubRecord(index, int(row["_timestamp_ms"]),
                                              self.folder / "images" / row["cam/image_array"],
                                              float(row.get("user/angle", 0.0)), float(row.get("user/throttle", 0.0))))
-                except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+                except (DataError, KeyError, TypeError, ValueError) as exc:
                     raise DataError(f"{path} line {number} is not a tub record: {exc}") from exc
         if not records:
             raise DataError(f"the tub {self.folder} has no records")
@@ -93,7 +93,5 @@ class DonkeyTub:
     def frames(self) -> Iterator[FrameSet]:
         """The images as frame sets of one camera, ``center``; an unreadable image is skipped with an error."""
         for k, record in enumerate(self.records):
-            image = cv2.imread(str(record.image_path), cv2.IMREAD_COLOR)
-            if image is None:
-                raise DataError(f"cannot read the tub image {record.image_path}")
+            image = read_image(record.image_path)
             yield FrameSet(k, record.stamp_ms * 1_000_000, {"center": image})

@@ -43,6 +43,27 @@ def read_kitti_calib(path: Path) -> dict[str, np.ndarray]:
     return matrices
 
 
+def read_times(path: Path) -> np.ndarray:
+    """A KITTI ``times.txt``: one time in seconds a line; blank lines and a header line (a first line that is not a
+    number, as some exports write) are skipped; any other line that is not a finite number raises DataError naming
+    the file and the line."""
+    times = []
+    for number, line in enumerate(read_text_file(path).splitlines(), 1):
+        text = line.strip()
+        if not text:
+            continue
+        try:
+            value = float(text.split()[0])
+        except ValueError:
+            if number == 1:
+                continue
+            raise DataError(f"{path}, line {number}: {text[:40]!r} is not a time in seconds") from None
+        if not np.isfinite(value):
+            raise DataError(f"{path}, line {number}: {text[:40]!r} is not a finite time")
+        times.append(value)
+    return np.array(times, float)
+
+
 class KittiOdometrySource(StereoSource):
     """Frames of one KITTI odometry sequence."""
 
@@ -66,7 +87,7 @@ class KittiOdometrySource(StereoSource):
         self._rig = StereoRig.from_projections(calib["P0"], calib["P1"], (first.shape[1], first.shape[0]))
         times_path = sequence_dir / "times.txt"
         if times_path.is_file():
-            times = np.loadtxt(times_path, ndmin=1)
+            times = read_times(times_path)
             if len(times) < len(self._left):
                 raise DataError(f"{times_path} has {len(times)} times for {len(self._left)} frames")
             self._stamps_s = times[: len(self._left)]

@@ -10,7 +10,6 @@ A failed cell is stored with its error and run again by the next ``study run``.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import time
@@ -23,7 +22,7 @@ from typing import Any
 from tqdm import tqdm
 
 from kartpilot.core.errors import ConfigError, DataError
-from kartpilot.core.files import read_text_file, write_json_atomic
+from kartpilot.core.files import read_json_file, write_json_atomic
 from kartpilot.study.jobs import JobContext, run_cell
 from kartpilot.study.spec import Cell, StudySpec, code_version, expand_cells
 
@@ -51,8 +50,8 @@ def _stored(out: Path, key: str, version: str) -> dict[str, Any] | None:
     if not path.is_file():
         return None
     try:
-        row = json.loads(read_text_file(path))
-    except (ValueError, DataError):
+        row = read_json_file(path)
+    except DataError:
         return None  # a damaged cache file is computed again
     if row.get("status") != "ok" or row.get("code_version") != version:
         return None
@@ -196,8 +195,8 @@ def load_rows(out: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
         if not (out / name).is_file():
             raise DataError(f"{out} holds no study results ({name} is missing): run `kartpilot study run` first")
     try:
-        meta = json.loads(read_text_file(out / "study.json"))
-        rows = json.loads(read_text_file(out / "rows.json"))["rows"]
-    except (ValueError, KeyError) as exc:
+        meta = read_json_file(out / "study.json")
+        rows = read_json_file(out / "rows.json")["rows"]
+    except (DataError, KeyError, TypeError) as exc:
         raise DataError(f"{out}: damaged study results: {exc}") from exc
     return meta, list(rows)
