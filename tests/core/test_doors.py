@@ -32,7 +32,7 @@ def test_an_image_larger_than_the_budget_by_its_header_is_refused_before_decodin
     assert bomb.stat().st_size < 1000
     with pytest.raises(DataError, match=r"60000x60000 px by its header: more than the 50 megapixels"):
         read_image(bomb)
-    assert 60_000 * 60_000 > MAX_IMAGE_PIXELS
+    assert MAX_IMAGE_PIXELS < 60_000 * 60_000
 
 
 @pytest.mark.parametrize("suffix", [".png", ".jpg", ".bmp"])
