@@ -38,8 +38,27 @@ def _refused(capsys, argv: list[str], says: str) -> None:
 def test_an_output_that_is_an_input_or_inside_an_input_folder_is_refused_and_the_file_kept(photos, capsys):
     before = (photos / "a.png").read_bytes()
     _refused(capsys, ["detect", str(photos / "a.png"), "--out", str(photos / "a.png")], "also an input")
-    _refused(capsys, ["detect", str(photos), "--out", str(photos / "a.png")], "a file in an input")
+    _refused(capsys, ["detect", str(photos), "--out", str(photos / "a.png")], "inside an input")
     assert (photos / "a.png").read_bytes() == before
+
+
+def test_an_output_inside_an_input_recording_or_onto_a_named_input_is_refused(photos, tmp_path, capsys):
+    """Issue 56: an output among a recording's own files (not only its images), a new file written into a
+    recording, and an output on a camera's image given as NAME=FILE are all refused, and the files kept."""
+    recording = tmp_path / "rec"
+    (recording / "cameras").mkdir(parents=True)
+    (recording / "manifest.json").write_text("{}")
+    (recording / "commands.csv").write_text("stamp_ns,steer_rad,throttle,brake\n")
+    before = (recording / "commands.csv").read_bytes()
+    _refused(capsys, ["can", "monitor", "--recording", str(recording), "--json", str(recording / "commands.csv")],
+             "inside an input")
+    _refused(capsys, ["replay", str(recording), "--pipeline", "lanes", "--out", str(recording / "replayed")],
+             "inside an input")
+    assert (recording / "commands.csv").read_bytes() == before and not (recording / "replayed").exists()
+    image = photos / "a.png"
+    kept = image.read_bytes()
+    _refused(capsys, ["calibrate", "ground", "--image", f"center={image}", "--out", str(image)], "also an input")
+    assert image.read_bytes() == kept
 
 
 def test_two_outputs_on_one_path_are_refused(photos, tmp_path, capsys):

@@ -139,11 +139,24 @@ def _option(dest: str, positional: bool) -> str:
 
 
 def _paths(value: object) -> list[str]:
+    """The paths an option's value names: itself, each of a list's, and the file of a ``NAME=FILE`` value (a
+    camera's image, a folder's rig) where the value itself is no file."""
     if isinstance(value, (str, Path)):
-        return [str(value)]
+        text = str(value)
+        name, equals, file = text.partition("=")
+        if equals and file and name and not Path(text).exists():
+            return [text, file]
+        return [text]
     if isinstance(value, (list, tuple)):
         return [p for v in value for p in _paths(v)]
     return []
+
+
+def _in_recording(folder: Path, target: Path) -> bool:
+    """Whether ``target`` lies inside ``folder`` and ``folder`` is a recording or a dataset's own tree (it holds
+    a manifest, a tub's catalog or a sequence's calibration): writing there changes what it holds."""
+    marks = ("manifest.json", "calib.txt", "times.txt", "metadata.yaml")
+    return folder.is_dir() and folder in target.parents and any((folder / m).is_file() for m in marks)
 
 
 def check_paths(args: argparse.Namespace, dests: dict[str, bool], positionals: frozenset[str] = frozenset()) -> None:
@@ -181,13 +194,17 @@ def check_paths(args: argparse.Namespace, dests: dict[str, bool], positionals: f
             written[target] = option
             for other, found in inputs.items():
                 for p in found:
-                    inside = (p.is_dir() and target.is_file() and target.suffix.lower() in _MEDIA
-                              and p.absolute().resolve() in target.parents)
-                    if p.absolute().resolve() == target or (target.exists() and _same(p, target)) or inside:
+                    folder = p.absolute().resolve()
+                    # a file already in an input folder (one of its images, or any file of a recording's) is the
+                    # input's, and anything written into a recording changes what the recording holds
+                    inside = p.is_dir() and folder in target.parents and (
+                        (target.is_file() and (target.suffix.lower() in _MEDIA or _in_recording(folder, target)))
+                        or _in_recording(folder, target))
+                    if folder == target or (target.exists() and _same(p, target)) or inside:
                         raise argparse.ArgumentTypeError(
-                            f"{option} {text} is {'a file in' if inside else 'also'} an input "
-                            f"({_option(other, other in positionals)}{' ' + str(p) if inside else ''}): it would be "
-                            "overwritten; give another path")
+                            f"{option} {text} is {'inside' if inside else 'also'} an input "
+                            f"({_option(other, other in positionals)}{' ' + str(p) if inside else ''}): it would "
+                            f"{'change what the input holds' if inside else 'be overwritten'}; give another path")
 
 
 _MEDIA = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".mp4", ".avi", ".mkv", ".mov"}

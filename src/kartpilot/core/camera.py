@@ -5,6 +5,7 @@ Pixel convention is OpenCV's: the centre of the top-left pixel is (0, 0).
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
@@ -46,6 +47,11 @@ class CaptureSettings:
             raise CalibrationError(f"fourcc must have 4 characters, got {self.fourcc!r}")
 
 
+MAX_FOCAL_PER_PX = 100.0
+"""The longest focal length a camera may have, in multiples of its image's longest side: a field of view of about
+half a degree. A kart's cameras have 0.4 to 1.5 (a 30 to 100 degree view); an infinite focal length is a typo."""
+
+
 @dataclass(frozen=True)
 class PinholeCamera:
     """Intrinsics of one camera.
@@ -78,6 +84,21 @@ class PinholeCamera:
             raise CalibrationError(f"focal lengths must be positive, got {self.fx_px}, {self.fy_px}")
         if self.width_px <= 0 or self.height_px <= 0:
             raise CalibrationError(f"image size must be positive, got {self.width_px}x{self.height_px}")
+        longest = max(self.width_px, self.height_px)
+        if not (self.fx_px <= MAX_FOCAL_PER_PX * longest and self.fy_px <= MAX_FOCAL_PER_PX * longest):
+            raise CalibrationError(f"focal lengths {self.fx_px}, {self.fy_px} px for a {self.width_px}x"
+                                   f"{self.height_px} image: a field of view under half a degree (at most "
+                                   f"{MAX_FOCAL_PER_PX} times the image's side)")
+        if not all(math.isfinite(v) for v in self.distortion):
+            raise CalibrationError(f"distortion coefficients must be finite numbers, got {list(self.distortion)}")
+        pose = np.asarray(self.pose_body_cam, dtype=np.float64)
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+            raise CalibrationError("the camera's pose on the body must be a 4x4 of finite numbers")
+        rotation = pose[:3, :3]
+        if not (np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4) and np.linalg.det(rotation) > 0
+                and np.allclose(pose[3], (0.0, 0.0, 0.0, 1.0))):
+            raise CalibrationError("the camera's pose on the body is not a rigid motion (its 3x3 part must be a "
+                                   "rotation: orthonormal, not mirrored)")
         if not (0 <= self.cx_px <= self.width_px and 0 <= self.cy_px <= self.height_px):
             raise CalibrationError(
                 f"principal point ({self.cx_px}, {self.cy_px}) lies outside the "

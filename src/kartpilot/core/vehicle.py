@@ -146,6 +146,27 @@ class VehicleParams:
     def __post_init__(self) -> None:
         if self.protocol not in PROTOCOLS:
             raise ConfigError(f"vehicle {self.name!r}: protocol must be one of {', '.join(PROTOCOLS)}")
+        positive = ("wheelbase_m", "width_m", "mass_kg", "yaw_inertia_kgm2", "tyre_stiffness_per_rad", "friction",
+                    "max_steer_rad", "steer_rate_radps", "top_speed_mps", "max_accel_mps2", "max_brake_mps2",
+                    "battery_endurance_s")
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"vehicle {self.name!r}: {name} must be a positive number, got {value}")
+        at_least_zero = ("cg_to_rear_m", "front_overhang_m", "rear_overhang_m", "steer_lag_s", "rolling_decel_mps2",
+                         "battery_sag", "min_speed_mps", "kinematic_below_mps", "dynamic_above_mps")
+        for name in at_least_zero:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ConfigError(f"vehicle {self.name!r}: {name} must be zero or more, got {value}")
+        if not self.cg_to_rear_m <= self.wheelbase_m:
+            raise ConfigError(f"vehicle {self.name!r}: its centre of gravity ({self.cg_to_rear_m} m from the rear "
+                              f"axle) lies beyond the front axle ({self.wheelbase_m} m)")
+        if not self.max_steer_rad < math.pi / 2:
+            raise ConfigError(f"vehicle {self.name!r}: max_steer_rad {self.max_steer_rad} must be under 90 degrees")
+        if not (self.battery_sag < 1 and self.kinematic_below_mps <= self.dynamic_above_mps):
+            raise ConfigError(f"vehicle {self.name!r}: battery_sag under 1, and kinematic_below_mps at most "
+                              "dynamic_above_mps")
         if self.protocol == "rdw" and self.steering.max_steer_rad < self.max_steer_rad - 1e-9:
             reach = self.steering.max_steer_rad
             raise ConfigError(f"vehicle {self.name!r}: its steering calibration reaches {reach:.3f} rad, less than its "

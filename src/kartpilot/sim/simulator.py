@@ -196,6 +196,19 @@ def body_pose(state: VehicleState) -> Array:
     return pose
 
 
+def check_drivable(track: Track, vehicle: VehicleParams) -> None:
+    """Refuse a track with a bend tighter than the kart's tightest turn (its rear axle's radius at full lock,
+    ``wheelbase / tan(max_steer)``): no driver could follow it, and the drive would end as a failure of the stack
+    rather than of the file."""
+    tightest_m = vehicle.wheelbase_m / math.tan(vehicle.max_steer_rad)
+    curvature = np.abs(track.route.curvature_1pm)  # the route (a split's branch is the wrong way anyway)
+    k = int(np.argmax(curvature))
+    if curvature[k] * tightest_m > 1.0:
+        raise ConfigError(f"track {track.name!r}: a bend of {1.0 / curvature[k]:.2f} m radius at "
+                          f"{track.route.s_m[k]:.0f} m along the route is tighter than the {vehicle.name}'s tightest "
+                          f"turn ({tightest_m:.2f} m at full lock)")
+
+
 class Simulator:
     """A track, a kart, its cameras and the referee, stepped at the camera rate."""
 
@@ -208,6 +221,7 @@ class Simulator:
         if config.props:
             self.track = replace(self.track, spec=replace(self.track.spec, props=self.track.spec.props + config.props))
         self.vehicle = vehicle or get_vehicle(config.vehicle)
+        check_drivable(self.track, self.vehicle)
         if config.speed_mode_mps > 0:
             self.vehicle = replace(self.vehicle, top_speed_mps=min(self.vehicle.top_speed_mps, config.speed_mode_mps))
         names = config.cameras or tuple(name for name, _ in self.vehicle.cameras)
