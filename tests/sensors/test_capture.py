@@ -79,9 +79,15 @@ def test_frames_of_three_cameras_are_grouped_by_time_and_the_skew_is_measured():
         # cameras' skew among themselves (16.9 ms once in CI, on a busy machine) is the threads' timing, not its own
         assert all(abs(c - frames.capture_ns["center"]) <= 15e6 for c in frames.capture_ns.values())
         assert frames.capture_ns["center"] == frames.stamp_ns
+    # the skew reported is the sets' own (each set's latest capture less its earliest), whatever the threads'
+    # timing did to it: on a busy machine the cameras' 7 ms grows (14 ms once, in the suite), so the figure is
+    # checked against the sets, not against a clock
     median_skew = source.stats()["skew_ms"]["median"]
-    print(f"median skew {median_skew:.2f} ms (cameras 7 ms apart at most)")
-    assert 4.0 <= median_skew <= 12.0
+    own = [(max(s.capture_ns.values()) - min(s.capture_ns.values())) * 1e-6 for s in sets
+           if s is not None and len(s.capture_ns) > 1]
+    print(f"median skew {median_skew:.2f} ms (cameras 7 ms apart when the machine is idle)")
+    assert median_skew == pytest.approx(float(np.median(own)), abs=1e-3)
+    assert median_skew >= 3.0  # the cameras' offsets (4 and 7 ms) are in it
     stamps = [s.stamp_ns for s in sets if s is not None]
     assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps)
 
