@@ -6,6 +6,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
+import numpy as np
 from numpy.typing import NDArray
 
 __all__ = [
@@ -15,6 +16,7 @@ __all__ = [
     "FrameSink",
     "FrameSource",
     "Image",
+    "LaserScan",
     "OperatorInput",
     "StereoFrame",
     "VehicleFeedback",
@@ -95,6 +97,42 @@ class ActuatorCommand:
     def is_stop(self) -> bool:
         """Full brake and no throttle (wherever the wheels point)."""
         return self.brake >= 1.0 and self.throttle == 0.0
+
+
+@dataclass(frozen=True)
+class LaserScan:
+    """One sweep of a planar LiDAR, as ROS 2's ``sensor_msgs/LaserScan`` holds it (angles counter-clockwise from
+    the sensor's x axis, forward; its frame on the kart is the rig's).
+
+    Attributes:
+        stamp_ns: the time of the sweep's first beam.
+        angle_min_rad, angle_increment_rad: the first beam's angle and the step between beams.
+        time_increment_s: the time between beams (a sweep of ``scan_time_s`` is not one instant: the kart moves).
+        scan_time_s: the time from one sweep to the next.
+        range_min_m, range_max_m: what the sensor measures; a beam without a return is NaN.
+        ranges_m: (N,) the distance along each beam.
+        intensities: (N,) each return's strength (0 where there was none).
+    """
+
+    stamp_ns: int
+    angle_min_rad: float
+    angle_increment_rad: float
+    time_increment_s: float
+    scan_time_s: float
+    range_min_m: float
+    range_max_m: float
+    ranges_m: NDArray[np.float32]
+    intensities: NDArray[np.float32]
+
+    def angles_rad(self) -> NDArray[np.float64]:
+        """Each beam's angle."""
+        return np.asarray(self.angle_min_rad + self.angle_increment_rad * np.arange(len(self.ranges_m)), np.float64)
+
+    def points_m(self) -> NDArray[np.float64]:
+        """(M, 2) x, y in the sensor's frame of the beams with a return."""
+        angles, ranges = self.angles_rad(), np.asarray(self.ranges_m, np.float64)
+        seen = np.isfinite(ranges)
+        return np.column_stack([ranges[seen] * np.cos(angles[seen]), ranges[seen] * np.sin(angles[seen])])
 
 
 @dataclass(frozen=True)
