@@ -82,7 +82,8 @@ def test_a_sweep_taken_while_moving_is_skewed_by_the_distance_driven() -> None:
     still = simulate_scan(track, track.start_pose(), 0.0, 0.0, 0.0, config, np.random.default_rng(0))
     moving = simulate_scan(track, track.start_pose(), 5.0, 0.0, 0.0, config, np.random.default_rng(0))
     first, last = moving.ranges_m[0], moving.ranges_m[-1]
-    print(f"ahead: {still.ranges_m[0]:.3f} m standing; moving {first:.3f} m at the sweep's start, {last:.3f} at its end")
+    print(f"ahead: {still.ranges_m[0]:.3f} m standing; moving {first:.3f} m at the sweep's start, "
+          f"{last:.3f} at its end")
     assert first == pytest.approx(still.ranges_m[0], abs=1e-3)
     assert first - last == pytest.approx(5.0 * 0.1 * 799 / 800, abs=0.01)
 
@@ -90,7 +91,7 @@ def test_a_sweep_taken_while_moving_is_skewed_by_the_distance_driven() -> None:
 @pytest.mark.parametrize(("field", "value"), [("rate_hz", 0.0), ("step_deg", math.nan), ("range_max_m", 500.0),
                                               ("height_m", -0.1)])
 def test_a_sensor_that_cannot_be_is_refused_by_name(field: str, value: float) -> None:
-    with pytest.raises(ConfigError, match=f"lidar.{field}"):
+    with pytest.raises(ConfigError, match=rf"lidar\.{field}"):
         LidarConfig(**{field: value})
-    with pytest.raises(ConfigError, match="lidar.dropout.ghost"):
+    with pytest.raises(ConfigError, match=r"lidar\.dropout\.ghost"):
         LidarConfig(dropout={"ghost": 0.5})
