@@ -8,10 +8,12 @@ import csv
 import io
 import json
 import os
+import re
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, BinaryIO
 
+import numpy as np
 import yaml
 
 from kartpilot.core.errors import DataError
@@ -94,26 +96,19 @@ def parse_json(text: str, source: str | Path, allow_nan: bool = True) -> Any:
         raise DataError(f"{source}: not valid JSON ({exc})") from None
 
 
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
+
+
 def _json_depth(text: str) -> int:
-    """The deepest nesting of brackets outside strings (a linear scan, before the parser recurses)."""
-    depth = deepest = 0
-    in_string = escaped = False
-    for char in text:
-        if in_string:
-            if escaped:
-                escaped = False
-            elif char == "\\":
-                escaped = True
-            elif char == '"':
-                in_string = False
-        elif char == '"':
-            in_string = True
-        elif char in "[{":
-            depth += 1
-            deepest = max(deepest, depth)
-        elif char in "]}":
-            depth -= 1
-    return deepest
+    """The deepest nesting of brackets outside strings: the strings taken out by one regular expression, then the
+    brackets' running count (no recursion, and C speed on a label file of megabytes)."""
+    if text.count("[") + text.count("{") <= MAX_JSON_DEPTH:
+        return 0  # too few brackets to nest too deep: most files stop here
+    brackets = np.frombuffer(_JSON_STRING.sub('""', text).encode("utf-8", "replace"), np.uint8)
+    steps = np.zeros(len(brackets), np.int64)
+    steps[(brackets == ord("[")) | (brackets == ord("{"))] = 1
+    steps[(brackets == ord("]")) | (brackets == ord("}"))] = -1
+    return int(np.cumsum(steps).max(initial=0))
 
 
 def read_json_file(path: str | Path, allow_nan: bool = True) -> Any:
