@@ -174,7 +174,7 @@ def measure(data: Path) -> dict[str, Any]:
     images = {n: cv2.imread(str(hanze / f"{n}.jpg")) for n in ("left", "center", "right")}
     # as `calibrate ground` does: the markers' side measured against the squares, every point of the board
     marker = measure_marker(list(images.values()), BOARD)
-    board = replace(BOARD, marker_m=marker) if marker is not None else BOARD
+    board = replace(BOARD, marker_m=marker or BOARD.marker_m, marker_corners=True)
     views = {n: find_board(im, board, n) for n, im in images.items()}
     mounts = calibrate_ground(views, {n: (1920, 1080) for n in images}, resamples=50)  # type: ignore[arg-type]
     ground: dict[str, Any] = {"marker_measured_m": marker, "marker_given_m": BOARD.marker_m,

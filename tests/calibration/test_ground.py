@@ -77,7 +77,7 @@ def test_the_real_kart_s_three_cameras_measure_the_board_s_squares_in_the_birdse
     through its recovered pose, shows squares of 0.115 m (the board found again in the warped view)."""
     images = {n: cv2.imread(str(HANZE / f"{n}.jpg")) for n in ("left", "center", "right")}
     # the markers' side as the detector places their corners (83.5 mm; the team's board says 86), as the CLI does
-    board = replace(BOARD, marker_m=measure_marker(list(images.values()), BOARD))
+    board = replace(BOARD, marker_m=measure_marker(list(images.values()), BOARD), marker_corners=True)
     views = {n: find_board(im, board, n) for n, im in images.items()}
     mounts = calibrate_ground(views, {n: (1920, 1080) for n in images})  # type: ignore[arg-type]
     view = BirdseyeView((0.0, 2.0), (-1.2, 1.2), 400.0)

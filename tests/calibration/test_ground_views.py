@@ -16,7 +16,8 @@ from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import CalibrationError
 from kartpilot.core.geometry import mount_pose
 
-BOARD = BoardConfig(kind="charuco", columns=10, rows=7, square_m=0.115, marker_m=0.085, dictionary="DICT_4X4_100")
+BOARD = BoardConfig(kind="charuco", columns=10, rows=7, square_m=0.115, marker_m=0.085, dictionary="DICT_4X4_100",
+                    marker_corners=True)
 LENS = PinholeCamera(1450.0, 1450.0, 959.5, 539.5, 1920, 1080)
 SIZE = (1920, 1080)
 # the SDC kart's centre and left cameras (0.9 m ahead of the rear axle here), and the board lying ahead and to the

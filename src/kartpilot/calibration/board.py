@@ -56,7 +56,12 @@ class BoardConfig:
         square_m: the side of one square.
         marker_m: the side of a ChArUco marker (0: 0.75 of a square).
         dictionary: the ArUco dictionary of a ChArUco board.
-        min_charuco_corners: fewest ChArUco corners for a view to count.
+        min_points: fewest points (corners) for a view to count.
+        legacy: the ChArUco layout of OpenCV before 4.6 (boards printed with it).
+        marker_corners: :func:`find_board` gives each marker's own four corners too (a ground calibration, whose
+            side cameras see part of the board, needs them; photos of the whole board for a lens have corners
+            enough, and the markers' corners, placed less precisely, would only add their bias: a rendered lens
+            came out 0.9 % further off with them).
     """
 
     kind: Literal["chessboard", "charuco"] = "chessboard"
@@ -67,7 +72,7 @@ class BoardConfig:
     dictionary: str = "DICT_4X4_50"
     min_points: int = 12
     legacy: bool = False
-    marker_corners: bool = True
+    marker_corners: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in ("chessboard", "charuco"):
@@ -145,13 +150,13 @@ def find_board(image: Image, board: BoardConfig, name: str = "") -> BoardView | 
     sufficiently (ChArUco: fewer than ``board.min_points`` points) visible."""
     if board.kind == "chessboard":
         return _find_chessboard(image, board, name)
-    view = board_points(image, board, name)
+    view = board_points(image, board, name, markers=board.marker_corners)
     return view if len(view.ids) >= board.min_points else None
 
 
-def board_points(image: Image, board: BoardConfig, name: str = "") -> BoardView:
+def board_points(image: Image, board: BoardConfig, name: str = "", markers: bool = True) -> BoardView:
     """Every point of a ChArUco board that ``image`` shows, however few: the inner corners OpenCV interpolates
-    from the markers around them and refines, and (``board.marker_corners``) each marker's own four corners,
+    from the markers around them and refines, and (``markers``) each marker's own four corners,
     refined to sub-pixel, so that a camera that sees only a corner of the board (a kart's side camera, looking
     outward while the board lies ahead) still has points enough: six markers give 24 and their corners between.
     Markers whose ids the board does not hold are ignored."""
@@ -172,8 +177,8 @@ def board_points(image: Image, board: BoardConfig, name: str = "") -> BoardView:
         pixels.append(corners.reshape(-1, 2))
         points.append(np.asarray(charuco.getChessboardCorners(), np.float64)[ids])
         point_ids.append(ids)
-    markers = 0
-    if board.marker_corners and marker_ids is not None and len(marker_ids):
+    described = 0
+    if markers and marker_ids is not None and len(marker_ids):
         index = {int(i): k for k, i in enumerate(np.asarray(charuco.getIds()).ravel())}
         objects = charuco.getObjPoints()
         for quad, marker_id in zip(marker_corners, np.asarray(marker_ids).ravel(), strict=True):
@@ -183,11 +188,11 @@ def board_points(image: Image, board: BoardConfig, name: str = "") -> BoardView:
             pixels.append(np.asarray(quad, np.float64).reshape(4, 2))
             points.append(np.asarray(objects[k], np.float64).reshape(4, 3))
             point_ids.append(base + 4 * int(marker_id) + np.arange(4))
-            markers += 1
+            described += 1
     if not pixels:
         return BoardView(name, np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64))
     return BoardView(name, np.concatenate(pixels).astype(np.float64), np.concatenate(points).astype(np.float64),
-                     np.concatenate(point_ids).astype(np.int64), markers)
+                     np.concatenate(point_ids).astype(np.int64), described)
 
 
 def _find_chessboard(image: Image, board: BoardConfig, name: str) -> BoardView | None:
@@ -321,7 +326,8 @@ def detect_board(images: Sequence[Image], square_m: float, marker_m: float = 0.0
                                f"{MAX_SQUARES}x{MAX_SQUARES} squares places them ({fit_text or 'none fits'}); give "
                                "--board COLUMNSxROWS and --dictionary")
     fit, _, columns, rows, legacy = found
-    board = BoardConfig("charuco", columns, rows, square_m, trial_marker, dictionary, legacy=legacy)
+    board = BoardConfig("charuco", columns, rows, square_m, trial_marker, dictionary, legacy=legacy,
+                        marker_corners=True)
     measured = measure_marker(grays, board) if not marker_m else None
     if measured is not None:
         board = replace(board, marker_m=measured)
@@ -342,7 +348,7 @@ def measure_marker(images: Sequence[Image], board: BoardConfig) -> float | None:
     corners are consistent with the inner corners only at the measured side."""
     sides: list[float] = []
     for image in images:
-        view = board_points(image, replace(board, marker_corners=True))
+        view = board_points(image, board)
         chess = view.chessboard()
         if view.markers == 0 or chess.corners < MIN_MEASURING_CORNERS:
             continue
