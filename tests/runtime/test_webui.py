@@ -364,3 +364,30 @@ def test_the_page_listens_where_it_is_told():
         assert server.host == "127.0.0.1" and server.urls() == [f"http://127.0.0.1:{server.port}/"]
     finally:
         server.close()
+
+
+def test_by_default_the_page_listens_on_this_machine_only() -> None:
+    """Issue 55: the default page is reachable from this machine and not from the hotspot: its listening socket is
+    bound to the loopback address (what `ss -ltn` would show as 127.0.0.1:PORT), and a connection to this
+    machine's other addresses is refused."""
+    import contextlib
+    import socket
+
+    server = WebServer(WebOperator(WebConfig(port=0))).start()
+    try:
+        assert server.server.socket.getsockname()[0] == "127.0.0.1" and server.urls() == [server.url]
+        with urllib.request.urlopen(server.url + "state", timeout=5) as reply:
+            assert reply.status == 200
+        others = set()
+        with contextlib.suppress(OSError):
+            others |= {info[4][0] for info in socket.getaddrinfo(socket.gethostname(), None, socket.AF_INET)}
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe, contextlib.suppress(OSError):
+            probe.connect(("10.255.255.255", 1))  # the address a route out would use; no packet is sent
+            others.add(probe.getsockname()[0])
+        outside = sorted(a for a in others if not a.startswith("127.") and a != "0.0.0.0")
+        print(f"listening on {server.server.socket.getsockname()}; this machine's other addresses: {outside}")
+        for address in outside:
+            with pytest.raises(OSError), socket.create_connection((address, server.port), timeout=2):
+                pass
+    finally:
+        server.close()
