@@ -61,3 +61,30 @@ def test_a_vehicle_that_cannot_be_is_refused(change: dict, says: str) -> None:
 
     with pytest.raises(ConfigError, match=says):
         replace(get_vehicle("rc-kart"), **change)
+
+
+@pytest.mark.parametrize("segments", ["    - {straight_m: 1.0e+9}\n", "    - {angle_deg: 360.0, radius_m: 1.0e+7}\n"])
+def test_a_track_of_thousands_of_kilometres_is_refused_before_it_is_sampled(tmp_path, segments: str) -> None:
+    from kartpilot.sim.track import load_track
+
+    track = tmp_path / "long.yaml"
+    track.write_text(f"name: long\ncenterline:\n  closed: false\n  segments:\n{segments}width_m: 2.0\n")
+    with pytest.raises(ConfigError, match=r"a track is at most 20 km"):
+        load_track(track)
+
+
+def test_a_birdseye_view_larger_than_its_bound_or_upside_down_is_refused() -> None:
+    from kartpilot.calibration.ground import BirdseyeView
+
+    with pytest.raises(ConfigError, match="more than 40 megapixels"):
+        BirdseyeView((0.0, 1e4), (-5.0, 5.0), 100.0)
+    with pytest.raises(ConfigError, match="ranges from low to high"):
+        BirdseyeView((8.0, 0.0))
+    assert BirdseyeView().size_wh == (1000, 800)
+
+
+def test_a_sweep_beyond_its_bound_is_refused_before_a_cell_is_made() -> None:
+    from kartpilot.study.sweep import MAX_SWEEP_EVENTS, sweep_cells
+
+    with pytest.raises(ConfigError, match=f"at most {MAX_SWEEP_EVENTS}"):
+        sweep_cells(10**9, 0)

@@ -35,7 +35,7 @@ import numpy as np
 
 from kartpilot.calibration.board import BoardView
 from kartpilot.core.camera import PinholeCamera
-from kartpilot.core.errors import CalibrationError
+from kartpilot.core.errors import CalibrationError, ConfigError
 from kartpilot.core.geometry import Array, invert_pose
 from kartpilot.core.types import Image
 
@@ -345,6 +345,10 @@ def ground_points(camera: PinholeCamera, pixels: Array) -> Array:
     return (origin[:2] + t[:, None] * rays[:, :2]).reshape(-1, 2)
 
 
+MAX_BIRDSEYE_PIXELS = 40_000_000
+"""The largest bird's-eye view kartpilot draws (8 m by 10 m at 100 px/m is 0.8 megapixels)."""
+
+
 @dataclass(frozen=True)
 class BirdseyeView:
     """The ground from above: ``x_range_m`` ahead (image up), ``y_range_m`` to the left (image left), at
@@ -353,6 +357,17 @@ class BirdseyeView:
     x_range_m: tuple[float, float] = (0.0, 8.0)
     y_range_m: tuple[float, float] = (-5.0, 5.0)
     pixels_per_m: float = 100.0
+
+    def __post_init__(self) -> None:
+        values = (*self.x_range_m, *self.y_range_m, self.pixels_per_m)
+        if not (all(math.isfinite(v) for v in values) and self.x_range_m[0] < self.x_range_m[1]
+                and self.y_range_m[0] < self.y_range_m[1] and self.pixels_per_m > 0):
+            raise ConfigError(f"bird's-eye view: ranges from low to high and a positive scale, got "
+                              f"{self.x_range_m}, {self.y_range_m}, {self.pixels_per_m} px/m")
+        w, h = self.size_wh
+        if w * h > MAX_BIRDSEYE_PIXELS:
+            raise ConfigError(f"bird's-eye view of {w}x{h} px: more than {MAX_BIRDSEYE_PIXELS / 1e6:.0f} "
+                              "megapixels; a smaller reach or fewer pixels per metre")
 
     @property
     def size_wh(self) -> tuple[int, int]:

@@ -570,6 +570,14 @@ def project_onto(piece: RoadPiece, xy: Array, hint: int | None = None,
 
 # --- construction helpers ---------------------------------------------------------------------
 
+MAX_TRACK_M = 20_000.0
+"""The longest track kartpilot builds: 20 km (the venue's course is 0.3 km, sdc-assen 1 km); a longer one, a typo of
+a few zeros, would be sampled into billions of points before anything else could say so."""
+
+MAX_CONTROL_POINTS = 5_000
+"""The most control points a spline centre line may have (each becomes 2,000 samples)."""
+
+
 def _centerline_points(spec: CenterlineSpec) -> Array:
     if bool(spec.segments) == bool(spec.points_m):
         raise ConfigError("track.centerline needs either 'segments' or 'points_m' (exactly one)")
@@ -579,6 +587,9 @@ def _centerline_points(spec: CenterlineSpec) -> Array:
             raise ConfigError("track.centerline.points_m needs at least 4 control points")
         if not np.all(np.isfinite(pts)) or pts.ndim != 2 or pts.shape[1] != 2:
             raise ConfigError("track.centerline.points_m must be finite (x, y) pairs")
+        if len(pts) > MAX_CONTROL_POINTS or np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)) > MAX_TRACK_M:
+            raise ConfigError(f"track.centerline.points_m: at most {MAX_CONTROL_POINTS} points and "
+                              f"{MAX_TRACK_M / 1000:.0f} km of track")
         if spec.closed and len(pts) > 4 and np.linalg.norm(pts[-1] - pts[0]) < 1e-6:
             pts = pts[:-1]  # a loop written with its first point again at the end: the same loop
         repeats = np.flatnonzero(np.linalg.norm(np.diff(pts, axis=0), axis=1) < 1e-6)
@@ -592,6 +603,10 @@ def _centerline_points(spec: CenterlineSpec) -> Array:
         tck, _ = splprep(pts.T, s=0.0, per=1 if spec.closed else 0, k=3)
         u = np.linspace(0.0, 1.0, 40 * len(pts) * 50)
         return np.stack(splev(u, tck), axis=1)
+    planned = sum(seg.straight_m + abs(math.radians(seg.angle_deg)) * seg.radius_m for seg in spec.segments)
+    if not (math.isfinite(planned) and planned <= MAX_TRACK_M):
+        raise ConfigError(f"track.centerline: its segments are {planned:.0f} m long; a track is at most "
+                          f"{MAX_TRACK_M / 1000:.0f} km (it is sampled every centimetre)")
     x, y = spec.start_xy_m
     heading = math.radians(spec.start_heading_deg)
     out = [(x, y)]

@@ -37,6 +37,10 @@ class SweepRun:
     cpus: float
 
 
+MAX_SWEEP_EVENTS = 20_000
+"""The most events one sweep runs: 20,000 drives are about two weeks of one core."""
+
+
 def sweep_cells(events: int, first_seed: int, ranges: DayRanges | None = None,
                 scenarios: Sequence[str] = SINGLE_SCENARIOS) -> list[Cell]:
     """``events`` cells: seeds ``first_seed`` on, the scenarios in turn; the stack is the scenarios' own (the kart
@@ -44,6 +48,9 @@ def sweep_cells(events: int, first_seed: int, ranges: DayRanges | None = None,
     unknown = [name for name in scenarios if name not in SCENARIOS]
     if unknown or events < 1:
         raise ConfigError(f"a sweep needs at least one event of known scenarios, got {events} of {list(scenarios)}")
+    if events > MAX_SWEEP_EVENTS:
+        raise ConfigError(f"a sweep of {events} events: at most {MAX_SWEEP_EVENTS} (each is a closed-loop drive of "
+                          "a minute on one core; split it by --first-seed)")
     stack = config_to_dict(load_stack_config(None, "kart"))
     variation = config_to_dict(ranges or DayRanges())
     cells = []
