@@ -174,6 +174,14 @@ def test_calibrate_ground_on_another_team_s_kart_finds_the_board_and_says_where_
         assert np.allclose(rig.cameras[name].pose_body_cam_array[:3, 3], pose[:3, 3], atol=0.01), name
     top = cv2.imread(str(tmp_path / "top.png"))
     assert top is not None and top.shape[:2] == (300, 400)
+    # --json: stdout is the summary alone (what was found goes to stderr)
+    import json
+
+    capsys.readouterr()  # what this test printed so far
+    assert main([*args, "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["board"]["columns"] == 10 and summary["cameras"]["left"]["markers"] == 6
+    assert summary["cameras"]["down"]["axis_heading_deg"] is None and summary["agreement"]
 
 
 def test_calibrate_ground_refuses_a_camera_looking_straight_down_without_its_lens(tmp_path, capsys):

@@ -7,7 +7,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from dataclasses import asdict, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -97,7 +99,8 @@ def _mono_views(args: argparse.Namespace, board: BoardConfig) -> tuple[list[Boar
         raise ConfigError(f"--video {args.video}: a {kind}, not a video (give photos as arguments)")
     frames = ((f"frame {fs.index}", fs.images["center"]) for fs in frame_sets)
     views, read, size = views_from_frames(frames, board, args.max_views)
-    print(f"{args.video}: {read} frames, the board found and moved in {len(views)} kept")
+    print(f"{args.video}: {read} frames, the board found and moved in {len(views)} kept",
+          file=sys.stderr if args.json else sys.stdout)
     return views, [], size
 
 
@@ -164,27 +167,28 @@ def _named_images(items: list[str]) -> dict[str, Path]:
 
 def _ground_board(args: argparse.Namespace, images: dict[str, Image]) -> BoardConfig:
     """The board of ``calibrate ground``: as given, or found in the images (layout, dictionary, the markers' side);
-    what was found is said."""
+    what was found is said (on stderr under ``--json``, whose stdout is the summary alone)."""
+    say = partial(print, file=sys.stderr if args.json else sys.stdout)
     if args.board and args.dictionary:
         board = _board(args)
     else:
         search = detect_board(list(images.values()), args.square, args.marker or 0.0)
         board = search.board
-        print(f"found {board.describe()}: {search.markers} markers over the images, the layout fitting to "
-              f"{search.fit:.3f} of a marker's side" + ("; the markers' side measured against the squares"
-                                                        if search.marker_measured else ""))
+        say(f"found {board.describe()}: {search.markers} markers over the images, the layout fitting to "
+            f"{search.fit:.3f} of a marker's side" + ("; the markers' side measured against the squares"
+                                                      if search.marker_measured else ""))
         if args.board or args.dictionary:
             given = _board(argparse.Namespace(**{**vars(args), "marker": args.marker or board.marker_m,
                                                  "dictionary": args.dictionary or board.dictionary,
                                                  "board": args.board or f"{board.columns}x{board.rows}"}))
             board = replace(given, legacy=board.legacy)
-            print(f"using {board.describe()} as given")
+            say(f"using {board.describe()} as given")
         return board
     if args.marker is None:
         measured = measure_marker(list(images.values()), board)
         if measured is not None:
             board = replace(board, marker_m=measured)
-            print(f"the markers measure {measured * 1000:.1f} mm against the squares (--marker to give them)")
+            say(f"the markers measure {measured * 1000:.1f} mm against the squares (--marker to give them)")
     return board
 
 
@@ -252,7 +256,8 @@ def calibrate_ground_command(args: argparse.Namespace) -> int:
             warn = "  WARNING: more than " + f"{AGREEMENT_WARN_M * 100:.0f} cm" if a.max_m > AGREEMENT_WARN_M else ""
             print(f"{a.first} and {a.second} agree on {a.points} board points: {a.median_m * 100:.1f} cm apart on the "
                   f"ground (median), {a.max_m * 100:.1f} cm at most{warn}")
-    print(f"rig written to {args.out}" + (f", bird's-eye view to {args.birdseye}" if args.birdseye else ""))
+    print(f"rig written to {args.out}" + (f", bird's-eye view to {args.birdseye}" if args.birdseye else ""),
+          file=sys.stderr if args.json else sys.stdout)
     return 0
 
 
