@@ -22,9 +22,9 @@ YAML_MAX_VALUES = 100_000
 """The most values a YAML file may stand for once its aliases are expanded (a config is a few hundred; "a billion
 laughs", nine anchors of ten aliases each, stands for a billion)."""
 
-__all__ = ["MAX_FILE_BYTES", "MAX_JSON_DEPTH", "MAX_TEXT_BYTES", "csv_records", "is_torn_last_line",
-           "iter_csv_file", "parse_csv", "parse_json", "parse_yaml", "read_file_bytes", "read_json_file",
-           "read_text_file", "read_text_file_checks", "write_atomic", "write_bytes_atomic", "write_csv_atomic",
+__all__ = ["MAX_FILE_BYTES", "MAX_JSON_DEPTH", "MAX_TEXT_BYTES", "check_readable", "csv_records",
+           "is_torn_last_line", "iter_csv_file", "parse_csv", "parse_json", "parse_yaml", "read_file_bytes",
+           "read_json_file", "read_text_file", "write_atomic", "write_bytes_atomic", "write_csv_atomic",
            "write_json_atomic", "write_text_atomic"]
 
 
@@ -48,10 +48,7 @@ def read_text_file(path: str | Path) -> str:
     :data:`MAX_TEXT_BYTES`, unreadable, or not UTF-8 text raises DataError naming it. The one door for text
     files: JSON (:func:`read_json_file`), CSV (:func:`parse_csv`) and YAML (:func:`parse_yaml`) come through it."""
     path = Path(path)
-    read_text_file_checks(path)
-    if path.stat().st_size > MAX_TEXT_BYTES:
-        raise DataError(f"{path} is {path.stat().st_size / 2**20:.0f} MB: more than the "
-                        f"{MAX_TEXT_BYTES // 2**20} MB of text kartpilot reads")
+    check_readable(path, MAX_TEXT_BYTES)
     try:
         return path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -68,10 +65,7 @@ def read_file_bytes(path: str | Path) -> bytes:
     """A file's bytes, copied as they are (an export embeds a recording's images); a missing file, a folder, a
     pipe, or one larger than :data:`MAX_FILE_BYTES` raises DataError naming it."""
     path = Path(path)
-    read_text_file_checks(path)
-    if path.stat().st_size > MAX_FILE_BYTES:
-        raise DataError(f"{path} is {path.stat().st_size / 2**30:.1f} GB: more than the "
-                        f"{MAX_FILE_BYTES // 2**30} GB kartpilot reads in one piece")
+    check_readable(path, MAX_FILE_BYTES)
     try:
         return path.read_bytes()
     except OSError as exc:
@@ -147,7 +141,7 @@ def iter_csv_file(path: str | Path, skip_torn: bool = False) -> Iterator[dict[st
     same checks as :func:`read_text_file`. A row with more or fewer fields than the header raises DataError
     naming the file and line, or is skipped (``skip_torn``: a recording's rows, one of which a crash may cut)."""
     path = Path(path)
-    read_text_file_checks(path)
+    check_readable(path)
     try:
         with path.open(encoding="utf-8-sig", newline="") as handle:
             reader = csv.DictReader(handle)
@@ -166,14 +160,20 @@ def iter_csv_file(path: str | Path, skip_torn: bool = False) -> Iterator[dict[st
         raise DataError(f"cannot read {path}: {exc.strerror or exc}") from None
 
 
-def read_text_file_checks(path: Path) -> None:
-    """What :func:`read_text_file` checks before it reads: a folder, not a regular file, missing."""
+def check_readable(path: Path, most_bytes: int | None = None, what: str = "file") -> None:
+    """What every reader checks before it reads (text, bytes, a CSV stream, an image): a folder, not a regular file
+    (a pipe, a device), missing, or larger than ``most_bytes``, each a DataError naming the file; ``what`` names
+    the kind of file in the messages ("image file": "is a folder, not an image file", "image not found")."""
     if path.is_dir():
-        raise DataError(f"{path} is a folder, not a file")
+        raise DataError(f"{path} is a folder, not {'an' if what[0] in 'aeiou' else 'a'} {what}")
     if path.exists() and not path.is_file():
         raise DataError(f"{path} is not a regular file (a pipe or a device): save it to a file first")
     if not path.exists():
-        raise DataError(f"file not found: {path}")
+        raise DataError(f"{what.removesuffix(' file')} not found: {path}")
+    size = path.stat().st_size
+    if most_bytes is not None and size > most_bytes:
+        raise DataError(f"{path} is {size / 2**20:.0f} MB: more than the {most_bytes // 2**20} MB kartpilot reads "
+                        "in one piece")
 
 
 def parse_yaml(text: str, source: str | Path) -> Any:

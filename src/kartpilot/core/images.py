@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from kartpilot.core.errors import DataError
+from kartpilot.core.files import check_readable
 from kartpilot.core.types import Image
 
 __all__ = ["MAX_IMAGE_PIXELS", "MIN_IMAGE_PX", "decode_image", "image_size_from_header", "read_gray", "read_image"]
@@ -39,11 +40,7 @@ def read_image(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> Image:
     over :data:`MAX_IMAGE_PIXELS`) or tiny (under :data:`MIN_IMAGE_PX` a side) file, or a folder, raises
     DataError naming it."""
     path = Path(path)
-    if path.is_dir():
-        raise DataError(f"{path} is a folder, not an image file")
-    if not path.is_file():
-        raise DataError(f"image not found: {path}" if not path.exists() else
-                        f"{path} is not a regular file (a pipe or a device): save the image to a file first")
+    check_readable(path, what="image file")
     try:
         data = np.fromfile(path, np.uint8)  # from its bytes: OpenCV's own reader fails on a name not valid UTF-8
     except OSError as exc:
