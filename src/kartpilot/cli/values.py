@@ -152,11 +152,11 @@ def _paths(value: object) -> list[str]:
     return []
 
 
-def _in_recording(folder: Path, target: Path) -> bool:
-    """Whether ``target`` lies inside ``folder`` and ``folder`` is a recording or a dataset's own tree (it holds
-    a manifest, a tub's catalog or a sequence's calibration): writing there changes what it holds."""
+def _in_recording(folder: Path) -> bool:
+    """Whether ``folder`` is a recording or a dataset's own tree (it holds a manifest, a tub's catalog, a sequence's
+    calibration or a bag's metadata): writing anything inside changes what it holds."""
     marks = ("manifest.json", "calib.txt", "times.txt", "metadata.yaml")
-    return folder.is_dir() and folder in target.parents and any((folder / m).is_file() for m in marks)
+    return any((folder / m).is_file() for m in marks)
 
 
 def check_paths(args: argparse.Namespace, dests: dict[str, bool], positionals: frozenset[str] = frozenset()) -> None:
@@ -198,8 +198,7 @@ def check_paths(args: argparse.Namespace, dests: dict[str, bool], positionals: f
                     # a file already in an input folder (one of its images, or any file of a recording's) is the
                     # input's, and anything written into a recording changes what the recording holds
                     inside = p.is_dir() and folder in target.parents and (
-                        (target.is_file() and (target.suffix.lower() in _MEDIA or _in_recording(folder, target)))
-                        or _in_recording(folder, target))
+                        (target.is_file() and target.suffix.lower() in _MEDIA) or _in_recording(folder))
                     if folder == target or (target.exists() and _same(p, target)) or inside:
                         raise argparse.ArgumentTypeError(
                             f"{option} {text} is {'inside' if inside else 'also'} an input "
