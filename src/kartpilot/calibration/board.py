@@ -285,7 +285,8 @@ def detect_board(images: Sequence[Image], square_m: float, marker_m: float = 0.0
     from the family whose markers are found most often, the smallest of it that holds the highest id seen; its
     squares across and down and the OpenCV layout (the one since 4.6, or the one before), from the markers'
     centres: the layout whose centres one homography per image maps onto the seen ones (``LAYOUT_FIT``); the
-    marker's side, unless given, measured through those homographies. The square's side cannot be told from images
+    marker's side, unless given, measured against the inner corners (:func:`measure_marker`). The square's side
+    cannot be told from images
     (a board twice the size twice as far looks the same): it is given.
 
     Layouts that differ only in squares beyond the highest marker seen place every seen point alike; the smallest

@@ -291,7 +291,7 @@ def calibrate_ground(views: Mapping[str, BoardView], sizes: Mapping[str, tuple[i
 AGREEMENT_WARN_M = 0.03
 """Two cameras' ground points of the same board point further apart than this are worth a warning: a lane line is
 5 to 10 cm wide, and at 3 cm a line seen by two cameras lands as two lines a third of its width apart (issue 57
-asks 3 cm of another team's kart; the Hanze kart's cameras agree within half a centimetre)."""
+asks 3 cm of another team's kart; the Hanze kart's cameras agree within about a centimetre, docs/real-kart.md)."""
 
 
 @dataclass(frozen=True)
