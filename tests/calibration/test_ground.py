@@ -28,21 +28,14 @@ BOARD = BoardConfig(kind="charuco", columns=10, rows=8, square_m=0.115, marker_m
 HANZE = Path(__file__).resolve().parents[3] / "shared" / "data" / "rdw-kart" / "hanze-calibration"
 
 
-def _render(camera: PinholeCamera, board_on_body: np.ndarray) -> np.ndarray:
-    return render_board(camera, board_on_body, BOARD)
-
-
-_board_on_ground = board_on_ground
-
-
 @pytest.mark.parametrize("estimate_focal", [False, True])
 def test_a_known_mount_is_recovered_from_a_rendered_board(estimate_focal: bool) -> None:
     truth = {"center": mount_pose(0.0, 0.0, 0.56, 0.0, 6.8, 0.0),
              "left": mount_pose(0.02, 0.09, 0.52, 27.0, 24.0, -3.0)}
     cameras = {name: PinholeCamera(1000.0, 1000.0, 959.5, 539.5, 1920, 1080).on_body(pose)
                for name, pose in truth.items()}
-    board = _board_on_ground(1.0, 0.1, 35.0)
-    views = {name: find_board(_render(camera, board), BOARD, name) for name, camera in cameras.items()}
+    board = board_on_ground(1.0, 0.1, 35.0)
+    views = {name: find_board(render_board(camera, board, BOARD), BOARD, name) for name, camera in cameras.items()}
     assert all(v is not None and len(v.ids) >= 20 for v in views.values())
     known = None if estimate_focal else {n: PinholeCamera(1000.0, 1000.0, 959.5, 539.5, 1920, 1080) for n in truth}
     mounts = calibrate_ground(views, {n: (1920, 1080) for n in truth}, known)  # type: ignore[arg-type]
@@ -60,7 +53,7 @@ def test_a_known_mount_is_recovered_from_a_rendered_board(estimate_focal: bool) 
 
 def test_a_camera_that_does_not_see_the_reference_s_board_is_refused() -> None:
     camera = PinholeCamera(1000.0, 1000.0, 959.5, 539.5, 1920, 1080).on_body(mount_pose(0, 0, 0.56, 0, 6.8))
-    view = find_board(_render(camera, _board_on_ground(1.0, 0.0, 0.0)), BOARD, "left")
+    view = find_board(render_board(camera, board_on_ground(1.0, 0.0, 0.0), BOARD), BOARD, "left")
     assert view is not None
     with pytest.raises(CalibrationError, match="reference camera 'center' has no view"):
         calibrate_ground({"left": view}, {"left": (1920, 1080)})
