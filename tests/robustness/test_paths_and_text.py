@@ -120,3 +120,12 @@ def test_aliases_that_stay_small_still_read():
 
     assert parse_yaml("base: &b {speed_mps: 2.0}\nfast: *b\n", "x.yaml") == {"base": {"speed_mps": 2.0},
                                                                             "fast": {"speed_mps": 2.0}}
+
+
+def test_an_option_is_an_output_or_an_input_by_its_own_command(photos, capsys):
+    """`sim --video` writes a video and `calibrate mono --video` reads one: the guard judges each by its own
+    command, so the video read is an input that an output may not overwrite (it was taken for a second output)."""
+    video = photos.parent / "board.avi"
+    video.write_bytes(b"not really a video")
+    _refused(capsys, ["calibrate", "mono", "--video", str(video), "--out", str(video)], "also an input (--video)")
+    assert video.read_bytes() == b"not really a video"

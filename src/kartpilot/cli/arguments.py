@@ -20,8 +20,10 @@ from kartpilot.cli.values import (
     new_folder,
     number,
     output_file,
+    output_folder,
     results_folder,
     view_target,
+    written_path,
 )
 
 __all__ = ["LANE_PRESETS", "PIPELINES", "SCENARIOS", "STUDIES", "VEHICLES", "add_parsers", "handler_target"]
@@ -207,7 +209,7 @@ def _general(sub: argparse._SubParsersAction) -> None:
 
     demo_parser = sub.add_parser("demo", help="the event's six scenarios at the venue, then the small kart's "
                                               "teach-and-repeat on stereo VO, in the simulator (see README)")
-    demo_parser.add_argument("--out", default="demo_out")
+    demo_parser.add_argument("--out", default="demo_out", type=output_folder)
     demo_parser.add_argument("--full", action="store_true",
                              help="add a lap of the venue at 30 km/h, and make the teach-and-repeat a lap of utrack "
                                   "(about ten minutes)")
@@ -373,7 +375,8 @@ def _recordings(sub: argparse._SubParsersAction) -> None:
     export = rec_sub.add_parser("export", help="a recording as a folder of images plus one CSV, one MCAP file or a "
                                                "ROS 2 bag")
     export.add_argument("recording")
-    export.add_argument("--out", required=True, help="folder and ros2: a new folder; mcap: the file to write")
+    export.add_argument("--out", required=True, type=written_path,
+                        help="folder and ros2: a new folder; mcap: the file to write")
     export.add_argument("--format", choices=("folder", "mcap", "ros2"), default="folder",
                         help="folder: images and frames.csv; mcap: images, calibration, transforms, ground truth, "
                              "commands, CAN and outputs in Foxglove's schemas; ros2: images, camera info, mounts, "
@@ -510,7 +513,7 @@ def _drive(sub: argparse._SubParsersAction) -> None:
     experiment_parser.add_argument("--controller", choices=("tuned", "plain_stanley"), default="tuned",
                                    help="plain_stanley: the pipeline as the thesis ran it, for comparison")
     experiment_parser.add_argument("--no-video", action="store_true")
-    experiment_parser.add_argument("--out", required=True)
+    experiment_parser.add_argument("--out", required=True, type=output_folder)
     experiment_parser.add_argument("--config", help="YAML file merged over the defaults (sections stereo_vo, drive)")
     experiment_parser.add_argument("--no-progress", action="store_true")
     experiment_parser.set_defaults(handler=_handler("kartpilot.cli.drive_commands", "experiment"))

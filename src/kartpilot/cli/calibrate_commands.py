@@ -94,6 +94,8 @@ def _mono_views(args: argparse.Namespace, board: BoardConfig) -> tuple[list[Boar
         return read_views(args.images, board)
     from kartpilot.record.replay import open_frames
 
+    if Path(args.video).is_dir():
+        raise ConfigError(f"--video {args.video} is a folder: give the video file (or the photos as arguments)")
     kind, frame_sets = open_frames(args.video)
     if kind != "video":
         raise ConfigError(f"--video {args.video}: a {kind}, not a video (give photos as arguments)")

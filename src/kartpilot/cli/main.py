@@ -57,7 +57,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser = build_parser()
         args = parser.parse_args(argv)
         try:
-            check_paths(args, output_dests(parser), _positionals(parser))
+            check_paths(args, output_dests(parser, args), _positionals(parser))
         except argparse.ArgumentTypeError as exc:
             parser.error(str(exc))
         if getattr(args, "check", None) is not None:  # a subcommand's check across its options (a usage error)

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import NoReturn
 
 __all__ = ["OUTPUT_TYPES", "VIEW_HELP", "OneLineParser", "check_paths", "file_or_new_folder", "new_folder", "number",
-           "output_file", "results_folder", "view_target"]
+           "output_file", "output_folder", "results_folder", "view_target", "written_path"]
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -90,17 +90,32 @@ def view_target(text: str) -> str:
 def new_folder(text: str) -> Path:
     """A folder to create: it must not exist yet, or be empty; its parent must be writable (it is created
     with its parents where missing)."""
+    path = output_folder(text)
+    if path.is_dir() and any(path.iterdir()):
+        raise argparse.ArgumentTypeError(f"{text} exists and is not empty: give a new folder")
+    return path
+
+
+def output_folder(text: str) -> Path:
+    """A folder a command writes into again on every run (a demo's, an experiment's): it may exist, but must not be
+    a file; its parent must be writable."""
     path = Path(text)
     if not text:
         raise argparse.ArgumentTypeError("an empty path")
     if path.exists() and not path.is_dir():
         raise argparse.ArgumentTypeError(f"{text} exists and is not a folder")
-    if path.is_dir() and any(path.iterdir()):
-        raise argparse.ArgumentTypeError(f"{text} exists and is not empty: give a new folder")
     parent = next((p for p in path.absolute().parents if p.exists()), Path("/"))
     if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
         raise argparse.ArgumentTypeError(f"{parent} cannot be written to")
     return path
+
+
+def written_path(text: str) -> Path:
+    """A path the command writes whose kind (a file or a folder) hangs on another option, so the command checks it
+    itself once it knows (``recordings export --format``); declared here so that the guard counts it an output."""
+    if not text:
+        raise argparse.ArgumentTypeError("an empty path")
+    return Path(text)
 
 
 def file_or_new_folder(text: str) -> Path:
@@ -118,18 +133,22 @@ def results_folder(text: str) -> Path:
     return new_folder(text) if not path.is_dir() or not any(path.iterdir()) else path
 
 
-OUTPUT_TYPES = (output_file, view_target, new_folder, file_or_new_folder, results_folder)
+OUTPUT_TYPES = (output_file, view_target, new_folder, file_or_new_folder, results_folder, output_folder, written_path)
 """The argparse types that name something a command writes."""
 
 
-def output_dests(parser: argparse.ArgumentParser) -> dict[str, bool]:
-    """Every option of ``parser`` and its subcommands (its ``dest``), and whether it names something written."""
+def output_dests(parser: argparse.ArgumentParser, args: argparse.Namespace | None = None) -> dict[str, bool]:
+    """Every option of ``parser`` and its subcommands (its ``dest``), and whether it names something written. With
+    ``args``, only the subcommands they chose: an option is an output by its own command's declaration (``sim
+    --video`` writes a video, ``calibrate mono --video`` reads one)."""
     dests: dict[str, bool] = {}
     for action in parser._actions:
         dests[action.dest] = dests.get(action.dest, False) or action.type in OUTPUT_TYPES
         if isinstance(action, argparse._SubParsersAction):
-            for sub in action.choices.values():
-                for dest, written in output_dests(sub).items():
+            chosen = getattr(args, action.dest, None) if args is not None else None
+            subs = [action.choices[chosen]] if chosen in action.choices else list(action.choices.values())
+            for sub in subs:
+                for dest, written in output_dests(sub, args).items():
                     dests[dest] = dests.get(dest, False) or written
     return dests
 
