@@ -15,9 +15,10 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
-# the test modules spread over the machine's cores (at most 4; each holds a simulator), one module per worker
+# the test modules spread over the machine's cores (at most 4; each holds a simulator), one module per worker, in the
+# order tests/conftest.py gives them (the longest first; xdist's own reordering by test count would undo it)
 test: $(STAMP)
-	$(BIN)/pytest -q -n auto --maxprocesses 4 --dist loadscope
+	$(BIN)/pytest -q -n auto --maxprocesses 4 --dist loadscope --no-loadscope-reorder
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks

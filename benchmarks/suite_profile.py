@@ -30,7 +30,7 @@ PAGE = ROOT / "docs" / "contributing.md"
 README = ROOT / "README.md"
 MARKER = "suite-profile"
 README_MARKER = "suite-time"
-PYTEST_ARGS = ["-q", "-n", "auto", "--maxprocesses", "4", "--dist", "loadscope"]
+PYTEST_ARGS = ["-q", "-n", "auto", "--maxprocesses", "4", "--dist", "loadscope", "--no-loadscope-reorder"]
 """As the Makefile's ``test`` target runs it."""
 
 
