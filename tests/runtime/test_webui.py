@@ -11,12 +11,13 @@ import time
 import urllib.error
 import urllib.request
 
+import cv2
 import numpy as np
 import pytest
 
 from kartpilot.core.types import ActuatorCommand
 from kartpilot.runtime.supervisor import Supervisor
-from kartpilot.runtime.webui import WebConfig, WebOperator, WebServer
+from kartpilot.runtime.webui import WebConfig, WebOperator, WebServer, terminal_qr
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver")
@@ -391,3 +392,36 @@ def test_by_default_the_page_listens_on_this_machine_only() -> None:
                 pass
     finally:
         server.close()
+
+
+def test_the_pairing_url_printed_as_a_qr_code_reads_back_as_the_url():
+    """The terminal's QR code, drawn back into an image (a drawn half block is light), is read by OpenCV's
+    detector as the URL it was drawn from: a phone that scans it opens the pairing page."""
+    url = "http://192.168.4.1:8080/?pair=3f9a0c1d2e4b5a6c"
+    lines = terminal_qr(url).splitlines()
+    assert len({len(line) for line in lines}) == 1 and set("".join(lines)) <= set(" \u2580\u2584\u2588")
+    rows = []
+    for line in lines:
+        rows.append([char in "\u2588\u2580" for char in line])
+        rows.append([char in "\u2588\u2584" for char in line])
+    modules = np.where(np.array(rows), 255, 0).astype(np.uint8)
+    image = cv2.resize(modules, None, fx=8, fy=8, interpolation=cv2.INTER_NEAREST)
+    assert cv2.QRCodeDetector().detectAndDecode(image)[0] == url
+
+
+def test_a_client_gone_before_its_answer_prints_no_traceback(capsys, caplog):
+    """A crowd that closes its connections while they are refused broke the answer's pipe: the server printed a
+    traceback for each (benchmarks/web_crowd.py). A client gone is not the server's error; a real failure is still
+    logged with its traceback, once."""
+    server = WebServer(WebOperator(WebConfig(port=0)))
+    try:
+        for error in (BrokenPipeError(32, "Broken pipe"), ConnectionResetError(104, "reset"), ValueError("a bug")):
+            try:
+                raise error
+            except Exception:
+                server.server.handle_error(None, ("10.0.0.9", 40000))
+    finally:
+        server.close()
+    assert capsys.readouterr().err == ""
+    failed = [r for r in caplog.records if "10.0.0.9" in r.getMessage()]
+    assert [r.levelname for r in failed] == ["ERROR"] and failed[0].exc_info[0] is ValueError

@@ -32,7 +32,7 @@ from kartpilot.runtime.loop import LoopStats, Policy, run_loop
 from kartpilot.runtime.pipelines import PipelineContext, Route, StereoInput, build_pipeline
 from kartpilot.runtime.session import SessionOutputs, SessionResult
 from kartpilot.runtime.supervisor import Supervisor
-from kartpilot.runtime.webui import WebConfig, WebOperator, WebServer
+from kartpilot.runtime.webui import WebConfig, WebOperator, WebServer, terminal_qr
 from kartpilot.sensors.capture import LiveFrameSource
 from kartpilot.sensors.gamepad import Gamepad
 
@@ -177,10 +177,12 @@ def _people(setup: LiveDriveSetup, stack: StackConfig, closing: ExitStack
     if setup.web_port is not None:
         web = WebOperator(WebConfig(host=setup.web_host, port=setup.web_port, pair_code=setup.web_pair_code))
         server = WebServer(web)  # told each fresh code before it serves a pairing (it names the server's address)
-        web.on_code = lambda code: print(f"web page: the next client pairs at {server.url}?pair={code}", flush=True)
+        web.on_code = lambda code: print(f"web page: the next client pairs at {server.url}?pair={code}\n"
+                                         f"{terminal_qr(f'{server.url}?pair={code}')}", flush=True)
         server.start()
         closing.callback(server.close)
         operators.append(web)
         print(f"web page: {', '.join(server.urls())} (view only); the operator opens {server.pairing_url} and "
-              "presses the pairing button", flush=True)
+              "presses the pairing button; or scans:", flush=True)
+        print(terminal_qr(server.pairing_url), flush=True)
     return CombinedOperator(operators), web

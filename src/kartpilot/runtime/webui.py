@@ -47,6 +47,7 @@ import logging
 import math
 import secrets
 import socket
+import sys
 import threading
 import time
 from collections import OrderedDict, deque
@@ -58,11 +59,12 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import numpy as np
 
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import ActuatorCommand, Image, OperatorInput
 
-__all__ = ["RefusedPost", "WebConfig", "WebOperator", "WebServer", "parse_controls", "parse_request"]
+__all__ = ["RefusedPost", "WebConfig", "WebOperator", "WebServer", "parse_controls", "parse_request", "terminal_qr"]
 
 log = logging.getLogger(__name__)
 
@@ -560,9 +562,35 @@ class _Server(ThreadingHTTPServer):
                 with contextlib.suppress(OSError):
                     connection.shutdown(socket.SHUT_RDWR)
 
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        """A client that went away before its answer was written (a broken pipe, a reset: a crowd closing its
+        connections while refused) is no error of the server's and prints no traceback; anything else is logged
+        with its traceback, once, through the log."""
+        error = sys.exc_info()[1]
+        if isinstance(error, ConnectionError | TimeoutError):
+            log.debug("web page: %s went away before its answer: %s", client_address[0], error)
+            return
+        log.exception("web page: a request from %s failed", client_address[0])
+
     def server_close(self) -> None:
         self._stop.set()
         super().server_close()
+
+
+def terminal_qr(text: str) -> str:
+    """``text`` as a QR code drawn in a terminal (OpenCV's encoder, with its quiet zone): two rows of modules per
+    line in half blocks, a light module drawn and a dark one left blank, as ``qrencode -t UTF8`` does for a terminal
+    with a dark background. A phone's camera reads it off the kart's screen: the pairing URL without typing it."""
+    modules = cv2.QRCodeEncoder.create().encode(text)
+    if modules is None or modules.size == 0:
+        raise ConfigError(f"cannot draw {text!r} as a QR code")
+    light = modules > 127
+    if len(light) % 2:
+        light = np.vstack([light, np.ones((1, light.shape[1]), bool)])
+    blocks = {(True, True): "\u2588", (True, False): "\u2580", (False, True): "\u2584", (False, False): " "}
+    return "\n".join("".join(blocks[bool(top), bool(bottom)] for top, bottom in zip(light[row], light[row + 1],
+                                                                                    strict=True))
+                     for row in range(0, len(light), 2))
 
 
 class WebServer:
@@ -575,7 +603,9 @@ class WebServer:
         except (OSError, OverflowError) as exc:
             raise ConfigError(f"cannot serve the web page on {operator.config.host}:{operator.config.port}: "
                               f"{exc}") from exc
-        self._thread = threading.Thread(target=self.server.serve_forever, name="webui", daemon=True)
+        # the loop looks for a shutdown every 50 ms (the library's default, 0.5 s, was how long a drive's end waited)
+        self._thread = threading.Thread(target=self.server.serve_forever, kwargs={"poll_interval": 0.05}, name="webui",
+                                        daemon=True)
 
     @property
     def host(self) -> str:
