@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from kartpilot.core.errors import ConfigError
+from kartpilot.core.types import LidarMount
 from kartpilot.sim.lidar import LidarConfig, cast_rays, scene_segments, simulate_scan
 from kartpilot.sim.track import Prop, load_track
 
@@ -24,6 +25,10 @@ def test_rays_meet_a_wall_where_geometry_says() -> None:
     assert np.isinf(distance[2:]).all() and (hit == [0, 0, -1, -1]).all()
 
 
+AT_AXLE = LidarMount(0.0, 0.0, 0.3)
+"""A sensor over the rear axle, its plane 0.3 m up."""
+
+
 def _straight_with(props: tuple[Prop, ...]):
     track = load_track("straight20")
     return replace(track, spec=replace(track.spec, props=props))
@@ -33,9 +38,9 @@ def test_a_car_ahead_is_where_the_track_put_it_within_the_sensor_s_noise() -> No
     """A car 10 m ahead of the sensor on a straight: the beams straight ahead read the distance to its near face
     (10 m less half its length), within three of the sensor's standard deviations, at the sensor's step."""
     track = _straight_with((Prop(kind="car", s_m=14.0, offset_m=0.0),))
-    config = LidarConfig(noise_m=0.01, noise_share=0.0, dropout={}, mount_x_m=0.0)
+    config = LidarConfig(noise_m=0.01, noise_share=0.0, dropout={})
     x, y, yaw = track.start_pose()  # 2 m along: the car's centre 12 m ahead, its near face 12 - 3.8 / 2
-    scan = simulate_scan(track, (x, y, yaw), 0.0, 0.0, 0.0, config, np.random.default_rng(0))
+    scan = simulate_scan(track, (x, y, yaw), 0.0, 0.0, 0.0, config, AT_AXLE, np.random.default_rng(0))
     assert len(scan.ranges_m) == 800 and scan.angle_increment_rad == pytest.approx(math.radians(0.45))
     ahead = np.abs(scan.angles_rad()) < math.radians(2.0)
     expected = 12.0 - 3.8 / 2
@@ -51,8 +56,9 @@ def test_the_plane_hits_what_stands_above_it_and_the_cones_below_it_only_when_lo
     low, _ = scene_segments(track, 0.0, 0.2)
     high, _ = scene_segments(track, 0.0, 0.4)
     assert len(low) == 4 * len(track.cones) and len(high) == 0
-    config = LidarConfig(height_m=0.2, mount_x_m=0.0, dropout={})
-    scan = simulate_scan(track, track.start_pose(), 0.0, 0.0, 0.0, config, np.random.default_rng(1))
+    config = LidarConfig(dropout={})
+    scan = simulate_scan(track, track.start_pose(), 0.0, 0.0, 0.0, config, LidarMount(0.0, 0.0, 0.2),
+                         np.random.default_rng(1))
     points = scan.points_m()
     sides = points[np.abs(points[:, 0]) < 3.0, 1]
     print(f"cone returns beside the kart: {np.sort(np.abs(sides))[:3]} m")
@@ -63,8 +69,8 @@ def test_dark_surfaces_lose_their_share_of_returns() -> None:
     track = _straight_with((Prop(kind="person", s_m=6.0, offset_m=0.0),))
     seen = []
     for share in (0.0, 0.5):
-        config = LidarConfig(mount_x_m=0.0, dropout={"person": share})
-        scans = [simulate_scan(track, track.start_pose(), 0.0, 0.0, 0.0, config, np.random.default_rng(k))
+        config = LidarConfig(dropout={"person": share})
+        scans = [simulate_scan(track, track.start_pose(), 0.0, 0.0, 0.0, config, AT_AXLE, np.random.default_rng(k))
                  for k in range(20)]
         ahead = np.abs(scans[0].angles_rad()) < math.radians(3.0)
         seen.append(float(np.mean([np.isfinite(s.ranges_m[ahead]).mean() for s in scans])))
@@ -77,10 +83,11 @@ def test_a_sweep_taken_while_moving_is_skewed_by_the_distance_driven() -> None:
     taken 0.1 s after the first; a wall ahead is read 0.5 m nearer by the beams at the sweep's end than a scan
     standing still at the sweep's start reads it."""
     track = _straight_with((Prop(kind="car", s_m=14.0, offset_m=0.0),))
-    config = LidarConfig(noise_m=0.0, noise_share=0.0, dropout={}, mount_x_m=0.0, mount_yaw_deg=180.0)
+    config = LidarConfig(noise_m=0.0, noise_share=0.0, dropout={})
+    backwards = LidarMount(0.0, 0.0, 0.3, math.pi)
     # mounted backwards, the beam ahead of the kart is the sweep's first and last (angle -180 and +179.55)
-    still = simulate_scan(track, track.start_pose(), 0.0, 0.0, 0.0, config, np.random.default_rng(0))
-    moving = simulate_scan(track, track.start_pose(), 5.0, 0.0, 0.0, config, np.random.default_rng(0))
+    still = simulate_scan(track, track.start_pose(), 0.0, 0.0, 0.0, config, backwards, np.random.default_rng(0))
+    moving = simulate_scan(track, track.start_pose(), 5.0, 0.0, 0.0, config, backwards, np.random.default_rng(0))
     first, last = moving.ranges_m[0], moving.ranges_m[-1]
     print(f"ahead: {still.ranges_m[0]:.3f} m standing; moving {first:.3f} m at the sweep's start, "
           f"{last:.3f} at its end")
@@ -89,7 +96,7 @@ def test_a_sweep_taken_while_moving_is_skewed_by_the_distance_driven() -> None:
 
 
 @pytest.mark.parametrize(("field", "value"), [("rate_hz", 0.0), ("step_deg", math.nan), ("range_max_m", 500.0),
-                                              ("height_m", -0.1)])
+                                              ("noise_m", -0.1)])
 def test_a_sensor_that_cannot_be_is_refused_by_name(field: str, value: float) -> None:
     with pytest.raises(ConfigError, match=rf"lidar\.{field}"):
         LidarConfig(**{field: value})

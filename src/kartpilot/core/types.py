@@ -9,6 +9,8 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from kartpilot.core.errors import ConfigError
+
 __all__ = [
     "ActuatorCommand",
     "CommandSink",
@@ -17,6 +19,7 @@ __all__ = [
     "FrameSource",
     "Image",
     "LaserScan",
+    "LidarMount",
     "OperatorInput",
     "StereoFrame",
     "VehicleFeedback",
@@ -63,6 +66,8 @@ class FrameSet:
             ``stamp_ns`` (live cameras are grouped by time; their own stamps show the skew).
         name: where the set came from when it is one file (an image's file name), so a result can be matched
             to it; empty otherwise.
+        scans: LiDAR name -> the sweep that ended since the set before (none where no sweep ended: a LiDAR at
+            10 Hz beside cameras at 15 Hz delivers to two sets of three).
     """
 
     index: int
@@ -70,6 +75,7 @@ class FrameSet:
     images: Mapping[str, Image]
     capture_ns: Mapping[str, int] = field(default_factory=dict)
     name: str = ""
+    scans: Mapping[str, LaserScan] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -124,6 +130,25 @@ class LaserScan:
     ranges_m: NDArray[np.float32]
     intensities: NDArray[np.float32]
 
+    def __post_init__(self) -> None:
+        """A sweep every reader can trust, whoever made it (a file, a bag, a driver): one range and one intensity
+        per beam, finite angles and times, a range window that is one; a range outside the window or not finite
+        stays, as no return (NaN), as ROS's convention has it."""
+        ranges, strengths = np.asarray(self.ranges_m), np.asarray(self.intensities)
+        scalars = (self.angle_min_rad, self.angle_increment_rad, self.time_increment_s, self.scan_time_s,
+                   self.range_min_m, self.range_max_m)
+        if ranges.ndim != 1 or strengths.shape != ranges.shape:
+            raise ConfigError(f"a LiDAR sweep needs one range and one intensity per beam, got {ranges.shape} and "
+                              f"{strengths.shape}")
+        if not all(np.isfinite(scalars)) or (self.angle_increment_rad == 0 and len(ranges) > 1):
+            raise ConfigError(f"a LiDAR sweep's angles and times must be finite, its angle step not 0: {scalars}")
+        if not (0.0 <= self.range_min_m < self.range_max_m) or self.time_increment_s < 0 or self.scan_time_s < 0:
+            raise ConfigError(f"a LiDAR sweep's range window [{self.range_min_m}, {self.range_max_m}] m and times "
+                              f"({self.time_increment_s}, {self.scan_time_s} s) are not a sensor's")
+        if abs(self.angle_increment_rad) * max(len(ranges) - 1, 0) > 2 * np.pi + 1e-6:
+            raise ConfigError(f"a LiDAR sweep of {len(ranges)} beams {self.angle_increment_rad} rad apart turns more "
+                              "than once")
+
     def angles_rad(self) -> NDArray[np.float64]:
         """Each beam's angle."""
         return np.asarray(self.angle_min_rad + self.angle_increment_rad * np.arange(len(self.ranges_m)), np.float64)
@@ -133,6 +158,31 @@ class LaserScan:
         angles, ranges = self.angles_rad(), np.asarray(self.ranges_m, np.float64)
         seen = np.isfinite(ranges)
         return np.column_stack([ranges[seen] * np.cos(angles[seen]), ranges[seen] * np.sin(angles[seen])])
+
+
+@dataclass(frozen=True)
+class LidarMount:
+    """Where a planar LiDAR sits on the kart: its centre ``x_m`` ahead of the rear axle, ``y_m`` to the left,
+    its scan plane ``z_m`` above the road, turned ``yaw_rad`` to the left (its 0-degree beam along the kart's
+    x axis when 0). The scan plane is level: a planar LiDAR mounted tilted sees the road."""
+
+    x_m: float
+    y_m: float
+    z_m: float
+    yaw_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        values = (self.x_m, self.y_m, self.z_m, self.yaw_rad)
+        if not all(np.isfinite(values)) or not 0.0 < self.z_m <= 3.0 or abs(self.x_m) > 10 or abs(self.y_m) > 10:
+            raise ConfigError(f"a LiDAR mount at x {self.x_m}, y {self.y_m}, z {self.z_m} m, yaw {self.yaw_rad} rad: "
+                             "finite, within 10 m of the rear axle, its plane above the road and at most 3 m up")
+
+    def to_body(self, points_m: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(M, 2) points in the sensor's frame as x, y on the kart's body."""
+        c, s = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
+        points = np.asarray(points_m, np.float64).reshape(-1, 2)
+        return np.column_stack([self.x_m + c * points[:, 0] - s * points[:, 1],
+                                self.y_m + s * points[:, 0] + c * points[:, 1]])
 
 
 @dataclass(frozen=True)

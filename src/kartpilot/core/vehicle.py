@@ -25,6 +25,7 @@ import numpy as np
 from kartpilot.core.camera import PinholeCamera, StereoRig
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import mount_pose
+from kartpilot.core.types import LidarMount
 
 GRAVITY_MPS2 = 9.81
 
@@ -113,6 +114,8 @@ class VehicleParams:
         cameras: (name, camera) pairs; ``stereo_pair`` names the left and right camera when there is one.
         protocol: what its actuators speak on CAN: ``rdw`` (the RDW kart's ECUs) or ``kartpilot`` (our DBC).
         steering: the steering calibration (``rdw``); a rig file's ``steering`` section overrides it.
+        lidar: the planar LiDAR's mount, where the kart has one (the 2026 SDC kart); a rig file's ``lidar``
+            section overrides it.
     """
 
     name: str
@@ -142,6 +145,7 @@ class VehicleParams:
     stereo_pair: tuple[str, str] | None = None
     protocol: Literal["rdw", "kartpilot"] = "kartpilot"
     steering: SteeringCalibration = field(default_factory=SteeringCalibration)
+    lidar: LidarMount | None = None
 
     def __post_init__(self) -> None:
         if self.protocol not in PROTOCOLS:
@@ -280,7 +284,15 @@ SDC_KART_STEEP = replace(
              *SDC_KART.cameras[1:]),
 )
 
-VEHICLES: dict[str, VehicleParams] = {v.name: v for v in (RC_KART, SDC_KART, SDC_KART_STEEP)}
+SDC_KART_2026 = replace(
+    SDC_KART, name="sdc-kart-2026",
+    # the 2026 closed-category kart (../shared/docs/sdc-event.md): the same kart and cameras, with a planar 360-degree
+    # LiDAR on its nose, 5 cm behind the front of its footprint (1.50 m ahead of the rear axle), its scan plane 0.30 m
+    # above the road: under a car's bumper line, above the kerbs, at a person's knees, across a barrier block
+    lidar=LidarMount(x_m=1.45, y_m=0.0, z_m=0.30),
+)
+
+VEHICLES: dict[str, VehicleParams] = {v.name: v for v in (RC_KART, SDC_KART, SDC_KART_STEEP, SDC_KART_2026)}
 
 
 def get_vehicle(name: str) -> VehicleParams:

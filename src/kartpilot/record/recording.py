@@ -14,6 +14,10 @@ Layout (format version 1)::
                            stamp_ns and one column per named value
       can.csv              stamp_ns,direction,id,data  (CAN traffic, when there is a bus)
       groundtruth.tum      left camera poses in TUM format, when known
+      lidar/<name>/scans.csv   a planar LiDAR's sweeps, one line each (flushed like every line):
+                           stamp_ns, angle_min_rad, angle_increment_rad, time_increment_s, scan_time_s,
+                           range_min_m, range_max_m, then ranges_m and intensities, each its beams'
+                           values separated by spaces (``nan``: no return); its mount in the manifest
 
 The manifest is written first with ``"closed": false``, refreshed every second (its counts)
 and rewritten on close, so a recording cut off by a crash still opens and says it was not closed.
@@ -35,10 +39,11 @@ from typing import IO, Any
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from kartpilot.calibration.rectify import stereo_setup
 from kartpilot.core.camera import PinholeCamera, StereoRig, camera_from_dict, camera_to_dict
-from kartpilot.core.errors import DataError, RecordingError
+from kartpilot.core.errors import DataError, KartpilotError, RecordingError
 from kartpilot.core.files import (
     csv_records,
     is_torn_last_line,
@@ -49,7 +54,7 @@ from kartpilot.core.files import (
 )
 from kartpilot.core.geometry import Array, invert_pose, quaternion_xyzw_from_pose
 from kartpilot.core.trajectory import Trajectory, read_tum, write_tum
-from kartpilot.core.types import ActuatorCommand, FrameSet, Image, StereoFrame
+from kartpilot.core.types import ActuatorCommand, FrameSet, Image, LaserScan, LidarMount, StereoFrame
 from kartpilot.sensors.base import StereoSource, read_gray
 from kartpilot.sensors.capture import nearest_within
 
@@ -70,6 +75,9 @@ FORMAT_NAME = "kartpilot-recording"
 FORMAT_VERSION = 1
 COMMAND_COLUMNS = ("stamp_ns", "steer_rad", "throttle", "brake")
 CAN_COLUMNS = ("stamp_ns", "direction", "id", "data")
+SCAN_COLUMNS = ("stamp_ns", "angle_min_rad", "angle_increment_rad", "time_increment_s", "scan_time_s", "range_min_m",
+                "range_max_m", "ranges_m", "intensities")
+MAX_BEAMS = 100_000  # a sweep's beams a recording reads (an RPLIDAR S3's densest mode has about 10,000)
 _TOPIC = re.compile(r"[a-z][a-z0-9_]*")
 OutputValue = float | int | str
 # png: lossless, level 1 (about 3x faster than the default; 34 ms for a 960x540 colour frame on one core).
@@ -95,7 +103,7 @@ class RecordingWriter:
     def __init__(self, folder: str | Path, cameras: dict[str, PinholeCamera],
                  stereo_pair: tuple[str, str] | None = None, metadata: dict[str, Any] | None = None,
                  overwrite: bool = False, queue_frames: int = 0, drop_when_full: bool = True,
-                 image_format: str = "png") -> None:
+                 image_format: str = "png", lidars: Mapping[str, LidarMount] | None = None) -> None:
         self.folder = Path(folder)
         if image_format not in IMAGE_FORMATS:
             raise RecordingError(f"image format {image_format!r}: one of {', '.join(IMAGE_FORMATS)}")
@@ -114,6 +122,8 @@ class RecordingWriter:
         self.command_count = 0
         self.output_counts: dict[str, int] = {}
         self.can_count = 0
+        self.lidars = dict(lidars or {})
+        self.scan_counts = dict.fromkeys(self.lidars, 0)
         self._files: dict[str, IO[str]] = {}
         self._output_columns: dict[str, tuple[str, ...]] = {}
         for name in cameras:
@@ -170,6 +180,8 @@ class RecordingWriter:
             "command_count": self.command_count,
             "output_counts": self.output_counts,
             "can_count": self.can_count,
+            "lidars": {name: _mount_to_dict(mount) for name, mount in self.lidars.items()},
+            "scan_counts": self.scan_counts,
             "has_groundtruth": (self.folder / "groundtruth.tum").is_file(),
             "image_format": self.image_format,
             "metadata": self.metadata,
@@ -251,6 +263,24 @@ class RecordingWriter:
                 self.missing[camera] += 1
             else:
                 self.write_frame(camera, frames.stamp_ns, image, frames.capture_ns.get(camera))
+        for name, scan in frames.scans.items():
+            if name in self.lidars:
+                self.write_scan(name, scan)
+
+    def write_scan(self, name: str, scan: LaserScan) -> None:
+        """One sweep of the named LiDAR, a line of its ``scans.csv``."""
+        self._check_open()
+        if name not in self.lidars:
+            raise RecordingError(f"unknown LiDAR {name!r}")
+        key = f"lidar:{name}"
+        if key not in self._files:
+            self._open(key, self.folder / "lidar" / name / "scans.csv", SCAN_COLUMNS)
+        head = (f"{scan.stamp_ns},{scan.angle_min_rad:.9g},{scan.angle_increment_rad:.9g},{scan.time_increment_s:.9g},"
+                f"{scan.scan_time_s:.9g},{scan.range_min_m:.9g},{scan.range_max_m:.9g}")
+        ranges = " ".join(f"{v:.4f}" if math.isfinite(v) else "nan" for v in np.asarray(scan.ranges_m, float))
+        strengths = " ".join(f"{v:.4g}" for v in np.nan_to_num(np.asarray(scan.intensities, float)))
+        self._line(key, f"{head},{ranges},{strengths}\n")
+        self.scan_counts[name] += 1
 
     def send(self, command: ActuatorCommand) -> None:
         """Command sink: the recorder takes commands like any actuator would."""
@@ -323,6 +353,27 @@ class RecordingWriter:
         self._write_manifest(closed=True)
 
 
+def _mount_to_dict(mount: LidarMount) -> dict[str, float]:
+    return {"x_m": mount.x_m, "y_m": mount.y_m, "z_m": mount.z_m, "yaw_rad": mount.yaw_rad}
+
+
+def mount_from_dict(name: str, data: Any, where: str) -> LidarMount:
+    """A LiDAR's mount from a manifest's or a rig file's mapping (``x_m``, ``y_m``, ``z_m``, ``yaw_rad``)."""
+    try:
+        return LidarMount(float(data["x_m"]), float(data["y_m"]), float(data["z_m"]), float(data.get("yaw_rad", 0.0)))
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise RecordingError(f"LiDAR {name!r} {where}: a mount needs x_m, y_m, z_m (and yaw_rad): {exc}") from None
+    except KartpilotError as exc:
+        raise RecordingError(f"LiDAR {name!r} {where}: {exc}") from None
+
+
+def _values(text: str, what: str) -> NDArray[np.float32]:
+    values = np.array(text.split(), dtype=np.float32) if text.strip() else np.zeros(0, np.float32)
+    if len(values) > MAX_BEAMS:
+        raise ValueError(f"{len(values)} {what}, more than a sweep has ({MAX_BEAMS})")
+    return values
+
+
 def _format(value: OutputValue) -> str:
     if isinstance(value, bool):
         return str(int(value))
@@ -365,6 +416,41 @@ class RecordingReader:
                         for name, data in manifest["cameras"].items()}
         pair = manifest.get("stereo_pair")
         self.stereo_pair: tuple[str, str] | None = (pair[0], pair[1]) if pair else None
+
+    @property
+    def lidars(self) -> dict[str, LidarMount]:
+        """The recording's LiDARs and their mounts (none in a recording without)."""
+        return {name: mount_from_dict(name, data, "in the manifest")
+                for name, data in (self.manifest.get("lidars") or {}).items()}
+
+    def scans(self, name: str) -> list[LaserScan]:
+        """Every sweep of the named LiDAR, in order. A torn last line (a recording cut off) is left out; any other
+        line that is not a sweep is an error naming it."""
+        if name not in self.lidars:
+            raise RecordingError(f"recording has no LiDAR {name!r} (has {', '.join(self.lidars) or 'none'})")
+        path = self.folder / "lidar" / name / "scans.csv"
+        if not path.is_file():
+            return []
+        content = read_text_file(path)
+        rows = csv_records(content)
+        scans: list[LaserScan] = []
+        for number, row in enumerate(rows, start=2):
+            try:
+                ranges, strengths = _values(row["ranges_m"], "ranges"), _values(row["intensities"], "intensities")
+                if len(strengths) != len(ranges):
+                    raise ValueError(f"{len(ranges)} ranges but {len(strengths)} intensities")
+                scan = LaserScan(int(row["stamp_ns"]), float(row["angle_min_rad"]), float(row["angle_increment_rad"]),
+                                 float(row["time_increment_s"]), float(row["scan_time_s"]), float(row["range_min_m"]),
+                                 float(row["range_max_m"]), ranges, strengths)
+            except (KeyError, TypeError, ValueError, AttributeError, KartpilotError) as exc:
+                if is_torn_last_line(content, number, len(rows) + 1):
+                    continue
+                raise RecordingError(f"{path}:{number}: not a sweep: {exc}") from None
+            if scans and scan.stamp_ns <= scans[-1].stamp_ns:
+                raise RecordingError(f"{path}:{number}: stamp_ns {scan.stamp_ns} does not come after the line "
+                                     f"before's ({scans[-1].stamp_ns})")
+            scans.append(scan)
+        return scans
 
     @property
     def vehicle(self) -> str | None:

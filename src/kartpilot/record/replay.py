@@ -14,11 +14,12 @@ import cv2
 
 from kartpilot.core.errors import DataError, KartpilotError, RecordingError
 from kartpilot.core.images import read_image
-from kartpilot.core.types import FrameSet
+from kartpilot.core.types import FrameSet, LaserScan
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
 from kartpilot.sensors.donkeycar import DonkeyTub, is_donkey_tub
 
-__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "RecordingFrameSource", "StereoReplaySource", "open_frames"]
+__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "RecordingFrameSource", "ScanReplay", "StereoReplaySource",
+           "open_frames"]
 
 log = logging.getLogger(__name__)
 
@@ -95,6 +96,7 @@ def _recording(reader: RecordingReader, camera: str) -> Iterator[FrameSet]:
     """The camera's frames; in a recording that was not closed (a killed drive), a frame that cannot be read is
     left out with a warning: everything flushed is kept, as the recording's format promises."""
     k = 0
+    scans = ScanReplay(reader)
     for stamp, path in reader.frames(camera):
         try:
             image = read_image(path)
@@ -103,8 +105,27 @@ def _recording(reader: RecordingReader, camera: str) -> Iterator[FrameSet]:
                 raise DataError(f"cannot read the recording's frame {path}: {exc}") from None
             log.warning("%s was not closed properly: left out %s (%s)", reader.folder, path.name, exc)
             continue
-        yield FrameSet(k, stamp, {"center": image}, name=path.name)
+        yield FrameSet(k, stamp, {"center": image}, name=path.name, scans=scans.until(stamp))
         k += 1
+
+
+class ScanReplay:
+    """A recording's LiDAR sweeps handed out with the frame sets as they were recorded: each set gets the latest
+    sweep of each LiDAR that began at or before its time and after the set before's."""
+
+    def __init__(self, reader: RecordingReader) -> None:
+        self._scans = {name: reader.scans(name) for name in reader.lidars}
+        self._next = dict.fromkeys(self._scans, 0)
+
+    def until(self, stamp_ns: int) -> dict[str, LaserScan]:
+        out = {}
+        for name, scans in self._scans.items():
+            k = self._next[name]
+            while k < len(scans) and scans[k].stamp_ns <= stamp_ns:
+                out[name] = scans[k]
+                k += 1
+            self._next[name] = k
+        return out
 
 
 class RecordingFrameSource:
@@ -124,6 +145,7 @@ class RecordingFrameSource:
         self.cameras = names
         self.unreadable = 0
         self._next = 0
+        self._scans = ScanReplay(self.reader)
 
     def __len__(self) -> int:
         return len(self._sets)
@@ -142,7 +164,7 @@ class RecordingFrameSource:
                 log.warning("frame %s of %s unreadable: %s", path.name, name, exc)
                 continue
             images[name], capture[name] = image, capture_ns
-        return FrameSet(index, stamp, images, capture)
+        return FrameSet(index, stamp, images, capture, scans=self._scans.until(stamp))
 
 
 class StereoReplaySource:
@@ -159,6 +181,7 @@ class StereoReplaySource:
         self.left_name, self.right_name = pair
         self.unreadable = 0
         self._next = 0
+        self._scans = ScanReplay(self.stereo.reader)
 
     def read(self) -> FrameSet | None:
         if self._next >= len(self.stereo):
@@ -169,5 +192,7 @@ class StereoReplaySource:
         except KartpilotError as exc:
             self.unreadable += 1
             log.warning("frame %d of %s unreadable: %s", index, self.stereo.name, exc)
-            return FrameSet(index, self.stereo.stamp_ns(index), {})
-        return FrameSet(index, frame.stamp_ns, {self.left_name: frame.left, self.right_name: frame.right})
+            stamp = self.stereo.stamp_ns(index)
+            return FrameSet(index, stamp, {}, scans=self._scans.until(stamp))
+        return FrameSet(index, frame.stamp_ns, {self.left_name: frame.left, self.right_name: frame.right},
+                        scans=self._scans.until(frame.stamp_ns))

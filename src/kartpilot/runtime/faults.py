@@ -12,20 +12,22 @@ Each kind breaks one thing the way it breaks on a kart, from its time on:
   reports counts out of its valid range (its ECU goes to its failsafe);
 * ``loop-stall``: the loop hangs: its commands stop reaching the actuator, whose sender goes on;
 * ``gamepad-unplug``: the operator's gamepad is unplugged;
-* ``stage-exception``: a pipeline stage raises.
+* ``stage-exception``: a pipeline stage raises;
+* ``lidar-loss``: the LiDAR's sweeps stop coming (a cable, its motor);
+* ``lidar-freeze``: the LiDAR repeats its last sweep, range for range (a hung driver).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
 from typing import Any, TypeVar, cast
 
 import can
 import numpy as np
 
 from kartpilot.core.errors import ConfigError, OdometryError
-from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource
+from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource, LaserScan
 from kartpilot.odometry.vo import VisualOdometry, VOStep
 
 __all__ = ["BUS_OFF_S", "KINDS", "FailingVO", "FaultyBus", "InjectedSource", "Injection", "RaisingPipeline",
@@ -34,7 +36,8 @@ __all__ = ["BUS_OFF_S", "KINDS", "FailingVO", "FaultyBus", "InjectedSource", "In
 V = TypeVar("V", bound=VisualOdometry)
 
 KINDS = ("camera-freeze", "black-frame", "vo-failure", "can-bus-off", "heartbeat-loss", "ecu-error",
-         "steering-sensor-loss", "steering-sensor-range", "loop-stall", "gamepad-unplug", "stage-exception")
+         "steering-sensor-loss", "steering-sensor-range", "loop-stall", "gamepad-unplug", "stage-exception",
+         "lidar-loss", "lidar-freeze")
 BUS_OFF_S = 0.5
 
 
@@ -62,29 +65,47 @@ def parse_injection(text: str) -> Injection:
 
 
 class InjectedSource:
-    """A frame source whose cameras freeze, or deliver one black set, from the injection's time."""
+    """A frame source whose cameras freeze, or deliver one black set, and whose LiDAR stops or freezes, from the
+    injection's time (what the cameras suffer leaves the scans alone, and the other way round)."""
 
     def __init__(self, source: FrameSource, injections: list[Injection]) -> None:
         self.source = source
         self.freeze = next((i for i in injections if i.kind == "camera-freeze"), None)
         self.black = next((i for i in injections if i.kind == "black-frame"), None)
+        self.lidar_loss = next((i for i in injections if i.kind == "lidar-loss"), None)
+        self.lidar_freeze = next((i for i in injections if i.kind == "lidar-freeze"), None)
         self._frozen: FrameSet | None = None
         self._last: FrameSet | None = None
         self._black_done = False
+        self._frozen_scans: dict[str, LaserScan] = {}
 
     def read(self) -> FrameSet | None:
         frames = self.source.read()
         if frames is None:
             return None
+        scans = self._scans(frames)
         if self.freeze is not None and self.freeze.active(frames.stamp_ns):
             if self._frozen is None:
                 self._frozen = self._last if self._last is not None else frames
-            return FrameSet(frames.index, frames.stamp_ns, {k: v.copy() for k, v in self._frozen.images.items()})
+            return FrameSet(frames.index, frames.stamp_ns, {k: v.copy() for k, v in self._frozen.images.items()},
+                            scans=scans)
         if self.black is not None and not self._black_done and self.black.active(frames.stamp_ns):
             self._black_done = True
-            return FrameSet(frames.index, frames.stamp_ns, {k: np.zeros_like(v) for k, v in frames.images.items()})
+            return FrameSet(frames.index, frames.stamp_ns, {k: np.zeros_like(v) for k, v in frames.images.items()},
+                            scans=scans)
         self._last = frames
-        return frames
+        return frames if scans is frames.scans else replace(frames, scans=scans)
+
+    def _scans(self, frames: FrameSet) -> Mapping[str, LaserScan]:
+        if self.lidar_loss is not None and self.lidar_loss.active(frames.stamp_ns):
+            return {}
+        if self.lidar_freeze is not None and self.lidar_freeze.active(frames.stamp_ns):
+            if not self._frozen_scans:
+                self._frozen_scans = dict(frames.scans)
+            # the same ranges again, under the sweep's own new time (a driver that hangs keeps stamping)
+            return {name: replace(self._frozen_scans[name], stamp_ns=scan.stamp_ns)
+                    for name, scan in frames.scans.items() if name in self._frozen_scans}
+        return frames.scans
 
 
 class FaultyBus(can.BusABC):

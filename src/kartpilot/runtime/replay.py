@@ -209,6 +209,6 @@ def _replay_writer(reader: RecordingReader, pipeline: str, vehicle: str, stack: 
     settings = {"lanes": {"lane_policy": stack_config["lane_policy"]},
                 "stereo-vo": {"stereo_vo": stack_config["stereo_vo"], "drive": stack_config["drive"]},
                 "mono-vo": {"mono_vo": stack_config["mono_vo"], "drive": stack_config["drive"]}}[pipeline]
-    return RecordingWriter(out, reader.cameras, reader.stereo_pair, metadata={
+    return RecordingWriter(out, reader.cameras, reader.stereo_pair, lidars=reader.lidars, metadata={
         "source": "kartpilot replay", "replay_of": str(reader.folder), "pipeline": pipeline, "vehicle": vehicle,
         "config": settings})

@@ -1,9 +1,12 @@
-"""Camera health: a camera that stops delivering, or delivers black or frozen frames, is noticed.
+"""Sensor health: a camera that stops delivering, or delivers black or frozen frames, is noticed; so is a LiDAR
+that stops, repeats its sweep or sees nothing.
 
 :func:`frame_problem` judges one frame against the camera's previous one (pure).
 :class:`CameraWatchdog` keeps, per camera, when it last delivered a good frame and
 reports each camera that has not for longer than ``timeout_s``, so a stalled camera is
 reported within a bounded time and its last image is never silently reused.
+:func:`scan_problem` and :class:`LidarWatchdog` do the same for a LiDAR's sweeps; a LiDAR in trouble is not a
+reason to stop (the cameras still see): the drive falls back to the camera-only rules and says so.
 """
 
 from __future__ import annotations
@@ -14,9 +17,9 @@ import cv2
 import numpy as np
 
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.types import FrameSet, Image
+from kartpilot.core.types import FrameSet, Image, LaserScan
 
-__all__ = ["CameraWatchdog", "HealthConfig", "frame_problem"]
+__all__ = ["CameraWatchdog", "HealthConfig", "LidarHealthConfig", "LidarWatchdog", "frame_problem", "scan_problem"]
 
 
 @dataclass(frozen=True)
@@ -91,5 +94,70 @@ class CameraWatchdog:
             since = last_good if last_good is not None else start
             if frames.stamp_ns - since > round(self.config.timeout_s * 1e9):
                 reported[name] = f"no good frame for {(frames.stamp_ns - since) * 1e-9:.2f} s (last: {problem})"
+        self.problems = reported
+        return reported
+
+
+@dataclass(frozen=True)
+class LidarHealthConfig:
+    """Attributes:
+        timeout_s: a LiDAR without a good sweep for this long is reported (an RPLIDAR at 10 Hz: five sweeps).
+        min_returns: a sweep with fewer returns than this is empty (a covered or blinded sensor; a kart on a
+            track always has its barriers, kerbs or people within range somewhere around it).
+    """
+
+    timeout_s: float = 0.5
+    min_returns: int = 5
+
+    def __post_init__(self) -> None:
+        if not self.timeout_s > 0 or self.min_returns < 0:
+            raise ConfigError("lidar_health.timeout_s must be positive and min_returns not negative")
+
+
+def scan_problem(scan: LaserScan, previous: LaserScan | None, config: LidarHealthConfig) -> str:
+    """Empty for a good sweep, else what is wrong with it: ``empty`` (fewer returns than ``min_returns``),
+    ``frozen`` (the same ranges as the sweep before, to the bit: a sensor's noise never repeats) or ``stale``
+    (not later than the sweep before)."""
+    ranges = np.asarray(scan.ranges_m)
+    if int(np.count_nonzero(np.isfinite(ranges))) < config.min_returns:
+        return "empty"
+    if previous is not None:
+        if scan.stamp_ns <= previous.stamp_ns:
+            return "stale"
+        if np.array_equal(ranges, np.asarray(previous.ranges_m), equal_nan=True):
+            return "frozen"
+    return ""
+
+
+class LidarWatchdog:
+    """Per LiDAR: when it last gave a good sweep, and the sweep before (for the frozen check). ``check`` returns
+    the LiDARs in trouble; ``problems`` keeps them between sets (a set without a sweep changes nothing but the
+    time since the last good one)."""
+
+    def __init__(self, lidars: list[str], config: LidarHealthConfig | None = None) -> None:
+        self.config = config or LidarHealthConfig()
+        self._last_good_ns: dict[str, int | None] = dict.fromkeys(lidars)
+        self._previous: dict[str, LaserScan | None] = dict.fromkeys(lidars)
+        self._last_problem: dict[str, str] = dict.fromkeys(lidars, "no sweep yet")
+        self._start_ns: int | None = None
+        self.problems: dict[str, str] = {}
+
+    def check(self, frames: FrameSet) -> dict[str, str]:
+        if self._start_ns is None:
+            self._start_ns = frames.stamp_ns
+        reported: dict[str, str] = {}
+        for name in self._last_good_ns:
+            scan = frames.scans.get(name)
+            if scan is not None:
+                problem = scan_problem(scan, self._previous[name], self.config)
+                self._previous[name] = scan
+                if not problem:
+                    self._last_good_ns[name] = frames.stamp_ns
+                self._last_problem[name] = problem or ""
+            last_good = self._last_good_ns[name]
+            since = last_good if last_good is not None else self._start_ns
+            if frames.stamp_ns - since > round(self.config.timeout_s * 1e9):
+                last = self._last_problem[name] or "no sweep"
+                reported[name] = f"no good sweep for {(frames.stamp_ns - since) * 1e-9:.2f} s (last: {last})"
         self.problems = reported
         return reported

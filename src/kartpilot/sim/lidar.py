@@ -24,11 +24,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.geometry import arc_2d, compose_2d
-from kartpilot.core.types import LaserScan
+from kartpilot.core.types import LaserScan, LidarMount
 from kartpilot.sim.track import PROP_SIZES_M, Track
 
-__all__ = ["KINDS", "LidarConfig", "cast_rays", "scene_segments", "simulate_scan"]
+__all__ = ["KINDS", "LidarConfig", "cast_rays", "near_segments", "scene_segments", "simulate_scan"]
 
 KINDS = ("barrier", "car", "person", "traffic_light", "speed_sign", "cone")
 """What a beam can hit, in the order of :func:`scene_segments`' kind codes."""
@@ -38,16 +37,14 @@ CONE_BASE_M, CONE_HEIGHT_M = 0.18, 0.30
 
 @dataclass(frozen=True)
 class LidarConfig:
-    """A planar LiDAR and its mount (defaults: an RPLIDAR A2M8 at 10 Hz on the 2026 kart's nose).
+    """A planar LiDAR, the sensor itself (defaults: an RPLIDAR A2M8 at 10 Hz); where it sits on the kart is the
+    vehicle's or the rig's :class:`~kartpilot.core.types.LidarMount`.
 
     Attributes:
         rate_hz: sweeps per second (an RPLIDAR spins at 5 to 15 Hz).
         step_deg: the angle between beams.
         range_min_m, range_max_m: what it measures; nearer or farther is no return.
         noise_m, noise_share: the range's standard deviation, ``noise_m + noise_share * range``.
-        height_m: the scan plane's height above the road.
-        mount_x_m, mount_y_m, mount_yaw_deg: the sensor on the body (ahead of the rear axle, to the left, turned
-            left).
         dropout: the share of beams that return nothing from each kind of object (dark clothes, a black car's
             paint): kind -> share.
         seed: the noise's and the dropouts' seed.
@@ -59,10 +56,6 @@ class LidarConfig:
     range_max_m: float = 12.0
     noise_m: float = 0.005
     noise_share: float = 0.005
-    height_m: float = 0.30
-    mount_x_m: float = 1.5
-    mount_y_m: float = 0.0
-    mount_yaw_deg: float = 0.0
     dropout: dict[str, float] = field(default_factory=lambda: {"person": 0.10, "car": 0.05})
     seed: int = 0
 
@@ -72,8 +65,7 @@ class LidarConfig:
                   ("range_min_m", 0.0 <= self.range_min_m < self.range_max_m, "0 up to range_max_m"),
                   ("range_max_m", self.range_max_m <= 100.0, "at most 100"),
                   ("noise_m", 0.0 <= self.noise_m <= 0.5, "0 to 0.5"),
-                  ("noise_share", 0.0 <= self.noise_share <= 0.2, "0 to 0.2"),
-                  ("height_m", 0.0 < self.height_m <= 2.0, "above 0, at most 2"))
+                  ("noise_share", 0.0 <= self.noise_share <= 0.2, "0 to 0.2"))
         for name, ok, allowed in checks:
             if not (ok and math.isfinite(float(getattr(self, name)))):
                 raise ConfigError(f"lidar.{name} {getattr(self, name)}: must be {allowed}")
@@ -152,25 +144,57 @@ def scene_segments(track: Track, time_s: float, height_m: float) -> tuple[NDArra
     return np.concatenate(segments), np.array(kinds, np.intp)
 
 
+def near_segments(segments: NDArray[np.float64], centre_xy: tuple[float, float], reach_m: float) -> NDArray[np.bool_]:
+    """Which segments come within ``reach_m`` of a point (a segment's nearest point to it, not its ends): a scan
+    casts its beams against these only (a whole track's barriers are thousands of segments, and a beam meets
+    none farther than the sensor's range)."""
+    if len(segments) == 0:
+        return np.zeros(0, bool)
+    a, b = segments[:, 0], segments[:, 1]
+    edge = b - a
+    p = np.asarray(centre_xy, np.float64)[None, :]
+    length2 = np.maximum(np.sum(edge * edge, axis=1), 1e-12)
+    u = np.clip(np.sum((p - a) * edge, axis=1) / length2, 0.0, 1.0)
+    nearest = a + u[:, None] * edge
+    return np.asarray(np.hypot(*(nearest - p).T) <= reach_m)
+
+
+def _sensor_path(body_xy_yaw: tuple[float, float, float], speed_mps: float, yaw_rate_radps: float,
+                 times_s: NDArray[np.float64], mount: LidarMount) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Where the sensor is ((N, 2) x, y) and which way it faces ((N,) yaw) at each of ``times_s`` after the body was
+    at ``body_xy_yaw``, moving along an arc (:func:`kartpilot.core.geometry.arc_2d`, for every beam at once)."""
+    turn = yaw_rate_radps * times_s
+    if abs(yaw_rate_radps) < 1e-9:
+        dx, dy = speed_mps * times_s, np.zeros_like(times_s)
+    else:
+        radius = speed_mps / yaw_rate_radps
+        dx, dy = radius * np.sin(turn), radius * (1.0 - np.cos(turn))
+    x0, y0, yaw0 = body_xy_yaw
+    c0, s0 = math.cos(yaw0), math.sin(yaw0)
+    bx, by, byaw = x0 + c0 * dx - s0 * dy, y0 + s0 * dx + c0 * dy, yaw0 + turn
+    cb, sb = np.cos(byaw), np.sin(byaw)
+    return (np.column_stack([bx + cb * mount.x_m - sb * mount.y_m, by + sb * mount.x_m + cb * mount.y_m]),
+            byaw + mount.yaw_rad)
+
+
 def simulate_scan(track: Track, body_xy_yaw: tuple[float, float, float], speed_mps: float, yaw_rate_radps: float,
-                  time_s: float, config: LidarConfig, rng: np.random.Generator) -> LaserScan:
-    """One sweep starting at ``time_s`` with the body (rear axle) at ``body_xy_yaw`` moving at ``speed_mps`` and
-    ``yaw_rate_radps``: each beam from where the sensor is at its own time, its range with the sensor's noise, a
-    share of those on dark surfaces lost, and what lies outside the sensor's range NaN."""
+                  time_s: float, config: LidarConfig, mount: LidarMount, rng: np.random.Generator) -> LaserScan:
+    """One sweep starting at ``time_s`` by the sensor at ``mount`` on the body (rear axle) at ``body_xy_yaw``,
+    moving at ``speed_mps`` and ``yaw_rate_radps``: each beam from where the sensor is at its own time, its range
+    with the sensor's noise, a share of those on dark surfaces lost, and what lies outside the sensor's range
+    NaN."""
     beams = config.beams
     scan_time = 1.0 / config.rate_hz
     step = math.radians(config.step_deg)
     angles = -math.pi + step * np.arange(beams)
     dt = scan_time / beams
-    mount = (config.mount_x_m, config.mount_y_m, math.radians(config.mount_yaw_deg))
-    origins = np.empty((beams, 2))
-    headings = np.empty(beams)
-    for k in range(beams):
-        body = compose_2d(body_xy_yaw, arc_2d(speed_mps, yaw_rate_radps, k * dt))
-        x, y, yaw = compose_2d(body, mount)
-        origins[k], headings[k] = (x, y), yaw + angles[k]
+    origins, yaws = _sensor_path(body_xy_yaw, speed_mps, yaw_rate_radps, np.arange(beams, dtype=np.float64) * dt, mount)
+    headings = yaws + angles
     directions = np.column_stack([np.cos(headings), np.sin(headings)])
-    segments, kinds = scene_segments(track, time_s, config.height_m)
+    segments, kinds = scene_segments(track, time_s, mount.z_m)
+    reach = config.range_max_m + abs(speed_mps) * scan_time + 1.0
+    near = near_segments(segments, (float(origins[0, 0]), float(origins[0, 1])), reach)
+    segments, kinds = segments[near], kinds[near]
     distance, hit = cast_rays(origins, directions, segments)
     ranges = distance + rng.normal(0.0, 1.0, beams) * (config.noise_m + config.noise_share * np.minimum(
         distance, config.range_max_m))

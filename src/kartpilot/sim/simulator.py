@@ -17,9 +17,9 @@ import numpy as np
 from kartpilot.calibration.lens import lens_distortion
 from kartpilot.core.camera import DISTORTION_COUNTS
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.geometry import Array
+from kartpilot.core.geometry import Array, arc_2d, compose_2d
 from kartpilot.core.trajectory import Trajectory
-from kartpilot.core.types import ActuatorCommand, FrameSet, Image
+from kartpilot.core.types import ActuatorCommand, FrameSet, Image, LaserScan
 from kartpilot.core.vehicle import GRAVITY_MPS2, VehicleParams, get_vehicle
 from kartpilot.perception.objects import Detection
 from kartpilot.sim.camera_effects import (
@@ -31,6 +31,7 @@ from kartpilot.sim.camera_effects import (
     shift_rows,
 )
 from kartpilot.sim.dynamics import Disturbances, VehicleState, step_vehicle
+from kartpilot.sim.lidar import LidarConfig, simulate_scan
 from kartpilot.sim.referee import Referee, RefereeConfig, RunResult
 from kartpilot.sim.render import RenderConfig, Renderer
 from kartpilot.sim.track import Prop, Track, load_track, project_onto
@@ -158,6 +159,9 @@ class SimConfig:
     referee: RefereeConfig = field(default_factory=RefereeConfig)
     props: tuple[Prop, ...] = ()
     """A scenario's objects, added to the track's own (``track.props``)."""
+    lidar: LidarConfig = field(default_factory=LidarConfig)
+    """The planar LiDAR's sensor, scanned where the vehicle has one (its mount: ``VehicleParams.lidar``); its
+    sweeps ride on the frame sets (``FrameSet.scans["lidar"]``)."""
 
 
 def real_camera(vehicle: str) -> CameraEffectsConfig:
@@ -248,6 +252,9 @@ class Simulator:
         self.stamps_ns: list[int] = []
         self.dropped_frames = 0
         self.last_command = ActuatorCommand.stop(0)
+        self._lidar_rng = np.random.default_rng([config.seed, config.lidar.seed])
+        self._next_scan_s = 0.0
+        self.scans = 0
         max_time = config.max_time_s or self._default_time_limit()
         self._max_steps = math.ceil(max_time / self.dt_s)
 
@@ -281,7 +288,23 @@ class Simulator:
                 if effects.drop_probability > 0 and self._rng.random() < effects.drop_probability:
                     del images[name]
                     self.dropped_frames += 1
-        return FrameSet(self.step_index, self.time_ns, images)
+        return FrameSet(self.step_index, self.time_ns, images, scans=self._scans())
+
+    def _scans(self) -> dict[str, LaserScan]:
+        """The LiDAR's sweep that began since the set before (none where no sweep began: the sensor keeps its own
+        rate), taken from where the kart was when it began: the body's pose now, moved back along its arc."""
+        mount = self.vehicle.lidar
+        if mount is None or self.time_s + 1e-9 < self._next_scan_s:
+            return {}
+        start_s = self._next_scan_s
+        while self._next_scan_s <= self.time_s + 1e-9:
+            self._next_scan_s += 1.0 / self.config.lidar.rate_hz
+        state = self.state
+        back = arc_2d(state.vx_mps, state.yaw_rate_radps, -(self.time_s - start_s))
+        body = compose_2d((state.x_m, state.y_m, state.yaw_rad), back)
+        self.scans += 1
+        return {"lidar": simulate_scan(self.track, body, state.vx_mps, state.yaw_rate_radps, start_s,
+                                       self.config.lidar, mount, self._lidar_rng)}
 
     def send(self, command: ActuatorCommand) -> None:
         """Command sink: apply ``command`` for one camera period, then let the referee judge."""

@@ -1,0 +1,275 @@
+"""Objects and free space from a planar LiDAR's sweep (issue 58): where things are, which the camera cannot
+measure as well (a camera's distance comes from where a box's foot meets a flat road; a LiDAR's is measured).
+
+A sweep's returns come in the order of their beams, so objects are found by breaking the ring of returns where
+two neighbours lie farther apart than a beam's spread at that range allows (the adaptive breakpoint rule of
+Borges and Aldon, 2004): one pass, no search, a few hundred microseconds for an 800-beam sweep. Each cluster gets
+its extent on the ground (its points' rectangle along its own principal axis) and its nearest point.
+:class:`ScanTracker` follows clusters from sweep to sweep in the odometry frame (the kart's own motion taken out)
+and gives each its velocity. :func:`corridor_free_m` and :func:`side_clear` are the free-space questions the
+manoeuvres ask: how far is the lane free ahead, and is the strip beside the kart clear. :func:`locate_detections`
+gives the camera's detections the LiDAR's distance where a cluster lies along the same bearing: the camera says
+what a thing is, the LiDAR where it is.
+
+Points are in the kart's body frame (x ahead of the rear axle, y to the left), from the sensor's through its
+:class:`~kartpilot.core.types.LidarMount`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kartpilot.core.errors import ConfigError
+from kartpilot.core.types import LaserScan, LidarMount
+from kartpilot.perception.objects import Detection
+
+__all__ = ["ScanCluster", "ScanConfig", "ScanObject", "ScanTracker", "cluster_scan", "corridor_free_m",
+           "locate_detections", "scan_points_body", "side_clear"]
+
+
+@dataclass(frozen=True)
+class ScanConfig:
+    """Attributes:
+        gap_m: two neighbouring returns nearer than this belong to one object, whatever their range.
+        gap_beams: ... or nearer than this many beams' spread at their range (a far object's returns lie farther
+            apart; the adaptive part of the breakpoint rule).
+        min_points: a cluster of fewer returns is noise (a single return off a post is dropped).
+        track_gate_m: a cluster within this of a track's predicted place continues it.
+        track_lost_s: a track not seen for this long is dropped.
+        velocity_smoothing: the share of a new velocity measurement in a track's velocity (0 to 1).
+        match_bearing_deg: a camera detection takes the LiDAR's distance from a cluster within this bearing.
+        match_range_share: ... and whose range is within this share of the camera's own estimate.
+    """
+
+    gap_m: float = 0.3
+    gap_beams: float = 4.0
+    min_points: int = 3
+    track_gate_m: float = 1.0
+    track_lost_s: float = 0.5
+    velocity_smoothing: float = 0.5
+    match_bearing_deg: float = 4.0
+    match_range_share: float = 0.5
+
+    def __post_init__(self) -> None:
+        checks = (("gap_m", self.gap_m > 0), ("gap_beams", self.gap_beams >= 0), ("min_points", self.min_points >= 1),
+                  ("track_gate_m", self.track_gate_m > 0), ("track_lost_s", self.track_lost_s > 0),
+                  ("velocity_smoothing", 0 < self.velocity_smoothing <= 1),
+                  ("match_bearing_deg", 0 < self.match_bearing_deg <= 45),
+                  ("match_range_share", 0 < self.match_range_share <= 1))
+        for name, ok in checks:
+            if not (ok and math.isfinite(float(getattr(self, name)))):
+                raise ConfigError(f"scan.{name} {getattr(self, name)}: out of range")
+
+
+@dataclass(frozen=True)
+class ScanCluster:
+    """One object in a sweep, on the ground in the body frame.
+
+    Attributes:
+        centre_xy_m: the middle of its points' rectangle.
+        nearest_xy_m: its point nearest the sensor.
+        length_m, width_m: its rectangle's sides (along and across its principal axis): what the sensor sees of
+            it (a car seen from behind is its width long and a few centimetres deep).
+        heading_rad: the rectangle's long side's direction.
+        points: how many returns.
+    """
+
+    centre_xy_m: tuple[float, float]
+    nearest_xy_m: tuple[float, float]
+    length_m: float
+    width_m: float
+    heading_rad: float
+    points: int
+
+    @property
+    def range_m(self) -> float:
+        return math.hypot(*self.nearest_xy_m)
+
+    @property
+    def bearing_rad(self) -> float:
+        return math.atan2(self.centre_xy_m[1], self.centre_xy_m[0])
+
+
+def scan_points_body(scan: LaserScan, mount: LidarMount) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(points (M, 2) in the body frame, their ranges (M,)) of the beams with a return, in beam order."""
+    ranges = np.asarray(scan.ranges_m, np.float64)
+    seen = np.isfinite(ranges) & (ranges >= scan.range_min_m) & (ranges <= scan.range_max_m)
+    angles = scan.angles_rad()[seen]
+    r = ranges[seen]
+    return mount.to_body(np.column_stack([r * np.cos(angles), r * np.sin(angles)])), r
+
+
+def cluster_scan(scan: LaserScan, mount: LidarMount, config: ScanConfig = ScanConfig()) -> list[ScanCluster]:
+    """The sweep's objects: its returns broken into clusters where two neighbours (in beam order, the ring closed
+    round) lie farther apart than ``gap_m`` and than ``gap_beams`` beams' spread at their range."""
+    points, ranges = scan_points_body(scan, mount)
+    n = len(points)
+    if n < config.min_points:
+        return []
+    step = abs(scan.angle_increment_rad)
+    gaps = np.hypot(*(np.roll(points, -1, axis=0) - points).T)  # from each point to the next, the last to the first
+    allowed = np.maximum(config.gap_m, config.gap_beams * step * np.minimum(ranges, np.roll(ranges, -1)))
+    breaks = np.flatnonzero(gaps > allowed)  # a break after these points
+    if len(breaks) == 0:
+        groups = [np.arange(n)]
+    else:
+        # start after the first break, so a cluster across the ring's seam (straight behind) stays whole
+        order = np.roll(np.arange(n), -(int(breaks[0]) + 1))
+        cut = np.flatnonzero(gaps[order] > allowed[order]) + 1
+        groups = [g for g in np.split(order, cut) if len(g)]
+    return [_cluster(points[g]) for g in groups if len(g) >= config.min_points]
+
+
+def _cluster(points: NDArray[np.float64]) -> ScanCluster:
+    centre = points.mean(axis=0)
+    spread = points - centre
+    if len(points) >= 2 and np.ptp(points, axis=0).max() > 1e-6:
+        _, _, axes = np.linalg.svd(spread, full_matrices=False)
+        axis = axes[0]
+    else:
+        axis = np.array([1.0, 0.0])
+    across = np.array([-axis[1], axis[0]])
+    along_v, across_v = spread @ axis, spread @ across
+    middle = centre + axis * (along_v.max() + along_v.min()) / 2 + across * (across_v.max() + across_v.min()) / 2
+    nearest = points[int(np.argmin(np.hypot(points[:, 0], points[:, 1])))]
+    return ScanCluster((float(middle[0]), float(middle[1])), (float(nearest[0]), float(nearest[1])),
+                       float(np.ptp(along_v)), float(np.ptp(across_v)), float(math.atan2(axis[1], axis[0])),
+                       len(points))
+
+
+@dataclass(frozen=True)
+class ScanObject:
+    """A cluster followed over sweeps.
+
+    Attributes:
+        track_id: the same object's id over sweeps.
+        cluster: its cluster in the latest sweep (body frame).
+        velocity_mps: (vx, vy) over the ground, in the body frame of the latest sweep (the kart's own motion
+            taken out: a car standing still is (0, 0) however the kart drives).
+        age: the sweeps it has been seen in.
+    """
+
+    track_id: int
+    cluster: ScanCluster
+    velocity_mps: tuple[float, float]
+    age: int
+
+    @property
+    def speed_mps(self) -> float:
+        return math.hypot(*self.velocity_mps)
+
+
+@dataclass
+class _Track:
+    track_id: int
+    xy_m: NDArray[np.float64]  # odometry frame
+    velocity: NDArray[np.float64]  # odometry frame
+    stamp_ns: int
+    age: int
+    cluster: ScanCluster
+
+
+class ScanTracker:
+    """Clusters followed from sweep to sweep by their centres in the odometry frame (nearest first, within
+    ``track_gate_m`` of where each track's velocity puts it), each track's velocity smoothed over sweeps."""
+
+    def __init__(self, config: ScanConfig | None = None) -> None:
+        self.config = config or ScanConfig()
+        self._tracks: list[_Track] = []
+        self._next_id = 1
+
+    def update(self, stamp_ns: int, clusters: list[ScanCluster], body_pose: tuple[float, float, float] = (0, 0, 0)
+               ) -> list[ScanObject]:
+        """The objects of a sweep at ``stamp_ns``, with the kart's body at ``body_pose`` (x, y, yaw in the
+        odometry frame; the body frame's origin when the kart's motion is unknown: velocities are then relative
+        to the kart)."""
+        c, s = math.cos(body_pose[2]), math.sin(body_pose[2])
+        to_odom = np.array([[c, -s], [s, c]])
+        origin = np.array(body_pose[:2], np.float64)
+        alive = [t for t in self._tracks if (stamp_ns - t.stamp_ns) * 1e-9 <= self.config.track_lost_s]
+        predicted = [t.xy_m + t.velocity * (stamp_ns - t.stamp_ns) * 1e-9 for t in alive]
+        centres = [origin + to_odom @ np.asarray(k.centre_xy_m) for k in clusters]
+        pairs = sorted((float(np.linalg.norm(p - q)), i, j) for i, p in enumerate(predicted)
+                       for j, q in enumerate(centres))
+        taken_tracks: set[int] = set()
+        taken_clusters: set[int] = set()
+        for distance, i, j in pairs:
+            if distance > self.config.track_gate_m or i in taken_tracks or j in taken_clusters:
+                continue
+            track = alive[i]
+            dt = (stamp_ns - track.stamp_ns) * 1e-9
+            if dt > 0:
+                measured = (centres[j] - track.xy_m) / dt
+                a = self.config.velocity_smoothing if track.age > 1 else 1.0
+                track.velocity = (1 - a) * track.velocity + a * measured
+            track.xy_m, track.stamp_ns, track.age, track.cluster = centres[j], stamp_ns, track.age + 1, clusters[j]
+            taken_tracks.add(i)
+            taken_clusters.add(j)
+        for j, cluster in enumerate(clusters):
+            if j not in taken_clusters:
+                alive.append(_Track(self._next_id, centres[j], np.zeros(2), stamp_ns, 1, cluster))
+                self._next_id += 1
+        self._tracks = alive
+        objects = []
+        for t in alive:
+            if t.stamp_ns == stamp_ns:
+                vx, vy = to_odom.T @ t.velocity
+                objects.append(ScanObject(t.track_id, t.cluster, (float(vx), float(vy)), t.age))
+        return objects
+
+
+def corridor_free_m(points_body: NDArray[np.float64], y_min_m: float, y_max_m: float, x_from_m: float,
+                    x_to_m: float = math.inf) -> float:
+    """How far ahead of ``x_from_m`` the strip between ``y_min_m`` and ``y_max_m`` (body y) is free of returns,
+    up to ``x_to_m`` (inf when nothing lies in it: as far as the sensor sees)."""
+    points = np.asarray(points_body, np.float64).reshape(-1, 2)
+    inside = (points[:, 1] >= y_min_m) & (points[:, 1] <= y_max_m) & (points[:, 0] >= x_from_m) & (
+        points[:, 0] <= x_to_m)
+    return float(points[inside, 0].min() - x_from_m) if inside.any() else math.inf
+
+
+def side_clear(points_body: NDArray[np.float64], x_min_m: float, x_max_m: float, y_min_m: float, y_max_m: float,
+               min_points: int = 2) -> bool:
+    """Whether the box beside (or around) the kart holds fewer than ``min_points`` returns: clear."""
+    points = np.asarray(points_body, np.float64).reshape(-1, 2)
+    inside = (points[:, 0] >= x_min_m) & (points[:, 0] <= x_max_m) & (points[:, 1] >= y_min_m) & (
+        points[:, 1] <= y_max_m)
+    return int(np.count_nonzero(inside)) < min_points
+
+
+def locate_detections(detections: list[Detection], clusters: list[ScanCluster], mount: LidarMount,
+                      config: ScanConfig = ScanConfig()) -> list[Detection]:
+    """The camera's detections, each with the distance and side of the cluster along its bearing (seen from the
+    LiDAR) where there is one within ``match_bearing_deg`` and, where the camera measured a distance, within
+    ``match_range_share`` of it; such a detection's ``source`` gains ``+lidar``. The others are returned as
+    they came. Each cluster locates one detection at most (the nearest in bearing)."""
+    if not clusters:
+        return list(detections)
+    sensor = np.array([mount.x_m, mount.y_m])
+    bearings = np.array([math.atan2(k.nearest_xy_m[1] - sensor[1], k.nearest_xy_m[0] - sensor[0]) for k in clusters])
+    ranges = np.array([math.hypot(k.nearest_xy_m[0] - sensor[0], k.nearest_xy_m[1] - sensor[1]) for k in clusters])
+    limit = math.radians(config.match_bearing_deg)
+    candidates = []
+    for i, d in enumerate(detections):
+        if not (math.isfinite(d.distance_m) and math.isfinite(d.lateral_m)):
+            continue
+        bearing = math.atan2(d.lateral_m - sensor[1], d.distance_m - sensor[0])
+        camera_range = math.hypot(d.distance_m - sensor[0], d.lateral_m - sensor[1])
+        off = np.abs(np.remainder(bearings - bearing + math.pi, math.tau) - math.pi)
+        fits = (off <= limit) & (np.abs(ranges - camera_range) <= config.match_range_share * camera_range)
+        candidates += [(float(off[j]), i, int(j)) for j in np.flatnonzero(fits)]
+    out = list(detections)
+    used_d: set[int] = set()
+    used_k: set[int] = set()
+    for _, i, j in sorted(candidates):
+        if i in used_d or j in used_k:
+            continue
+        used_d.add(i)
+        used_k.add(j)
+        x, y = clusters[j].nearest_xy_m
+        out[i] = replace(detections[i], distance_m=x, lateral_m=y, source=f"{detections[i].source}+lidar")
+    return out
