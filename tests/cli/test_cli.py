@@ -192,3 +192,10 @@ def test_places_build_and_query_a_recording_and_an_image(tmp_path, capsys) -> No
     assert main(["places", "build", str(tmp_path / "bare"), "--out", str(db)]) == 1
     err = capsys.readouterr().err
     assert "no ground truth" in err and "--positions" in err
+
+
+def test_a_scenario_on_a_kart_that_is_not_the_sdc_kart_is_a_one_line_error(capsys):
+    """--vehicle used to be taken and ignored by --scenario (it always drove the sdc-kart)."""
+    assert main(["sim", "--scenario", "overtake", "--vehicle", "rc-kart"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "sdc-kart or sdc-kart-2026, not rc-kart" in err

@@ -11,7 +11,7 @@ import pytest
 
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import LidarMount
-from kartpilot.sim.lidar import LidarConfig, cast_rays, scene_segments, simulate_scan
+from kartpilot.sim.lidar import LidarConfig, cast_rays, near_segments, scene_segments, simulate_scan
 from kartpilot.sim.track import Prop, load_track
 
 
@@ -102,3 +102,15 @@ def test_a_sensor_that_cannot_be_is_refused_by_name(field: str, value: float) ->
         LidarConfig(**{field: value})
     with pytest.raises(ConfigError, match=r"lidar\.dropout\.ghost"):
         LidarConfig(dropout={"ghost": 0.5})
+
+
+def test_nothing_within_reach_is_a_sweep_without_returns() -> None:
+    """A sensor in the middle of an empty car park (everything standing is farther than its range): every beam NaN,
+    whatever the dropouts; the segments out of reach are not cast against, and the result is the same as when
+    they are."""
+    track = _straight_with((Prop(kind="car", s_m=19.9, offset_m=0.0),))
+    config = LidarConfig(range_max_m=5.0)
+    scan = simulate_scan(track, track.start_pose(), 0.0, 0.0, 0.0, config, AT_AXLE, np.random.default_rng(0))
+    assert np.isnan(scan.ranges_m).all() and not scan.intensities.any()
+    segments, _ = scene_segments(track, 0.0, 0.3)
+    assert not near_segments(segments, track.start_pose()[:2], 5.0 + 1.0).any() and len(segments) == 4

@@ -40,9 +40,12 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
+import numpy as np
+
 from kartpilot.behaviour.manoeuvres import OvertakeConfig, ParkConfig, plan_overtake, plan_park
 from kartpilot.core.errors import ConfigError
 from kartpilot.perception.objects import Detection
+from kartpilot.perception.scan import LidarView, bay_between_barriers, corridor_free_m, side_clear
 from kartpilot.planning.reference_path import ReferencePath
 
 __all__ = ["ACTED_ON", "BehaviourConfig", "BehaviourDecision", "BehaviourState", "act_window", "behaviour_step",
@@ -87,6 +90,12 @@ class BehaviourConfig:
         car_gap_m: where the kart's front stops behind a car it does not pass.
         park: park in the first bay between barriers seen within ``bay_range_m`` (the event's last scenario), once
             the kart has driven ``park_after_m`` (a team's knowledge of the course: where its bay comes last).
+        lidar_corridor_m: with a LiDAR, anything in the strip this far either side of the kart's line ahead of its
+            front is in its way, seen by the camera or not: the kart stops ``lidar_gap_m`` before it.
+        lidar_gap_m: where the kart's front stops before something the LiDAR sees in its way.
+        return_extend_m: with a LiDAR, an overtake's return waits while the scan shows something beside the kart in
+            the lane it returns to: the pass goes on this much farther each time (at most ``return_wait_m`` in
+            all; then it returns as planned, and says so).
     """
 
     start_on_green: bool = False
@@ -116,6 +125,10 @@ class BehaviourConfig:
     park_after_m: float = 0.0
     bay_range_m: float = 12.0
     parking: ParkConfig = field(default_factory=ParkConfig)
+    lidar_corridor_m: float = 0.9
+    lidar_gap_m: float = 1.5
+    return_extend_m: float = 1.0
+    return_wait_m: float = 10.0
 
     def __post_init__(self) -> None:
         if min(self.limit_kmh, self.decel_mps2, self.light_range_m, self.crossing_range_m) <= 0:
@@ -147,6 +160,11 @@ class BehaviourState:
     green_seen_s: float = 0.0
     rising_limit_kmh: float = math.nan  # a higher limit read ahead, and the metres driven at which it holds
     rising_at_m: float = math.nan
+    manoeuvre_start_m: float = math.nan  # an overtake's start (metres driven), the car's distance then, and the
+    car_distance_m: float = math.nan  # car length its path is planned with now (longer while the scan shows the
+    car_length_m: float = math.nan  # car still beside the kart)
+    bay_m: tuple[float, float, float] = (math.nan, math.nan, math.nan)  # parking: the bay's start (metres driven),
+    bay_measured: bool = False  # free length and line as planned; whether the scan has measured it since
 
     @classmethod
     def start(cls, config: BehaviourConfig) -> BehaviourState:
@@ -163,6 +181,8 @@ class BehaviourDecision:
     reason: str
     stop_distance_m: float = math.nan
     path: ReferencePath | None = None  # a manoeuvre's path, given on the step it starts (the lane's frame there)
+    replanned: bool = False  # the path replaces the one under way, in the same frame (an overtake's return waits)
+    sensors: str = "camera"  # what the decision was made from: camera, lidar, or camera+lidar
 
 
 _TRACKED_PEOPLE = 32
@@ -226,9 +246,74 @@ def _posted_limit(config: BehaviourConfig, state: BehaviourState, sign: Detectio
 
 
 def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: list[Detection], speed_mps: float,
-                   dt_s: float) -> tuple[BehaviourDecision, BehaviourState]:
+                   dt_s: float, lidar: LidarView | None = None) -> tuple[BehaviourDecision, BehaviourState]:
     """One step: the decision and the next state, from this frame's detections (placed on the ground, distances
-    from the body frame's origin) and the measured speed."""
+    from the body frame's origin) and the measured speed.
+
+    With ``lidar`` (a healthy LiDAR's latest sweep; None: the camera-only rules), the same rules, and: a parking
+    bay's start and free length measured between the barriers the scan sees; an overtake's return held while the
+    scan shows something beside the kart in the lane it returns to; and a stop before anything the scan sees in
+    the kart's way, whether the camera saw it or not. Each decision says in ``sensors`` what it was made from."""
+    decision, s = _rules_step(config, state, detections, speed_mps, dt_s, lidar)
+    if lidar is None:
+        return decision, s
+    if decision.sensors == "camera":
+        decision = replace(decision, sensors="camera+lidar")
+    if decision.state in ("drive", "stop_red", "wait_red", "yield", "wait_car"):
+        w = config.lidar_corridor_m
+        free = corridor_free_m(lidar.points_m, -w, w, config.front_m, config.front_m + 40.0)
+        if math.isfinite(free):
+            gap = free - config.lidar_gap_m
+            cap = stopping_speed(gap, config.decel_mps2, config.brake_delay_s)
+            if cap < decision.speed_cap_mps:
+                decision = replace(decision, speed_cap_mps=cap, stop_distance_m=gap, sensors="lidar",
+                                   reason=f"something in the lane {free:.1f} m ahead of the front (lidar)")
+    return decision, s
+
+
+def _hold_return(config: BehaviourConfig, s: BehaviourState, odometer: float, lidar: LidarView
+                 ) -> tuple[ReferencePath, BehaviourState] | None:
+    """Just before an overtake's return, the lane it returns to beside the kart (from ``after_m`` behind its back
+    to a metre ahead of its front) as the scan shows it: where something is there (the car, longer than assumed),
+    the pass is replanned ``return_extend_m`` longer, in the same frame; None where the return may go ahead."""
+    passing = config.passing
+    back_at = s.car_distance_m + s.car_length_m + passing.rear_m + passing.after_m  # where the return begins
+    progress = odometer - s.manoeuvre_start_m
+    if not back_at - config.return_extend_m <= progress <= back_at:
+        return None
+    if s.car_length_m - passing.car_length_m >= config.return_wait_m:
+        return None
+    lane = passing.lane_offset_m
+    if side_clear(lidar.points_m, -(passing.rear_m + passing.after_m), passing.front_m + 1.0, -lane - 1.2,
+                  -lane + 1.2):
+        return None
+    length = s.car_length_m + config.return_extend_m
+    path = plan_overtake(s.car_distance_m, replace(passing, car_length_m=length))
+    if path is None:
+        return None
+    return path, replace(s, car_length_m=length, manoeuvre_end_m=s.manoeuvre_start_m + float(path.s_m[-1]))
+
+
+def _measure_bay(config: BehaviourConfig, s: BehaviourState, odometer: float, lidar: LidarView
+                 ) -> tuple[ReferencePath, BehaviourState] | None:
+    """While parking on the camera's estimate of the bay, before the S into it begins: the bay between its barriers
+    as the scan measures it, once both are within its range; the path replanned from it in the same frame (the lane's
+    where parking began). None until then, or where the scan's bay cannot be driven into."""
+    start_m, _, lateral_m = s.bay_m
+    progress = odometer - s.manoeuvre_start_m
+    measured = bay_between_barriers(lidar.clusters, math.copysign(1.0, lateral_m), start_m - odometer, lateral_m)
+    if measured is None:
+        return None
+    start, free = measured
+    path = plan_park(start + progress, free, lateral_m, config.parking)
+    if path is None or float(path.x_m[np.argmax(np.abs(path.y_m) > 0.01)]) < progress:
+        return None  # too short for the S, or its S would have begun behind the kart already
+    return path, replace(s, stop_at_m=s.manoeuvre_start_m + float(path.s_m[-1]), bay_measured=True,
+                         bay_m=(odometer + start, free, lateral_m))
+
+
+def _rules_step(config: BehaviourConfig, state: BehaviourState, detections: list[Detection], speed_mps: float,
+                dt_s: float, lidar: LidarView | None) -> tuple[BehaviourDecision, BehaviourState]:
     if not math.isfinite(speed_mps):
         speed_mps = 0.0
     odometer = state.odometer_m + max(speed_mps, 0.0) * dt_s
@@ -264,6 +349,13 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
                and abs(d.lateral_m) <= config.car_corridor_m), key=lambda d: d.distance_m, default=None)
     if s.state == "parked":
         return BehaviourDecision(0.0, "parked", "parked in the bay"), s
+    if s.state == "park" and lidar is not None and not s.bay_measured:
+        remeasured = _measure_bay(config, s, odometer, lidar)
+        if remeasured is not None:
+            bay_path, s = remeasured
+            return BehaviourDecision(min(cruise, config.parking.speed_mps), "park", f"bay measured {s.bay_m[1]:.2f} m "
+                                     "long between its barriers (lidar)", s.stop_at_m - odometer, bay_path,
+                                     replanned=True, sensors="lidar"), s
     if s.state == "park":
         remaining = s.stop_at_m - odometer
         if speed_mps <= config.stopped_mps and remaining < 0.5:
@@ -277,16 +369,28 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
             free = float(bay.state)
         except ValueError:
             free = math.nan
-        path = plan_park(bay.distance_m, free, bay.lateral_m, config.parking) if math.isfinite(free) else None
+        start, sensors = bay.distance_m, "camera"
+        measured = bay_between_barriers(lidar.clusters, math.copysign(1.0, bay.lateral_m), bay.distance_m,
+                                        bay.lateral_m) if lidar is not None else None
+        if measured is not None:  # the scan measures between the barriers; the camera said where to look
+            (start, free), sensors = measured, "camera+lidar"
+        path = plan_park(start, free, bay.lateral_m, config.parking) if math.isfinite(free) else None
         if path is not None:
-            s = replace(s, state="park", stop_at_m=odometer + float(path.s_m[-1]))
+            s = replace(s, state="park", stop_at_m=odometer + float(path.s_m[-1]), manoeuvre_start_m=odometer,
+                        bay_m=(odometer + start, free, bay.lateral_m), bay_measured=measured is not None)
             return BehaviourDecision(min(cruise, config.parking.speed_mps), "park",
-                                     f"bay {free:.1f} m long {bay.distance_m:.1f} m ahead: parking",
-                                     float(path.s_m[-1]), path), s
+                                     f"bay {free:.1f} m long {start:.1f} m ahead: parking",
+                                     float(path.s_m[-1]), path, sensors=sensors), s
     if s.state == "overtake":
+        held = _hold_return(config, s, odometer, lidar) if lidar is not None else None
+        if held is not None:
+            path, s = held
+            return BehaviourDecision(cruise, "overtake", "something still beside the kart in the lane: the return "
+                                     "waits (lidar)", path=path, replanned=True, sensors="lidar"), s
         if odometer < s.manoeuvre_end_m:
             return BehaviourDecision(cruise, "overtake", "overtaking the car"), s
-        s = replace(s, state="drive", manoeuvre_end_m=math.nan)
+        s = replace(s, state="drive", manoeuvre_end_m=math.nan, manoeuvre_start_m=math.nan, car_distance_m=math.nan,
+                    car_length_m=math.nan)
         return BehaviourDecision(cruise, "drive", "back in the lane"), s
 
     if s.state == "wait_start":
@@ -327,7 +431,8 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
     if car is not None and car.distance_m <= config.car_range_m and s.state in ("drive", "wait_car"):
         path = plan_overtake(car.distance_m, config.passing) if config.overtake and s.state == "drive" else None
         if path is not None:
-            s = replace(s, state="overtake", manoeuvre_end_m=odometer + float(path.s_m[-1]))
+            s = replace(s, state="overtake", manoeuvre_end_m=odometer + float(path.s_m[-1]), manoeuvre_start_m=odometer,
+                        car_distance_m=car.distance_m, car_length_m=config.passing.car_length_m)
             return BehaviourDecision(cruise, "overtake", f"car in the lane {car.distance_m:.1f} m ahead: "
                                      "overtaking", path=path), s
         stop_at = odometer + car.distance_m - config.front_m - config.car_gap_m

@@ -34,7 +34,7 @@ PIPELINES = ("lanes", "stereo-vo", "mono-vo")
 """The drive pipelines: ``kartpilot.runtime.pipelines.PIPELINES``."""
 SCENARIOS = ("start-on-green", "speed-limit", "red-light", "pedestrian", "overtake", "parking", "event")
 """The event's scenarios: ``kartpilot.sim.scenarios.SCENARIOS``."""
-VEHICLES = ("rc-kart", "sdc-kart", "sdc-kart-steep")
+VEHICLES = ("rc-kart", "sdc-kart", "sdc-kart-2026", "sdc-kart-steep")
 """The vehicles, in sorted order: ``kartpilot.core.vehicle.VEHICLES``."""
 REAL_CAMERA_HELP = ("the vehicle's real cameras, not a perfect pinhole: rolling shutter, motion blur, auto-exposure, "
                     "shot noise, MJPG, the stereo pair's rectification residual (replaces sim.effects; "
@@ -153,7 +153,8 @@ def _general(sub: argparse._SubParsersAction) -> None:
     sim = sub.add_parser("sim", help="drive a simulated kart on a track, judged by the referee")
     sim.add_argument("--track", help="bundled track name (utrack, sdc-assen, lelystad, straight20) or a track YAML "
                                      "file")
-    sim.add_argument("--vehicle", choices=("rc-kart", "sdc-kart"))
+    sim.add_argument("--vehicle", choices=VEHICLES,
+                     help="the kart (--scenario: sdc-kart, or sdc-kart-2026 whose rules use its LiDAR)")
     sim.add_argument("--driver", choices=("centerline", "commands", "lanes"), default="centerline",
                      help="lanes: the lane-following pipeline on the rendered cameras (sdc-kart)")
     sim.add_argument("--scenario", metavar="NAME|FILE",

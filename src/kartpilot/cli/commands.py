@@ -241,11 +241,16 @@ def _scenario(args: argparse.Namespace) -> int:
     plan = scenario_or_file(args.scenario, args.seed)
     if args.save_scenario:
         print(f"scenario written to {write_scenario_file(args.save_scenario, plan)}")
-    result = run_scenario(plan, None, stack, outputs=outputs)
+    vehicle = args.vehicle or "sdc-kart"
+    if vehicle not in ("sdc-kart", "sdc-kart-2026"):
+        raise ConfigError(f"--scenario drives the SDC kart: --vehicle sdc-kart or sdc-kart-2026, not {vehicle}")
+    result = run_scenario(plan, None, stack, outputs=outputs, vehicle=vehicle)
     if args.record:
         print(f"recorded to {args.record} (kartpilot replay {args.record} --pipeline lanes gives the same decisions)")
     verdict = "passed" if result["passed"] else "failed: " + "; ".join(result["faults"])
     print(f"scenario {result['name']}, seed {result['seed']}: {verdict}")
+    for at_s, why in result.get("lidar", []):
+        print(f"  LiDAR at {at_s:.2f} s: {why}" + ("" if why == "recovered" else " (the rules went on camera-only)"))
     for label, path in (("video", args.video), ("result", args.result),
                         ("Rerun view", args.view if args.view != "live" else None)):
         if path:

@@ -17,6 +17,7 @@ Points are in the kart's body frame (x ahead of the rear axle, y to the left), f
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, replace
 
@@ -27,8 +28,13 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import LaserScan, LidarMount
 from kartpilot.perception.objects import Detection
 
-__all__ = ["ScanCluster", "ScanConfig", "ScanObject", "ScanTracker", "cluster_scan", "corridor_free_m",
-           "locate_detections", "scan_points_body", "side_clear"]
+__all__ = ["STANDING", "LidarView", "ScanCluster", "ScanConfig", "ScanObject", "ScanTracker", "bay_between_barriers",
+           "cluster_scan", "corridor_free_m", "lidar_view", "locate_detections", "scan_points_body", "side_clear"]
+
+
+STANDING = ("car", "person", "barrier", "traffic_light", "speed_sign")
+"""What stands tall enough for a planar LiDAR's beams to meet (a stop line, a crossing or a bay's paint does not;
+a bay's ends are its barriers)."""
 
 
 @dataclass(frozen=True)
@@ -76,6 +82,8 @@ class ScanCluster:
             it (a car seen from behind is its width long and a few centimetres deep).
         heading_rad: the rectangle's long side's direction.
         points: how many returns.
+        x_range_m, y_range_m: its points' least and greatest body x and y (where it begins and ends along the
+            kart's heading, and beside it).
     """
 
     centre_xy_m: tuple[float, float]
@@ -84,6 +92,8 @@ class ScanCluster:
     width_m: float
     heading_rad: float
     points: int
+    x_range_m: tuple[float, float] = (math.nan, math.nan)
+    y_range_m: tuple[float, float] = (math.nan, math.nan)
 
     @property
     def range_m(self) -> float:
@@ -138,7 +148,44 @@ def _cluster(points: NDArray[np.float64]) -> ScanCluster:
     nearest = points[int(np.argmin(np.hypot(points[:, 0], points[:, 1])))]
     return ScanCluster((float(middle[0]), float(middle[1])), (float(nearest[0]), float(nearest[1])),
                        float(np.ptp(along_v)), float(np.ptp(across_v)), float(math.atan2(axis[1], axis[0])),
-                       len(points))
+                       len(points), (float(points[:, 0].min()), float(points[:, 0].max())),
+                       (float(points[:, 1].min()), float(points[:, 1].max())))
+
+
+@dataclass(frozen=True)
+class LidarView:
+    """What the rules are given of a sweep: its returns and objects on the body frame, and how old it is.
+
+    Attributes:
+        stamp_ns: the sweep's time.
+        points_m: (M, 2) its returns (body x, y).
+        clusters: its objects (:func:`cluster_scan`).
+    """
+
+    stamp_ns: int
+    points_m: NDArray[np.float64]
+    clusters: tuple[ScanCluster, ...]
+
+
+def lidar_view(scan: LaserScan, mount: LidarMount, config: ScanConfig = ScanConfig()) -> LidarView:
+    """The rules' view of one sweep: its points and its clusters on the body frame."""
+    points, _ = scan_points_body(scan, mount)
+    return LidarView(scan.stamp_ns, points, tuple(cluster_scan(scan, mount, config)))
+
+
+def bay_between_barriers(clusters: tuple[ScanCluster, ...] | list[ScanCluster], side: float, near_x_m: float,
+                         lateral_m: float, search_m: float = 2.0, band_m: float = 1.5) -> tuple[float, float] | None:
+    """(where the bay begins ahead of the rear axle, its free length) between the two barriers the scan sees on
+    the bay's side (``side`` > 0: left), the nearer one's far end within ``search_m`` of where the camera put the
+    bay's start (``near_x_m``), both within ``band_m`` of the bay's line (``lateral_m``); None where the scan does
+    not show such a pair."""
+    beside = sorted((k for k in clusters if math.isfinite(k.x_range_m[0]) and k.centre_xy_m[1] * side > 0
+                     and abs(k.centre_xy_m[1] - lateral_m) <= band_m), key=lambda k: k.x_range_m[0])
+    for near, far in itertools.pairwise(beside):
+        start, end = near.x_range_m[1], far.x_range_m[0]
+        if abs(start - near_x_m) <= search_m and end > start:
+            return start, end - start
+    return None
 
 
 @dataclass(frozen=True)
@@ -243,10 +290,11 @@ def side_clear(points_body: NDArray[np.float64], x_min_m: float, x_max_m: float,
 
 def locate_detections(detections: list[Detection], clusters: list[ScanCluster], mount: LidarMount,
                       config: ScanConfig = ScanConfig()) -> list[Detection]:
-    """The camera's detections, each with the distance and side of the cluster along its bearing (seen from the
-    LiDAR) where there is one within ``match_bearing_deg`` and, where the camera measured a distance, within
-    ``match_range_share`` of it; such a detection's ``source`` gains ``+lidar``. The others are returned as
-    they came. Each cluster locates one detection at most (the nearest in bearing)."""
+    """The camera's detections of things that stand (:data:`STANDING`), each with the distance and side of the
+    cluster along its bearing (seen from the LiDAR) where there is one within ``match_bearing_deg`` and within
+    ``match_range_share`` of the camera's distance; such a detection's ``source`` gains ``+lidar``. The others (paint
+    on the road, a bay, things the scan does not see) are returned as they came. Each cluster locates one
+    detection at most (the nearest in bearing)."""
     if not clusters:
         return list(detections)
     sensor = np.array([mount.x_m, mount.y_m])
@@ -255,7 +303,7 @@ def locate_detections(detections: list[Detection], clusters: list[ScanCluster], 
     limit = math.radians(config.match_bearing_deg)
     candidates = []
     for i, d in enumerate(detections):
-        if not (math.isfinite(d.distance_m) and math.isfinite(d.lateral_m)):
+        if d.label not in STANDING or not (math.isfinite(d.distance_m) and math.isfinite(d.lateral_m)):
             continue
         bearing = math.atan2(d.lateral_m - sensor[1], d.distance_m - sensor[0])
         camera_range = math.hypot(d.distance_m - sensor[0], d.lateral_m - sensor[1])

@@ -32,7 +32,7 @@ from kartpilot.control.path_follow import PathFollowConfig, PathFollowState, pat
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import CalibrationError, ConfigError
 from kartpilot.core.geometry import invert_pose, transform_points
-from kartpilot.core.types import ActuatorCommand, FrameSet, Image, VehicleFeedback, VehiclePose
+from kartpilot.core.types import ActuatorCommand, FrameSet, Image, LidarMount, VehicleFeedback, VehiclePose
 from kartpilot.odometry.dead_reckoning import dead_reckon
 from kartpilot.perception.detect import DetectorConfig, ObjectDetector
 from kartpilot.perception.lanes import (
@@ -45,9 +45,11 @@ from kartpilot.perception.lanes import (
     lane_on_ground,
 )
 from kartpilot.perception.objects import Detection
+from kartpilot.perception.scan import LidarView, ScanConfig, lidar_view, locate_detections
 from kartpilot.perception.signals import SignalConfig
 from kartpilot.perception.tape import TapeConfig, TapeObservation, detect_tape_track, draw_tape_track
 from kartpilot.planning.reference_path import ReferencePath
+from kartpilot.sensors.health import LidarHealthConfig, LidarWatchdog
 
 __all__ = [
     "KNOWN_GOOD_SPEED_MODE_KMH",
@@ -107,6 +109,10 @@ class LanePolicyConfig:
         manoeuvre: the path follower that steers a manoeuvre the rules plan (an overtake, parking), on the pose dead
             reckoned from the measured speed and the steering; ``wheelbase_m`` is the kart's (the sdc-kart's);
             the lanes steer again once the path is back within ``handover_m`` of the lane's centre.
+        scan, lidar_health: on a kart with a LiDAR (the vehicle's or the rig's mount), its sweeps' objects and its
+            watchdog: while it gives good sweeps the rules use them (the camera's detections placed by the scan,
+            the bay measured, the return held, a stop before what is in the way); once it has given none for
+            ``lidar_health.timeout_s``, the camera-only rules, said in the ``behaviour`` topic.
     """
 
     boundaries: Literal["lines", "tape"] = "lines"
@@ -127,6 +133,8 @@ class LanePolicyConfig:
     manoeuvre: PathFollowConfig = field(default_factory=PathFollowConfig)
     wheelbase_m: float = 1.05
     handover_m: float = 0.5
+    scan: ScanConfig = field(default_factory=ScanConfig)
+    lidar_health: LidarHealthConfig = field(default_factory=LidarHealthConfig)
 
     def __post_init__(self) -> None:
         if not self.wheelbase_m > 0:
@@ -201,8 +209,10 @@ class LanePolicy:
     """Holds the follower's state from frame to frame; everything else is pure functions."""
 
     def __init__(self, cameras: dict[str, PinholeCamera], config: LanePolicyConfig | None = None,
-                 rate_hz: float = 30.0, max_steer_rad: float | None = None) -> None:
-        """``max_steer_rad`` is the kart's steering range: the follower's S_max never exceeds it."""
+                 rate_hz: float = 30.0, max_steer_rad: float | None = None, lidar_mount: LidarMount | None = None
+                 ) -> None:
+        """``max_steer_rad`` is the kart's steering range: the follower's S_max never exceeds it. ``lidar_mount``:
+        where the kart's LiDAR sits, if it has one (its sweeps come as ``FrameSet.scans["lidar"]``)."""
         self.config = config or LanePolicyConfig()
         if max_steer_rad is not None and max_steer_rad < self.config.follow.max_steer_rad:
             self.config = replace(self.config, follow=replace(self.config.follow, max_steer_rad=max_steer_rad))
@@ -236,6 +246,25 @@ class LanePolicy:
         # a manoeuvre under way: its path, the follower's state and the pose dead reckoned since it started
         self.manoeuvre: tuple[ReferencePath, PathFollowState, VehiclePose] | None = None
         self.lane_ground: tuple[int, tuple[float, float]] | None = None
+        self.lidar_mount = lidar_mount
+        self.lidar_watchdog = LidarWatchdog(["lidar"], self.config.lidar_health) if lidar_mount is not None else None
+        self.lidar: LidarView | None = None  # the latest good sweep's view, while the LiDAR is healthy
+        self.lidar_problem = ""  # why the rules are camera-only, while they are
+        self.lidar_events: list[tuple[int, str]] = []  # (stamp, problem or "" when it recovered), each change
+
+    def _lidar_view(self, frames: FrameSet) -> LidarView | None:
+        """The latest good sweep's view while the LiDAR is healthy; None (camera-only) without one."""
+        if self.lidar_watchdog is None or self.lidar_mount is None:
+            return None
+        problems = self.lidar_watchdog.check(frames)
+        scan = frames.scans.get("lidar")
+        if scan is not None and not self.lidar_watchdog.sweep_problems["lidar"]:  # this sweep is a good one
+            self.lidar = lidar_view(scan, self.lidar_mount, self.config.scan)
+        problem = problems.get("lidar", "")
+        if bool(problem) != bool(self.lidar_problem):  # lost, or back: once each (the text counts up meanwhile)
+            self.lidar_events.append((frames.stamp_ns, problem))
+        self.lidar_problem = problem
+        return None if problem else self.lidar
 
     def observe_vehicle(self, feedback: VehicleFeedback) -> None:
         """The kart's own measurements before a step; a fresh speed closes the speed loop (``speed_mps``)."""
@@ -261,8 +290,13 @@ class LanePolicy:
             if lane is not None:  # where the lane runs, for a manoeuvre that starts in a frame that lacks it
                 self.lane_ground = (frames.stamp_ns, lane)
             self.last_objects = self.objects(centre_image) if centre_image is not None else []
+            view = self._lidar_view(frames)
+            if view is not None and self.lidar_mount is not None:  # the camera says what it is, the scan where
+                self.last_objects = locate_detections(self.last_objects, list(view.clusters), self.lidar_mount,
+                                                      self.config.scan)
             self.last_behaviour, self.behaviour = behaviour_step(
-                self.config.behaviour, self.behaviour, self.last_objects, self.measured_speed_mps or 0.0, self.dt_s)
+                self.config.behaviour, self.behaviour, self.last_objects, self.measured_speed_mps or 0.0, self.dt_s,
+                view)
             decision = self._manoeuvre(frames.stamp_ns, decision)
         return self._command(frames.stamp_ns, decision)
 
@@ -277,7 +311,9 @@ class LanePolicy:
             self.manoeuvre = None
             return decision
         speed = self.measured_speed_mps or 0.0
-        if b.path is not None:
+        if b.path is not None and b.replanned and self.manoeuvre is not None:  # the same frame: the pose goes on
+            self.manoeuvre = (b.path, *self.manoeuvre[1:])
+        elif b.path is not None:
             seen_ns, lane = self.lane_ground or (0, (0.0, 0.0))
             if stamp_ns - seen_ns > 1_000_000_000:
                 lane = (0.0, 0.0)  # not seen for a second: the kart's own heading is the lane's
@@ -286,7 +322,7 @@ class LanePolicy:
         if self.manoeuvre is None:
             return decision
         path, follow, pose = self.manoeuvre
-        if b.path is None:
+        if b.path is None or b.replanned:
             steer = self.measured_steer_rad if self.measured_steer_rad is not None else (
                 self.last_command.steer_rad if self.last_command is not None else 0.0)
             pose = dead_reckon(pose, speed, steer, self.config.wheelbase_m, self.dt_s, stamp_ns)
@@ -376,6 +412,10 @@ class LanePolicy:
                                    "stop_distance_m": b.stop_distance_m, "limit_kmh": self.behaviour.limit_kmh,
                                    "objects": ";".join(f"{d.label}:{d.state}@{d.distance_m:.1f}"
                                                        for d in self.last_objects)}
+            if self.lidar_watchdog is not None:  # a kart with a LiDAR: what the decision came from, and why not
+                topics["behaviour"]["sensors"] = b.sensors
+                topics["behaviour"]["lidar"] = (f"{self.lidar_problem}: camera only" if self.lidar_problem else
+                                                "ok" if self.lidar is not None else "no sweep yet")
         return topics
 
     def overlay(self, frames: FrameSet) -> Image | None:

@@ -138,7 +138,8 @@ def _undistorter(name: str, lens: LensRemap) -> Callable[[FrameSet], FrameSet]:
 
 
 def _lanes(context: PipelineContext) -> Policy:
-    return LanePolicy(dict(context.cameras), context.stack.lane_policy, context.rate_hz, context.max_steer_rad)
+    return LanePolicy(dict(context.cameras), context.stack.lane_policy, context.rate_hz, context.max_steer_rad,
+                      context.vehicle.lidar)
 
 
 def _stereo_vo(context: PipelineContext) -> Policy:

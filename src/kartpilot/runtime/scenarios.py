@@ -4,7 +4,7 @@ the scenario's referee (:mod:`kartpilot.sim.scenarios`)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -14,9 +14,10 @@ from tqdm import tqdm
 
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.files import write_json_atomic
-from kartpilot.core.types import ActuatorCommand, FrameSet, VehicleFeedback
+from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource, VehicleFeedback
 from kartpilot.runtime.config import StackConfig, load_stack_config
 from kartpilot.runtime.drive import ToldPipeline
+from kartpilot.runtime.faults import InjectedSource, Injection
 from kartpilot.runtime.lane_policy import LanePolicy, LanePolicyConfig
 from kartpilot.runtime.loop import run_loop
 from kartpilot.runtime.session import SessionOutputs
@@ -34,7 +35,8 @@ SCENARIO_SPEED_KMH = 15.0
 
 def run_scenario(name: str | Scenario, seed: int | None = None, stack: StackConfig | None = None,
                  camera_rate_hz: float = 15.0, max_time_s: float | None = None,
-                 outputs: SessionOutputs | None = None) -> dict[str, Any]:
+                 outputs: SessionOutputs | None = None, vehicle: str = "sdc-kart",
+                 injections: Sequence[Injection] = ()) -> dict[str, Any]:
     """Drive one scenario: a built-in one by name on ``seed``, or a :class:`Scenario` (from a file; ``seed``, if
     given, replaces its simulator's seed); its result in the session result's ``scenarios`` form (``name``,
     ``seed``, ``passed``, ``faults``). The kart's measured speed (its 0x440 report) and steering angle are the
@@ -46,16 +48,19 @@ def run_scenario(name: str | Scenario, seed: int | None = None, stack: StackConf
     with the lane pipeline's settings in its manifest, so ``kartpilot replay`` gives the same decisions;
     ``video_path`` writes the lane pipeline's view with what the rules saw and decided, the referee's state and
     the scenario's faults so far; ``view`` a Rerun view; ``result_path`` the result as ``{"scenarios": [...]}``;
-    ``progress`` a bar over the scenario's time."""
+    ``progress`` a bar over the scenario's time.
+
+    ``vehicle``: ``sdc-kart``, or ``sdc-kart-2026`` whose rules use its LiDAR while it is healthy (the result's
+    ``lidar``: when it stopped and started again, and why). ``injections``: faults (:mod:`kartpilot.runtime.faults`)."""
     cv2.setNumThreads(1)
     plan = _plan(name, seed)
     seed, name = plan.seed, plan.name
     policy_config = _rules_for(stack or load_stack_config(None, "kart"), plan)
     track = _course_for(plan)
-    config = _sim_config(plan, camera_rate_hz, max_time_s)
+    config = replace(_sim_config(plan, camera_rate_hz, max_time_s), vehicle=vehicle)
     referee = ScenarioReferee(plan)
     with Simulator(config, track=track) as sim:
-        policy = LanePolicy(sim.cameras, policy_config, camera_rate_hz, sim.vehicle.max_steer_rad)
+        policy = LanePolicy(sim.cameras, policy_config, camera_rate_hz, sim.vehicle.max_steer_rad, sim.vehicle.lidar)
         judge = _Judge(sim, referee, policy, plan, track)
         # told what the kart measured, as a drive tells it: the simulator's speed and the RDW steering ECU's angle
         told = ToldPipeline(policy, lambda frames: VehicleFeedback(frames.stamp_ns, sim.state.vx_mps,
@@ -76,20 +81,30 @@ def run_scenario(name: str | Scenario, seed: int | None = None, stack: StackConf
             bar.update(min(round(sim.time_s), bar.total) - bar.n)
 
         try:  # the drive ends at the scenario's time, or a second after the kart has parked
-            run_loop(_Until(sim, lambda: judge.parked_s >= 1.0), told, sim,
+            source: FrameSource = _Until(sim, lambda: judge.parked_s >= 1.0)
+            run_loop(InjectedSource(source, list(injections)) if injections else source, told, sim,
                      [sink for sink in (writer, view) if sink is not None], on_step=step)
         finally:
             bar.close()
             for sink in (writer, video, view):
                 if sink is not None:
                     sink.close()
-        result = referee.result(judge.front_s_m)
-        result["states"] = judge.states
-        if sim.referee.disqualified:
-            result["faults"].append(str(sim.referee.reason))
-            result["passed"] = False
+        result = _result(referee, judge, sim, policy)
     if outputs.result_path is not None:
         write_json_atomic(outputs.result_path, {"scenarios": [result]})
+    return result
+
+
+def _result(referee: ScenarioReferee, judge: _Judge, sim: Simulator, policy: LanePolicy) -> dict[str, Any]:
+    """The referee's verdict, the rules' states, the simulator's own disqualification, and on a kart with a LiDAR
+    when it stopped and started giving good sweeps (``lidar``: [time, why] each)."""
+    result = referee.result(judge.front_s_m)
+    result["states"] = judge.states
+    if sim.vehicle.lidar is not None:
+        result["lidar"] = [[round(stamp * 1e-9, 2), problem or "recovered"] for stamp, problem in policy.lidar_events]
+    if sim.referee.disqualified:
+        result["faults"].append(str(sim.referee.reason))
+        result["passed"] = False
     return result
 
 

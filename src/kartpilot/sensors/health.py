@@ -102,12 +102,12 @@ class CameraWatchdog:
 class LidarHealthConfig:
     """Attributes:
         timeout_s: a LiDAR without a good sweep for this long is reported (an RPLIDAR at 10 Hz: five sweeps).
-        min_returns: a sweep with fewer returns than this is empty (a covered or blinded sensor; a kart on a
-            track always has its barriers, kerbs or people within range somewhere around it).
+        min_returns: a sweep with fewer returns than this is empty (a covered sensor). 0 by default: in open
+            space a sweep may rightly see nothing within its range (the simulated venue's straights do).
     """
 
     timeout_s: float = 0.5
-    min_returns: int = 5
+    min_returns: int = 0
 
     def __post_init__(self) -> None:
         if not self.timeout_s > 0 or self.min_returns < 0:
@@ -124,8 +124,8 @@ def scan_problem(scan: LaserScan, previous: LaserScan | None, config: LidarHealt
     if previous is not None:
         if scan.stamp_ns <= previous.stamp_ns:
             return "stale"
-        if np.array_equal(ranges, np.asarray(previous.ranges_m), equal_nan=True):
-            return "frozen"
+        if np.isfinite(ranges).any() and np.array_equal(ranges, np.asarray(previous.ranges_m), equal_nan=True):
+            return "frozen"  # (nothing in range twice is open space, not a hung driver)
     return ""
 
 
@@ -138,7 +138,7 @@ class LidarWatchdog:
         self.config = config or LidarHealthConfig()
         self._last_good_ns: dict[str, int | None] = dict.fromkeys(lidars)
         self._previous: dict[str, LaserScan | None] = dict.fromkeys(lidars)
-        self._last_problem: dict[str, str] = dict.fromkeys(lidars, "no sweep yet")
+        self.sweep_problems: dict[str, str] = dict.fromkeys(lidars, "no sweep yet")  # its last sweep's ("": good)
         self._start_ns: int | None = None
         self.problems: dict[str, str] = {}
 
@@ -153,11 +153,11 @@ class LidarWatchdog:
                 self._previous[name] = scan
                 if not problem:
                     self._last_good_ns[name] = frames.stamp_ns
-                self._last_problem[name] = problem or ""
+                self.sweep_problems[name] = problem or ""
             last_good = self._last_good_ns[name]
             since = last_good if last_good is not None else self._start_ns
             if frames.stamp_ns - since > round(self.config.timeout_s * 1e9):
-                last = self._last_problem[name] or "no sweep"
+                last = self.sweep_problems[name] or "no sweep"
                 reported[name] = f"no good sweep for {(frames.stamp_ns - since) * 1e-9:.2f} s (last: {last})"
         self.problems = reported
         return reported

@@ -199,7 +199,7 @@ def simulate_scan(track: Track, body_xy_yaw: tuple[float, float, float], speed_m
     ranges = distance + rng.normal(0.0, 1.0, beams) * (config.noise_m + config.noise_share * np.minimum(
         distance, config.range_max_m))
     lost = np.zeros(beams, bool)
-    for kind, share in config.dropout.items():
+    for kind, share in config.dropout.items() if len(kinds) else ():
         lost |= (hit >= 0) & (kinds[np.maximum(hit, 0)] == KINDS.index(kind)) & (rng.random(beams) < share)
     valid = np.isfinite(ranges) & ~lost & (ranges >= config.range_min_m) & (ranges <= config.range_max_m)
     intensity = np.where(valid, 1.0 / (1.0 + 0.1 * np.where(valid, ranges, 0.0)), 0.0)
