@@ -92,3 +92,116 @@ def test_a_recording_without_a_lidar_reads_as_one_with_none(tmp_path) -> None:
     frames = RecordingFrameSource(folder).read()
     assert frames is not None and frames.scans == {}
     assert math.isfinite(reader.manifest["frame_counts"]["center"])
+
+
+def _same_sweeps(a: list, b: list) -> None:
+    assert [s.stamp_ns for s in a] == [s.stamp_ns for s in b] and len(a) > 0
+    for x, y in zip(a, b, strict=True):
+        assert x.angle_min_rad == pytest.approx(y.angle_min_rad) and len(x.ranges_m) == len(y.ranges_m)
+        assert np.array_equal(np.isnan(x.ranges_m), np.isnan(y.ranges_m))
+        assert np.nanmax(np.abs(x.ranges_m - y.ranges_m)) <= 1e-6
+
+
+def test_a_drive_with_its_lidar_goes_to_a_ros2_bag_and_back_sweep_for_sweep(drive, tmp_path) -> None:
+    """Exported as sensor_msgs/LaserScan on /lidar/scan with the mount on /tf_static, imported again: the same
+    LiDAR, mount and sweeps (no return stays no return: +inf in the bag, as REP 117 has it)."""
+    from kartpilot.record.rosbag import export_ros2_bag, import_bag
+
+    counts = export_ros2_bag(drive, tmp_path / "bag")
+    assert counts["/lidar/scan"] == 20
+    imported = import_bag(tmp_path / "bag", tmp_path / "back")
+    assert imported.scans == {"lidar": 20}
+    back = RecordingReader(tmp_path / "back")
+    mount = back.lidars["lidar"]
+    assert (mount.x_m, mount.y_m, mount.z_m, mount.yaw_rad) == pytest.approx((1.45, 0.0, 0.30, 0.0))
+    _same_sweeps(RecordingReader(drive).scans("lidar"), back.scans("lidar"))
+
+
+def test_the_mcap_export_carries_each_sweep_as_a_foxglove_laser_scan(drive, tmp_path) -> None:
+    import json
+
+    from mcap.reader import make_reader
+
+    from kartpilot.record.mcap_export import export_mcap
+
+    export_mcap(drive, tmp_path / "drive.mcap")
+    recorded = RecordingReader(drive).scans("lidar")
+    with (tmp_path / "drive.mcap").open("rb") as handle:
+        read = [(schema.name, json.loads(message.data)) for schema, channel, message in
+                make_reader(handle).iter_messages(topics=["/lidar/scan"])]
+    assert len(read) == len(recorded) and {name for name, _ in read} == {"foxglove.LaserScan"}
+    for (_, message), scan in zip(read, recorded, strict=True):
+        ranges = np.array([np.nan if r is None else r for r in message["ranges"]], np.float32)
+        assert message["timestamp"]["sec"] * 10**9 + message["timestamp"]["nsec"] == scan.stamp_ns
+        assert np.array_equal(ranges, scan.ranges_m, equal_nan=True)
+        assert message["start_angle"] == pytest.approx(scan.angle_min_rad) and message["frame_id"] == "lidar"
+
+
+def test_a_bag_with_a_laser_scan_from_another_tool_imports_and_replays(tmp_path) -> None:
+    """A team's ROS 2 bag: one camera, and an RPLIDAR's /scan in frame laser, mounted 1.2 m ahead of base_link, 0.25
+    m up, turned round (the sensor's cable to the back), ranges of inf and 0 where it saw nothing, no intensities:
+    the LiDAR is named lidar, its mount is the transform's, and a replay hands its sweeps to the frame sets."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from kartpilot.record.rosbag import import_bag
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    t = store.types
+
+    def header(stamp_ns: int, frame: str):
+        return t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](
+            sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9), frame_id=frame)
+
+    laser = t["geometry_msgs/msg/TransformStamped"](
+        header=header(0, "base_link"), child_frame_id="laser", transform=t["geometry_msgs/msg/Transform"](
+            translation=t["geometry_msgs/msg/Vector3"](1.2, 0.0, 0.25),
+            rotation=t["geometry_msgs/msg/Quaternion"](0.0, 0.0, 1.0, 0.0)))
+    messages = [(0, "/tf_static", "tf2_msgs/msg/TFMessage", t["tf2_msgs/msg/TFMessage"](transforms=[laser]))]
+    image = np.full((48, 64, 3), 90, np.uint8)
+    for k in range(6):
+        stamp = 10**9 + k * 100_000_000
+        messages.append((stamp, "/camera/image_raw", "sensor_msgs/msg/Image", t["sensor_msgs/msg/Image"](
+            header=header(stamp, "camera"), height=48, width=64, encoding="bgr8", is_bigendian=0, step=192,
+            data=image.ravel())))
+        messages.append((stamp, "/camera/camera_info", "sensor_msgs/msg/CameraInfo", t["sensor_msgs/msg/CameraInfo"](
+            header=header(stamp, "camera"), height=48, width=64, distortion_model="plumb_bob", d=np.zeros(5),
+            k=np.array([50.0, 0, 31.5, 0, 50.0, 23.5, 0, 0, 1]), r=np.eye(3).ravel(),
+            p=np.array([50.0, 0, 31.5, 0, 0, 50.0, 23.5, 0, 0, 0, 1, 0]), binning_x=0, binning_y=0,
+            roi=t["sensor_msgs/msg/RegionOfInterest"](0, 0, 0, 0, False))))
+        ranges = np.full(360, np.inf, np.float32)
+        ranges[170:190] = 2.0 + 0.01 * k
+        ranges[0] = 0.0  # an RPLIDAR driver's "nothing"
+        messages.append((stamp + 5_000_000, "/scan", "sensor_msgs/msg/LaserScan", t["sensor_msgs/msg/LaserScan"](
+            header=header(stamp + 5_000_000, "laser"), angle_min=-math.pi, angle_max=math.pi - math.radians(1.0),
+            angle_increment=math.radians(1.0), time_increment=1e-4, scan_time=0.1, range_min=0.15, range_max=12.0,
+            ranges=ranges, intensities=np.zeros(0, np.float32))))
+    with Writer(tmp_path / "team", version=9) as writer:
+        connections = {}
+        for stamp, topic, msgtype, message in messages:
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, msgtype, typestore=store)
+            writer.write(connections[topic], stamp, store.serialize_cdr(message, msgtype))
+    result = import_bag(tmp_path / "team", tmp_path / "imported")
+    assert result.scans == {"lidar": 6} and "/scan" not in {topic for topic, _, _ in result.unmapped}
+    reader = RecordingReader(tmp_path / "imported")
+    mount = reader.lidars["lidar"]
+    assert (mount.x_m, mount.z_m) == pytest.approx((1.2, 0.25)) and abs(mount.yaw_rad) == pytest.approx(math.pi)
+    sweep = reader.scans("lidar")[0]
+    assert np.count_nonzero(np.isfinite(sweep.ranges_m)) == 20 and not sweep.intensities.any()
+    handed = []
+    source = RecordingFrameSource(tmp_path / "imported")
+    while (frames := source.read()) is not None:
+        handed += [scan.stamp_ns for scan in frames.scans.values()]
+    assert handed == [s.stamp_ns for s in reader.scans("lidar")][:5]  # the last sweep came after the last frame
+
+
+def test_the_recording_s_info_and_the_monitor_show_the_lidar_s_rate(drive, capsys) -> None:
+    from kartpilot.cli.main import main
+    from kartpilot.record.info import recording_info
+
+    info = recording_info(RecordingReader(drive))["lidars"]["lidar"]
+    assert info["sweeps"] == 20 and info["rate_hz"] == pytest.approx(10.0) and info["frozen"] == 0
+    assert info["mount"]["x_m"] == pytest.approx(1.45)
+    assert main(["lidar", "monitor", "--recording", str(drive)]) == 0
+    assert "lidar: 20 sweeps, 10.00 Hz" in capsys.readouterr().out

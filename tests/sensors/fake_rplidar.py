@@ -106,6 +106,8 @@ class FakeRplidar:
         for k in range(self.samples):
             angle = 360.0 * k / self.samples
             distance = self.scene(angle)
+            if distance > 0:  # a real sensor's noise: no two sweeps alike
+                distance += self._rng.uniform(-2.0, 2.0)
             out += measurement(k == 0, 47 if distance > 0 else 0, angle, distance)
         garbage = self.sweeps_sent in self.garbage_at_sweeps or (
             self.garbage_always_from is not None and self.sweeps_sent >= self.garbage_always_from)

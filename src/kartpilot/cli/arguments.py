@@ -16,6 +16,7 @@ from collections.abc import Callable
 
 from kartpilot.cli.values import (
     VIEW_HELP,
+    device,
     file_or_new_folder,
     new_folder,
     number,
@@ -63,7 +64,7 @@ def handler_target(handler: Callable[[argparse.Namespace], int]) -> tuple[str, s
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
     """Every subcommand, with its arguments and handler."""
-    for add in (_general, _detect, _calibrate, _recordings, _drive, _places, _can, _study):
+    for add in (_general, _detect, _calibrate, _recordings, _drive, _places, _can, _lidar, _study):
         add(sub)
 
 
@@ -443,7 +444,7 @@ def _drive(sub: argparse._SubParsersAction) -> None:
     drive_parser.add_argument("--cameras-json", nargs="+", metavar="JSON",
                               help="--live: the organiser's camera-mapping files (front, left, right to device "
                                    "paths); the first whose paths all exist wins (default: the rig file's camera_maps)")
-    drive_parser.add_argument("--gamepad", metavar="DEVICE", help="--live: the gamepad's joystick device "
+    drive_parser.add_argument("--gamepad", metavar="DEVICE", type=device, help="--live: the gamepad's joystick device "
                                                                   "(/dev/input/js0)")
     drive_parser.add_argument("--web", metavar="PORT", type=number(int, minimum=1, maximum=65535),
                               help="--live: serve the kart's web page on this port")
@@ -561,6 +562,22 @@ def _can(sub: argparse._SubParsersAction) -> None:
     monitor.add_argument("--json", type=output_file, help="write the last table here (JSON)")
     monitor.add_argument("--config", help="YAML file merged over the defaults (section can)")
     monitor.set_defaults(handler=_handler("kartpilot.cli.can_commands", "can_monitor"))
+
+
+def _lidar(sub: argparse._SubParsersAction) -> None:
+    """The subcommands whose handlers are in :mod:`kartpilot.cli.lidar_commands`."""
+    lidar = sub.add_parser("lidar", help="the kart's planar LiDAR: its sweeps' rate and health, live or recorded")
+    lidar_sub = lidar.add_subparsers(dest="action", required=True, metavar="ACTION")
+    monitor = lidar_sub.add_parser("monitor", help="the device's information and health, then its sweeps' rate, gaps "
+                                                   "and returns (an RPLIDAR on a serial port, or a recording)")
+    where_from = monitor.add_mutually_exclusive_group(required=True)
+    where_from.add_argument("--port", type=device, help="live: the serial device (/dev/ttyUSB0) or a pyserial URL")
+    where_from.add_argument("--recording", help="a recording's sweeps instead of a live device")
+    monitor.add_argument("--baudrate", type=number(int), default=115200, help="live: 115200 (A1, A2), 256000 (A3, S1)")
+    monitor.add_argument("--duration", type=number(above=0), help="live: seconds to listen (default: until Ctrl-C)")
+    monitor.add_argument("--every", type=number(above=0), default=1.0, help="live: print a line this often, s")
+    monitor.add_argument("--json", type=output_file, help="write the last summary here (JSON)")
+    monitor.set_defaults(handler=_handler("kartpilot.cli.lidar_commands", "lidar_monitor"))
 
 
 def _study(sub: argparse._SubParsersAction) -> None:

@@ -157,9 +157,23 @@ def _option(dest: str, positional: bool) -> str:
     return dest.upper() if positional else f"--{dest.replace('_', '-')}"
 
 
+class DevicePath(str):
+    """An option's value that names a device (a serial port, a joystick): opened by its driver, not read as a file,
+    so the file checks of :func:`check_paths` leave it alone."""
+
+
+def device(text: str) -> DevicePath:
+    """``type=`` of an option that names a device (``/dev/ttyUSB0``, ``/dev/input/js0``, a pyserial URL)."""
+    if not text:
+        raise argparse.ArgumentTypeError("name the device")
+    return DevicePath(text)
+
+
 def _paths(value: object) -> list[str]:
     """The paths an option's value names: itself, each of a list's, and the file of a ``NAME=FILE`` value (a
-    camera's image, a folder's rig) where the value itself is no file."""
+    camera's image, a folder's rig) where the value itself is no file. A device names none."""
+    if isinstance(value, DevicePath):
+        return []
     if isinstance(value, (str, Path)):
         text = str(value)
         name, equals, file = text.partition("=")

@@ -177,6 +177,14 @@ class LidarMount:
             raise ConfigError(f"a LiDAR mount at x {self.x_m}, y {self.y_m}, z {self.z_m} m, yaw {self.yaw_rad} rad: "
                              "finite, within 10 m of the rear axle, its plane above the road and at most 3 m up")
 
+    def pose_body_lidar(self) -> NDArray[np.float64]:
+        """The sensor's 4x4 pose on the body (its frame as ROS's laser frames are: x ahead, y left, z up)."""
+        c, s = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
+        pose = np.eye(4)
+        pose[:2, :2] = [[c, -s], [s, c]]
+        pose[:3, 3] = self.x_m, self.y_m, self.z_m
+        return pose
+
     def to_body(self, points_m: NDArray[np.float64]) -> NDArray[np.float64]:
         """(M, 2) points in the sensor's frame as x, y on the kart's body."""
         c, s = np.cos(self.yaw_rad), np.sin(self.yaw_rad)

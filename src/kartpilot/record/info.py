@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from kartpilot.record.recording import RecordingReader
+from kartpilot.sensors.health import summarise_sweeps
 
 __all__ = ["recording_info"]
 
@@ -53,6 +54,8 @@ def recording_info(reader: RecordingReader) -> dict[str, Any]:
         "commands": {"count": len(commands)},
         "outputs": {topic: len(reader.outputs(topic)) for topic in reader.output_topics()},
         "can_frames": len(reader.can_frames()),
+        "lidars": {name: {**summarise_sweeps(reader.scans(name)).__dict__, "mount": mount.__dict__}
+                   for name, mount in reader.lidars.items()},
         "dropped_lines": int(reader.manifest.get("dropped_lines", 0) or 0),
         "metadata": reader.manifest.get("metadata", {}),
     }

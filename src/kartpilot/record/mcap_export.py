@@ -10,7 +10,9 @@ understand them without a plugin:
 * ``/groundtruth``: ``foxglove.PoseInFrame`` in ``world``;
 * ``/commands``: the actuator commands (``kartpilot.ActuatorCommand``: steer_rad, throttle, brake);
 * ``/can``: the CAN frames on the bus (``kartpilot.CanFrame``: id, data, direction);
-* ``/outputs/<topic>``: each pipeline output topic, its values as they were recorded.
+* ``/outputs/<topic>``: each pipeline output topic, its values as they were recorded;
+* ``/<lidar>/scan``: ``foxglove.LaserScan``, each sweep of a LiDAR in its own frame (its mount on ``/tf``), a beam
+  without a return as null (JSON has no NaN).
 
 Every message's log time is the recording's time stamp in nanoseconds, and the ``timestamp`` field carries
 the same instant split into seconds and nanoseconds: nothing is rounded. Chunks are zstd-compressed. The
@@ -61,6 +63,10 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "kartpilot.CanFrame": {"timestamp": _TIME, "id": {"type": "integer"}, "data": _BYTES,
                            "direction": {"type": "string"}},
     "kartpilot.Outputs": {"timestamp": _TIME},
+    "foxglove.LaserScan": {"timestamp": _TIME, "frame_id": {"type": "string"},
+                           "pose": {"type": "object", "properties": {"position": _VECTOR, "orientation": _QUATERNION}},
+                           "start_angle": {"type": "number"}, "end_angle": {"type": "number"},
+                           "ranges": {"type": "array", "items": {"type": ["number", "null"]}}, "intensities": _NUMBERS},
 }
 
 
@@ -106,6 +112,19 @@ def export_mcap(folder: str | Path, out: str | Path, cameras: Sequence[str] | No
             messages.append((stamp, f"/{name}/image", "foxglove.CompressedImage",
                              {"timestamp": _time(stamp), "frame_id": name, "format": path.suffix.lstrip(".").lower(),
                               "data": base64.b64encode(read_file_bytes(path)).decode("ascii")}))
+    for name, mount in reader.lidars.items():
+        messages.append((first_ns, "/tf", "foxglove.FrameTransform",
+                         _transform(first_ns, "base_link", name, mount.pose_body_lidar())))
+        for scan in reader.scans(name):
+            angles = scan.angles_rad()
+            messages.append((scan.stamp_ns, f"/{name}/scan", "foxglove.LaserScan", {
+                "timestamp": _time(scan.stamp_ns), "frame_id": name,
+                "pose": {"position": {"x": 0.0, "y": 0.0, "z": 0.0},
+                         "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
+                "start_angle": float(angles[0]) if len(angles) else 0.0,
+                "end_angle": float(angles[-1]) if len(angles) else 0.0,
+                "ranges": [_clean(float(r)) for r in scan.ranges_m],
+                "intensities": [float(v) for v in scan.intensities]}))
     truth = reader.body_poses()
     if truth is not None:
         for stamp_s, pose in zip(truth.stamps_s, truth.poses, strict=True):

@@ -12,6 +12,10 @@ Import (:func:`import_bag`, ROS 1 ``.bag`` or a ROS 2 bag folder):
   output.
 * An odometry or pose topic becomes the ground truth (the pose of ``base_link``, or of a camera's frame,
   moved onto the reference camera through the mounts).
+* A ``sensor_msgs/LaserScan`` topic becomes a LiDAR (named from its topic: ``/lidar/scan`` gives ``lidar``, a bare
+  ``/scan`` too), its mount the transform chain from ``base_link`` to the scan's frame (its position and its turn
+  about the vertical; without one, at the kart's origin 0.3 m up, with a note). A range that is not finite or lies
+  outside the scan's own window is no return.
 * Topics and types it cannot map are listed with the reason, never guessed. A topic map (:class:`BagImportConfig`,
   YAML) names what to take where the topics are not the usual ones.
 
@@ -22,7 +26,8 @@ left, else the first) sets the recording's sets; another camera's frame joins th
 Export (:func:`export_ros2_bag`): each camera's images as ``/<camera>/image_raw/compressed`` (the recording's own
 PNG or JPEG bytes) with ``/<camera>/camera_info``, stamped with the set's time (the bag's log time is the
 camera's own capture time), the mounts on ``/tf_static``, the ground truth as ``nav_msgs/Odometry`` of
-``base_link`` in ``world`` and the commands as ``ackermann_msgs/AckermannDriveStamped``. CAN traffic and the
+``base_link`` in ``world``, the commands as ``ackermann_msgs/AckermannDriveStamped`` and each LiDAR's sweeps as
+``/<lidar>/scan`` (``sensor_msgs/LaserScan``, no return as +inf, REP 117's "nothing within range"). CAN traffic and the
 pipeline's outputs are not carried (the MCAP export has them). Both directions write whole or nothing.
 """
 
@@ -49,17 +54,17 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from kartpilot.core.camera import DISTORTION_COUNTS, PinholeCamera
-from kartpilot.core.errors import CalibrationError, DataError
+from kartpilot.core.errors import CalibrationError, DataError, KartpilotError
 from kartpilot.core.files import read_file_bytes
 from kartpilot.core.geometry import Array, invert_pose, mount_pose, pose_from_quaternion, quaternion_xyzw_from_pose
 from kartpilot.core.images import decode_image as decode_encoded
 from kartpilot.core.trajectory import Trajectory
-from kartpilot.core.types import ActuatorCommand, Image
+from kartpilot.core.types import ActuatorCommand, Image, LaserScan, LidarMount
 from kartpilot.core.vehicle import VehicleParams
 from kartpilot.record.recording import RecordingReader, RecordingWriter
 
 __all__ = ["BagCamera", "BagImport", "BagImportConfig", "camera_name", "decode_image", "export_ros2_bag", "import_bag",
-           "info_topic", "match_sets"]
+           "info_topic", "lidar_name", "match_sets", "scan_from_message"]
 
 IMAGE, COMPRESSED, INFO = "sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/CameraInfo"
 TWIST, TWIST_STAMPED = "geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped"
@@ -67,6 +72,7 @@ ACKERMANN, ACKERMANN_STAMPED = "ackermann_msgs/msg/AckermannDrive", "ackermann_m
 ODOMETRY, POSE_STAMPED = "nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped"
 POSE_COVARIANCE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 TF = "tf2_msgs/msg/TFMessage"
+LASER_SCAN = "sensor_msgs/msg/LaserScan"
 COMMAND_TYPES = (TWIST, TWIST_STAMPED, ACKERMANN, ACKERMANN_STAMPED)
 POSE_TYPES = (ODOMETRY, POSE_STAMPED, POSE_COVARIANCE)
 _IMAGE_WORDS = {"image", "image_raw", "image_rect", "image_rect_color", "image_color", "image_mono",
@@ -132,6 +138,7 @@ class BagImport:
     unsynchronised: dict[str, int]
     unmapped: tuple[tuple[str, str, str], ...]
     notes: tuple[str, ...] = field(default=())
+    scans: dict[str, int] = field(default_factory=dict)
 
 
 def _typestore() -> Typestore:
@@ -335,10 +342,13 @@ def _import(reader: AnyReader, out: Path, config: BagImportConfig, vehicle: Vehi
     set_of, unsynchronised = match_sets(stamps, reference, round(config.sync_tolerance_ms * 1e6))
     command_topic = _pick("command", config.commands, topics, COMMAND_TYPES)
     truth_topic = _pick("ground-truth", config.groundtruth, topics, POSE_TYPES)
+    lidars = _lidar_topics(reader, topics, transforms, base, notes)
     metadata: dict[str, Any] = {"source": "ros bag", "imported_from": source, "groundtruth_camera": reference,
                                 "topics": {c.name: c.image for c in cameras}, "notes": notes}
-    with RecordingWriter(out, rig, stereo_pair=(pair[0], pair[1]) if pair else None, metadata=metadata) as writer:
+    with RecordingWriter(out, rig, stereo_pair=(pair[0], pair[1]) if pair else None, metadata=metadata,
+                         lidars={name: mount for name, (_, mount) in lidars.items()}) as writer:
         written = _write_frames(reader, writer, by_topic, set_of)
+        scans = _write_scans(reader, writer, {topic: name for name, (topic, _) in lidars.items()})
         commands = _write_commands(reader, writer, command_topic, vehicle)
         # the truth as the reference camera's poses: a camera's own pose goes back to the kart's through its mount
         frame_mounts = {frame_ids[n]: mounts[n] for n in frame_ids}
@@ -349,14 +359,15 @@ def _import(reader: AnyReader, out: Path, config: BagImportConfig, vehicle: Vehi
             return _chain(transforms, base, frame) if frame not in ("", base) else None
 
         poses = _write_truth(reader, writer, truth_topic, mount_of, mounts[reference])
-    mapped = {*(c.image for c in cameras), *(c.info for c in cameras), *tf_topics, command_topic, truth_topic}
+    mapped = {*(c.image for c in cameras), *(c.info for c in cameras), *tf_topics, command_topic, truth_topic,
+              *(topic for topic, _ in lidars.values())}
     for entry in topics.values():
         if entry.topic not in mapped and entry.topic not in unmapped:
             several = entry.msgtype in COMMAND_TYPES or entry.msgtype in POSE_TYPES
             unmapped[entry.topic] = "one of several; name it in a topic map" if several else "no mapping for this type"
     return BagImport({c.name: written[c.name] for c in cameras}, commands, poses,
                      {n: c for n, c in unsynchronised.items() if c},
-                     tuple((t, topics[t].msgtype, r) for t, r in sorted(unmapped.items())), tuple(notes))
+                     tuple((t, topics[t].msgtype, r) for t, r in sorted(unmapped.items())), tuple(notes), scans)
 
 
 def _transforms(reader: AnyReader, tf_topics: list[str]) -> dict[str, tuple[str, Array]]:
@@ -369,6 +380,68 @@ def _transforms(reader: AnyReader, tf_topics: list[str]) -> dict[str, tuple[str,
                 transforms[child] = (str(transform.header.frame_id).lstrip("/"),
                                      _pose(transform.transform.translation, transform.transform.rotation))
     return transforms
+
+
+def lidar_name(topic: str) -> str:
+    """A LiDAR's name from its topic: the last part that is not ``scan`` (``/front_lidar/scan`` gives
+    ``front_lidar``), ``lidar`` for a bare ``/scan``; made a recording's name (lower case, _ for the rest)."""
+    parts = [p for p in topic.strip("/").split("/") if p and p.lower() not in ("scan", "scans", "laser_scan")]
+    name = re.sub(r"[^a-z0-9_]", "_", parts[-1].lower()) if parts else "lidar"
+    return name if re.match(r"[a-z]", name) else f"lidar_{name}"
+
+
+def _lidar_topics(reader: AnyReader, topics: dict[str, _Topic], transforms: dict[str, tuple[str, Array]], base: str,
+                  notes: list[str]) -> dict[str, tuple[str, LidarMount]]:
+    """Each LaserScan topic as a LiDAR: name -> (topic, mount on the kart through the transforms to its frame)."""
+    lidars: dict[str, tuple[str, LidarMount]] = {}
+    for entry in (t for t in topics.values() if t.msgtype == LASER_SCAN):
+        name = lidar_name(entry.topic)
+        if name in lidars:
+            raise DataError(f"two LaserScan topics name the same LiDAR {name!r} ({lidars[name][0]}, {entry.topic})")
+        frame = next((str(msg.header.frame_id).lstrip("/") for _, _, _, msg in _messages(reader, [entry.topic])), "")
+        pose = _chain(transforms, base, frame) if frame and frame != base else None
+        if pose is None:
+            notes.append(f"{name}: no transform from {base} to {frame or 'its frame'}; mounted at the kart's origin, "
+                         "0.3 m up, looking ahead")
+            mount = LidarMount(0.0, 0.0, 0.3)
+        else:
+            height = float(pose[2, 3]) if pose[2, 3] > 0 else 0.3
+            mount = LidarMount(float(pose[0, 3]), float(pose[1, 3]), height, math.atan2(pose[1, 0], pose[0, 0]))
+        lidars[name] = (entry.topic, mount)
+    return lidars
+
+
+def scan_from_message(msg: Any, log_ns: int) -> LaserScan:
+    """A ``sensor_msgs/LaserScan`` as a sweep: its header's stamp (the log time where it has none), each range that
+    is finite and within the scan's own window kept, any other no return (NaN)."""
+    ranges = np.asarray(msg.ranges, np.float32)
+    valid = np.isfinite(ranges) & (ranges >= msg.range_min) & (ranges <= msg.range_max)
+    strengths = np.asarray(msg.intensities, np.float32)
+    if strengths.shape != ranges.shape:  # a driver that sends no intensities
+        strengths = np.zeros_like(ranges)
+    return LaserScan(_stamp_ns(msg.header) or log_ns, float(msg.angle_min), float(msg.angle_increment),
+                     float(msg.time_increment), float(msg.scan_time), float(msg.range_min), float(msg.range_max),
+                     np.where(valid, ranges, np.nan).astype(np.float32),
+                     np.where(valid, np.nan_to_num(strengths), 0.0).astype(np.float32))
+
+
+def _write_scans(reader: AnyReader, writer: RecordingWriter, by_topic: dict[str, str]) -> dict[str, int]:
+    """Every sweep of each LiDAR topic, in the order of their stamps (a sweep whose stamp repeats or goes back is
+    left out: the recording's sweeps are in time); returns the count per LiDAR."""
+    counts = dict.fromkeys(by_topic.values(), 0)
+    last: dict[str, int] = {}
+    for topic, _, log_ns, msg in _messages(reader, list(by_topic)):
+        name = by_topic[topic]
+        try:
+            scan = scan_from_message(msg, log_ns)
+        except KartpilotError as exc:
+            raise DataError(f"{topic}: a LaserScan that is not one: {exc}") from None
+        if scan.stamp_ns <= last.get(name, -1):
+            continue
+        writer.write_scan(name, scan)
+        last[name] = scan.stamp_ns
+        counts[name] += 1
+    return counts
 
 
 def _camera_topics(config: BagImportConfig, topics: dict[str, _Topic]) -> tuple[list[BagCamera], dict[str, str]]:
@@ -546,8 +619,19 @@ def _export(reader: RecordingReader, out: Path, vehicle: VehicleParams | None) -
 
     messages: list[tuple[int, str, str, Any]] = []  # (log time, topic, type, message)
     first_ns = min([s for n in reader.cameras for s, _ in reader.frames(n)[:1]] or [0])
+    lidars = reader.lidars
     messages.append((first_ns, "/tf_static", TF, t[TF](transforms=[
-        transform(first_ns, "base_link", name, cam.pose_body_cam_array) for name, cam in reader.cameras.items()])))
+        *(transform(first_ns, "base_link", name, cam.pose_body_cam_array) for name, cam in reader.cameras.items()),
+        *(transform(first_ns, "base_link", name, m.pose_body_lidar()) for name, m in lidars.items())])))
+    for name in lidars:
+        for scan in reader.scans(name):
+            ranges = np.where(np.isfinite(scan.ranges_m), scan.ranges_m, np.inf).astype(np.float32)
+            messages.append((scan.stamp_ns, f"/{name}/scan", LASER_SCAN, t[LASER_SCAN](
+                header=stamped(scan.stamp_ns, name), angle_min=scan.angle_min_rad,
+                angle_max=scan.angle_min_rad + scan.angle_increment_rad * (len(ranges) - 1),
+                angle_increment=scan.angle_increment_rad, time_increment=scan.time_increment_s,
+                scan_time=scan.scan_time_s, range_min=scan.range_min_m, range_max=scan.range_max_m, ranges=ranges,
+                intensities=np.asarray(scan.intensities, np.float32))))
     for name, camera in reader.cameras.items():
         baseline = 0.0
         if reader.stereo_pair and name == reader.stereo_pair[1]:

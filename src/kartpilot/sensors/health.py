@@ -11,6 +11,7 @@ reason to stop (the cameras still see): the drive falls back to the camera-only 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -19,7 +20,8 @@ import numpy as np
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import FrameSet, Image, LaserScan
 
-__all__ = ["CameraWatchdog", "HealthConfig", "LidarHealthConfig", "LidarWatchdog", "frame_problem", "scan_problem"]
+__all__ = ["CameraWatchdog", "HealthConfig", "LidarHealthConfig", "LidarWatchdog", "SweepSummary", "frame_problem",
+           "scan_problem", "summarise_sweeps"]
 
 
 @dataclass(frozen=True)
@@ -161,3 +163,39 @@ class LidarWatchdog:
                 reported[name] = f"no good sweep for {(frames.stamp_ns - since) * 1e-9:.2f} s (last: {last})"
         self.problems = reported
         return reported
+
+
+@dataclass(frozen=True)
+class SweepSummary:
+    """A LiDAR's sweeps over a stretch of time, as ``kartpilot lidar monitor`` and ``recordings info`` show them:
+    how many, their rate and longest gap, the returns per sweep (median), the nearest return, and how many were
+    frozen (a repeat of the one before), stale (not later than it) or empty."""
+
+    sweeps: int
+    rate_hz: float
+    longest_gap_s: float
+    returns_median: float
+    nearest_m: float
+    frozen: int
+    stale: int
+    empty: int
+
+    def line(self) -> str:
+        return (f"{self.sweeps} sweeps, {self.rate_hz:.2f} Hz, longest gap {self.longest_gap_s:.3f} s, "
+                f"{self.returns_median:.0f} returns a sweep, nearest {self.nearest_m:.2f} m; frozen {self.frozen}, "
+                f"stale {self.stale}, empty {self.empty}")
+
+
+def summarise_sweeps(scans: list[LaserScan], config: LidarHealthConfig | None = None) -> SweepSummary:
+    """The summary of a LiDAR's sweeps (pure)."""
+    config = config or LidarHealthConfig(min_returns=1)
+    stamps = np.array([s.stamp_ns for s in scans], np.int64)
+    gaps = np.diff(stamps) * 1e-9 if len(stamps) > 1 else np.zeros(0)
+    span = (stamps[-1] - stamps[0]) * 1e-9 if len(stamps) > 1 else 0.0
+    returns = [int(np.count_nonzero(np.isfinite(s.ranges_m))) for s in scans]
+    nearest = [float(np.nanmin(s.ranges_m)) for s, n in zip(scans, returns, strict=True) if n]
+    problems = [scan_problem(scan, scans[k - 1] if k else None, config) for k, scan in enumerate(scans)]
+    return SweepSummary(len(scans), (len(scans) - 1) / span if span > 0 else math.nan,
+                        float(gaps.max()) if len(gaps) else math.nan,
+                        float(np.median(returns)) if returns else math.nan, min(nearest) if nearest else math.nan,
+                        problems.count("frozen"), problems.count("stale"), problems.count("empty"))
