@@ -158,6 +158,7 @@ def _section(page: Path, marker: str) -> str:
     ("suite_profile", "suite_profile", [("docs/contributing.md", "suite-profile", "render"),
                                         ("README.md", "suite-time", "render_readme")]),
     ("web_crowd", "web_crowd", [("docs/real-kart.md", "web-crowd", "render")]),
+    ("lidar", "lidar", [("docs/lidar.md", "lidar-cost", "render")]),
 ])
 def test_the_start_up_demo_and_suite_times_shown_are_the_measured_ones(script: str, result: str,
                                                                        pages: list[tuple[str, str, str]]) -> None:
