@@ -135,3 +135,36 @@ def test_a_calibration_from_copies_of_one_view_or_one_tilt_is_refused() -> None:
     tilted = _projected_views([(0.0, 0.0, -0.1, 0.6), (0.4, 0.0, -0.1, 0.7), (0.0, 0.45, -0.1, 0.7),
                                (-0.35, 0.3, -0.1, 0.8)])
     assert calibrate_mono(tilted, (1280, 720)).camera.fx_px == pytest.approx(800.0, rel=0.01)
+
+
+@pytest.mark.parametrize(("lidar", "message"), [
+    ({"mount": {"x_m": 1.4, "y_m": 0.0}}, r"lidar\.mount: missing z_m"),
+    ({"mount": {"x_m": 1.4, "y_m": 0.0, "z_m": 0.3, "pitch_deg": 2.0}}, r"lidar\.mount: unknown key\(s\) pitch_deg"),
+    ({"mount": {"x_m": 1.4, "y_m": 0.0, "z_m": -0.3}}, r"lidar\.mount: a LiDAR mount"),
+    ({"mount": {"x_m": "nose", "y_m": 0.0, "z_m": 0.3}}, r"lidar\.mount"),
+    ({"mount": {"x_m": 1.4, "y_m": 0.0, "z_m": 0.3}, "device": "/dev/ttyUSB0"}, r"lidar\.device must be a mapping"),
+    ({"device": {"port": "/dev/ttyUSB0"}}, r"lidar: missing mount"),
+])
+def test_a_rig_s_lidar_section_names_what_is_wrong(tmp_path, lidar, message) -> None:
+    import yaml
+
+    camera = {"width_px": 640, "height_px": 480, "fx_px": 500, "fy_px": 500, "cx_px": 319.5, "cy_px": 239.5}
+    path = tmp_path / "rig.yaml"
+    path.write_text(yaml.safe_dump({"cameras": {"center": camera}, "lidar": lidar}))
+    with pytest.raises(CalibrationError, match=message):
+        load_rig(path)
+
+
+def test_a_rig_s_lidar_round_trips_with_its_turn_in_degrees(tmp_path) -> None:
+    import math
+
+    from kartpilot.core.types import LidarMount
+
+    camera = get_vehicle("sdc-kart").camera("center")
+    rig = Rig({"center": camera}, lidar=LidarMount(1.45, 0.02, 0.3, math.radians(180.0)),
+              lidar_device={"port": "/dev/rplidar", "baudrate": 256000})
+    text = save_rig(rig, tmp_path / "rig.yaml").read_text()
+    assert "yaw_deg: 180.0" in text
+    back = load_rig(tmp_path / "rig.yaml")
+    assert back.lidar is not None and back.lidar.yaw_rad == pytest.approx(math.pi) and back.lidar_device == {
+        "port": "/dev/rplidar", "baudrate": 256000}

@@ -13,6 +13,7 @@ from dataclasses import replace
 
 import can
 import cv2
+import numpy as np
 import pytest
 
 from kartpilot.actuation.can_bus import CanConfig, open_bus
@@ -21,7 +22,7 @@ from kartpilot.actuation.rdw_protocol import RdwConfig
 from kartpilot.calibration.rig import Rig, apply_camera_maps
 from kartpilot.core.camera import CaptureSettings
 from kartpilot.core.errors import CalibrationError
-from kartpilot.core.types import ActuatorCommand
+from kartpilot.core.types import ActuatorCommand, LidarMount
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.odometry.places import build_places
 from kartpilot.record.recording import RecordingReader
@@ -213,3 +214,47 @@ def test_the_first_camera_map_whose_devices_all_exist_wins_and_a_misfit_names_ea
     assert "kart1.json: missing" in message and "usb-0:9:1.0-video-index0" in message
     assert "kart3.json: missing " + str(tmp_path / "dev/v4l/by-path/left-missing") in message
     assert "nope.json: no such file" in message
+
+
+def test_a_live_drive_records_the_rig_s_lidar_and_refuses_one_in_error(tmp_path):
+    """The rig file names an RPLIDAR (the fake on a pty, tests/sensors/fake_rplidar.py) and its mount: a live drive
+    records its sweeps beside the frames, with the mount, and the lane pipeline is given the kart's LiDAR. A device
+    that reports its health as Error is refused before the drive starts, in one line, and nothing is sent on the
+    bus."""
+    from tests.sensors.fake_rplidar import FakeRplidar
+
+    from kartpilot.calibration.rig import load_rig, save_rig
+    from kartpilot.core.errors import SensorError
+
+    video, camera = _camera_video(tmp_path)
+    fake = FakeRplidar(lambda angle: 3000.0 if angle < 30 or angle > 330 else 0.0)
+    try:
+        rig = Rig({"center": camera}, None, {"center": CaptureSettings(str(video), fps=15.0)},
+                  lidar=LidarMount(1.45, 0.0, 0.30), lidar_device={"port": fake.port})
+        rig = load_rig(save_rig(rig, tmp_path / "rig.yaml"))  # as a team writes it
+        assert rig.lidar == LidarMount(1.45, 0.0, 0.30) and rig.lidar_device == {"port": fake.port}
+        channel = f"lidar-live-{time.monotonic_ns()}"
+        setup = LiveDriveSetup(rig, "lanes", get_vehicle("sdc-kart"), web_port=_free_port(),
+                               outputs=SessionOutputs(record_dir=tmp_path / "live"), duration_s=1.5)
+        stack = replace(StackConfig(), can=CanConfig(channel=channel, protocol="rdw"))
+        run_live_drive(setup, stack)
+    finally:
+        fake.close()
+    reader = RecordingReader(tmp_path / "live")
+    sweeps = reader.scans("lidar")
+    assert reader.lidars == {"lidar": LidarMount(1.45, 0.0, 0.30)} and len(sweeps) >= 3
+    ahead = np.abs(sweeps[-1].angles_rad()) < np.radians(20)
+    assert np.nanmedian(sweeps[-1].ranges_m[ahead]) == pytest.approx(3.0, abs=0.01)
+    bad = FakeRplidar(lambda angle: 0.0, health="Error", error_code=0x8002)
+    channel = f"lidar-bad-{time.monotonic_ns()}"
+    listener = open_bus(CanConfig(channel=channel))
+    try:
+        rig = Rig({"center": camera}, None, {"center": CaptureSettings(str(video), fps=15.0)},
+                  lidar=LidarMount(1.45, 0.0, 0.30), lidar_device={"port": bad.port})
+        setup = LiveDriveSetup(rig, "lanes", get_vehicle("sdc-kart"), web_port=_free_port(), duration_s=1.0)
+        with pytest.raises(SensorError, match="reports its health as Error"):
+            run_live_drive(setup, replace(StackConfig(), can=CanConfig(channel=channel, protocol="rdw")))
+        assert listener.recv(timeout=0.2) is None  # refused before the bus was opened: nothing was sent
+    finally:
+        bad.close()
+        listener.shutdown()

@@ -32,6 +32,14 @@ width and height (``kartpilot calibrate ground`` finds them; they may be drawn b
 
 ``steering`` (optional) is the kart's steering calibration as ``kartpilot calibrate steering`` wrote
 it (:class:`~kartpilot.core.vehicle.SteeringCalibration`); it overrides the vehicle's default.
+``lidar`` (optional) is the kart's planar LiDAR: its ``mount`` (``x_m``, ``y_m``, ``z_m`` of its scan plane above the
+road, ``yaw_deg`` left) and its ``device`` (an RPLIDAR's settings, :class:`kartpilot.sensors.lidar.RplidarConfig`:
+``port``, ``baudrate``, ``scan_mode``, ``motor_pwm``, ``step_deg``, ...; checked by name when a drive opens it)::
+
+    lidar:
+      mount: {x_m: 1.45, y_m: 0.0, z_m: 0.30, yaw_deg: 0.0}
+      device: {port: /dev/ttyUSB0, baudrate: 115200}
+
 ``camera_maps`` (optional) lists the Self Driving Challenge organiser's camera-mapping files, relative
 to the rig file: each maps ``front``, ``left`` and ``right`` to a ``/dev/v4l/by-path/...`` device, and
 the first whose paths all exist on this machine says which device each camera is (``front`` is our
@@ -54,6 +62,7 @@ from kartpilot.core.config import config_to_dict, merge_config
 from kartpilot.core.errors import CalibrationError, ConfigError, DataError
 from kartpilot.core.files import parse_yaml, read_json_file, read_text_file, write_text_atomic
 from kartpilot.core.geometry import mount_pose
+from kartpilot.core.types import LidarMount
 from kartpilot.core.vehicle import SteeringCalibration
 
 __all__ = ["ORGANISER_CAMERA_NAMES", "Rig", "apply_camera_maps", "load_rig", "save_rig"]
@@ -64,6 +73,8 @@ CAMERA_KEYS = {"width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px", "dis
                "capture", "body_mask"}
 CAPTURE_KEYS = {"device", "fps", "exposure", "fourcc"}
 MOUNT_KEYS = {"x_m", "y_m", "z_m", "yaw_deg", "pitch_down_deg", "roll_deg"}
+LIDAR_KEYS = {"mount", "device"}
+LIDAR_MOUNT_KEYS = {"x_m", "y_m", "z_m", "yaw_deg"}
 
 
 @dataclass(frozen=True)
@@ -76,6 +87,8 @@ class Rig:
     capture: dict[str, CaptureSettings] = field(default_factory=dict)
     steering: SteeringCalibration | None = None
     camera_maps: tuple[str, ...] = ()
+    lidar: LidarMount | None = None
+    lidar_device: dict[str, Any] = field(default_factory=dict)
 
     def camera(self, name: str) -> PinholeCamera:
         if name not in self.cameras:
@@ -152,7 +165,7 @@ def load_rig(path: str | Path) -> Rig:
         raise CalibrationError(f"{path}: not valid YAML ({exc})") from exc
     if not isinstance(data, dict) or not isinstance(data.get("cameras"), dict) or not data["cameras"]:
         raise CalibrationError(f"{path}: a rig file needs a 'cameras' mapping with at least one camera")
-    _check_mapping(data, str(path), {"cameras", "stereo_pair", "steering", "camera_maps"})
+    _check_mapping(data, str(path), {"cameras", "stereo_pair", "steering", "camera_maps", "lidar"})
     cameras = {str(name): _camera_from_yaml(str(name), cam, path) for name, cam in data["cameras"].items()}
     pair = data.get("stereo_pair")
     if pair is not None:
@@ -172,8 +185,26 @@ def load_rig(path: str | Path) -> Rig:
     maps = data.get("camera_maps") or []
     if not isinstance(maps, list) or not all(isinstance(m, str) for m in maps):
         raise CalibrationError(f"{path}: camera_maps must be a list of file names")
+    lidar, device = _lidar_from_yaml(data.get("lidar"), path)
     return Rig(cameras, (str(pair[0]), str(pair[1])) if pair else None, capture, steering,
-               tuple(str(path.parent / m) for m in maps))
+               tuple(str(path.parent / m) for m in maps), lidar, device)
+
+
+def _lidar_from_yaml(data: Any, source: Path) -> tuple[LidarMount | None, dict[str, Any]]:
+    """The rig file's ``lidar``: its mount, and its device's settings as given (checked when it is opened)."""
+    if data is None:
+        return None, {}
+    where = f"{source}: lidar"
+    data = _check_mapping(data, where, LIDAR_KEYS, {"mount"})
+    mount = _check_mapping(data["mount"], f"{where}.mount", LIDAR_MOUNT_KEYS, {"x_m", "y_m", "z_m"})
+    device = data.get("device") or {}
+    if not isinstance(device, dict):
+        raise CalibrationError(f"{where}.device must be a mapping (port, baudrate, ...)")
+    try:
+        return LidarMount(float(mount["x_m"]), float(mount["y_m"]), float(mount["z_m"]),
+                          float(np.radians(float(mount.get("yaw_deg", 0.0))))), dict(device)
+    except (TypeError, ValueError, ConfigError) as exc:
+        raise CalibrationError(f"{where}.mount: {exc}") from None
 
 
 def _read_camera_map(path: Path) -> dict[str, str]:
@@ -243,6 +274,12 @@ def save_rig(rig: Rig, path: str | Path) -> Path:
         data["stereo_pair"] = list(rig.stereo_pair)
     if rig.steering is not None:
         data["steering"] = config_to_dict(rig.steering)
+    if rig.lidar is not None:
+        m = rig.lidar
+        data["lidar"] = {"mount": {"x_m": m.x_m, "y_m": m.y_m, "z_m": m.z_m,
+                                   "yaw_deg": round(float(np.degrees(m.yaw_rad)), 6)}}
+        if rig.lidar_device:
+            data["lidar"]["device"] = dict(rig.lidar_device)
     if rig.camera_maps:
         data["camera_maps"] = [str(Path(m).relative_to(path.parent)) if Path(m).is_relative_to(path.parent) else m
                                for m in rig.camera_maps]

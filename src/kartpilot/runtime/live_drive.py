@@ -15,15 +15,15 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from kartpilot.actuation.can_bus import CanActuator, fan_out_frames, make_protocol, open_bus, protocol_database
 from kartpilot.calibration.rectify import stereo_setup
 from kartpilot.calibration.rig import Rig, apply_camera_maps
-from kartpilot.core.config import config_to_dict
+from kartpilot.core.config import config_to_dict, merge_config
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.types import ActuatorCommand, FrameSet, OperatorInput
+from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource, OperatorInput
 from kartpilot.core.vehicle import VehicleParams
 from kartpilot.record.recording import RecordingWriter
 from kartpilot.runtime.config import StackConfig
@@ -35,6 +35,7 @@ from kartpilot.runtime.supervisor import Supervisor
 from kartpilot.runtime.webui import WebConfig, WebOperator, WebServer, terminal_qr
 from kartpilot.sensors.capture import LiveFrameSource
 from kartpilot.sensors.gamepad import Gamepad
+from kartpilot.sensors.lidar import RplidarConfig, RplidarScanner, WithScans
 
 __all__ = ["CombinedOperator", "LiveDriveSetup", "run_live_drive"]
 
@@ -87,13 +88,15 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
     closed."""
     setup.outputs.check()  # before the kart moves, not after
     rig = apply_camera_maps(setup.rig)
-    vehicle = setup.vehicle
+    # the rig's LiDAR, where it has one, is the kart's (its rules use it while it is healthy)
+    vehicle = replace(setup.vehicle, lidar=rig.lidar) if rig.lidar is not None else setup.vehicle
     record_dir = setup.outputs.record_dir
     with ExitStack() as closing:
         source = LiveFrameSource(rig, stack.live)
         closing.callback(source.close)
+        scanner = _lidar(rig, closing)
         period_s = 1.0 / rig.capture[source.reference].fps
-        pipeline = _live_pipeline(setup, stack, rig, list(source.threads), period_s)
+        pipeline = _live_pipeline(replace(setup, vehicle=vehicle), stack, rig, list(source.threads), period_s)
         operator, web = _people(setup, stack, closing)
         writer = None
         if record_dir is not None:
@@ -101,7 +104,8 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
                                      stereo_pair=rig.stereo_pair, queue_frames=RECORD_QUEUE_FRAMES,
                                      drop_when_full=True, image_format="jpg",
                                      metadata={"source": "kartpilot drive --live", "pipeline": setup.pipeline,
-                                               "vehicle": vehicle.name, "can": config_to_dict(stack.can)})
+                                               "vehicle": vehicle.name, "can": config_to_dict(stack.can)},
+                                     lidars={"lidar": rig.lidar} if scanner is not None and rig.lidar else None)
             closing.callback(writer.close)
         view = setup.outputs.open_view({n: rig.cameras[n] for n in source.threads},
                                        protocol_database(stack.can, vehicle))
@@ -116,7 +120,7 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
         drive = SupervisedDrive(pipeline, supervisor, Watchdogs(list(source.threads), period_s, stack.watchdogs,
                                                                 actuator), operator, actuator)
         source.start()
-        timed = _Timed(source, setup.duration_s)
+        timed = _Timed(WithScans(source, scanner) if scanner is not None else source, setup.duration_s)
 
         def on_step(frames: FrameSet, command: ActuatorCommand) -> None:
             if web is not None:
@@ -139,10 +143,20 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
         return setup.outputs.write_result(session, error_text=drive.error_text)
 
 
-class _Timed:
-    """The live cameras, until the drive's duration; says why the drive ended."""
+def _lidar(rig: Rig, closing: ExitStack) -> RplidarScanner | None:
+    """The rig's LiDAR device, started (its health checked first: a device in error is refused before the kart
+    moves), and closed with the drive; None where the rig names no device."""
+    if rig.lidar is None or not rig.lidar_device:
+        return None
+    scanner = RplidarScanner(merge_config(RplidarConfig(), rig.lidar_device, "lidar.device")).start()
+    closing.callback(scanner.close)
+    return scanner
 
-    def __init__(self, source: LiveFrameSource, duration_s: float | None) -> None:
+
+class _Timed:
+    """The live cameras (with the LiDAR's sweeps), until the drive's duration; says why the drive ended."""
+
+    def __init__(self, source: FrameSource, duration_s: float | None) -> None:
         self.source, self.duration_s = source, duration_s
         self.started = time.monotonic()
         self.ended = "the cameras stopped"
