@@ -205,3 +205,14 @@ def test_the_recording_s_info_and_the_monitor_show_the_lidar_s_rate(drive, capsy
     assert info["mount"]["x_m"] == pytest.approx(1.45)
     assert main(["lidar", "monitor", "--recording", str(drive)]) == 0
     assert "lidar: 20 sweeps, 10.00 Hz" in capsys.readouterr().out
+
+
+def test_the_rerun_view_of_a_recording_shows_every_sweep(drive, tmp_path) -> None:
+    from rerun.chunk import RrdReader
+
+    from kartpilot.record.rerun_view import view_recording
+
+    view_recording(drive, tmp_path / "drive.rrd")
+    rows = sum(chunk.num_rows for chunk in RrdReader(str(tmp_path / "drive.rrd")).store().stream()
+               if str(chunk.entity_path) == "/lidar/lidar" and not chunk.is_static)
+    assert rows == len(RecordingReader(drive).scans("lidar")) == 20

@@ -18,7 +18,9 @@ sets' time stamps, nanoseconds):
 * ``outputs/<topic>/<value>``: every number the pipeline recorded (confidence, cross-track error, speed, the
   kart's decoded CAN report in the ``kart`` topic), and ``events/<topic>``: its text values when they change
   (the supervisor's state and reason, the lane rule);
-* ``can/<message>/<signal>``: each CAN frame decoded with the bus's DBC (``can/raw/<id>``: a frame it lacks).
+* ``can/<message>/<signal>``: each CAN frame decoded with the bus's DBC (``can/raw/<id>``: a frame it lacks);
+* ``lidar/<name>``: each LiDAR sweep's returns as a top view in the sensor's frame (the sensor at the origin, its
+  front up, its left to the left; metres).
 """
 
 from __future__ import annotations
@@ -123,6 +125,8 @@ class RerunView:
     # --- the sink: the loop's side only queues -----------------------------------------------------------
 
     def write_frames(self, frames: FrameSet) -> None:
+        for name, scan in frames.scans.items():  # every sweep, whatever happens to the images
+            self._queue(("scan", scan.stamp_ns, (name, scan.points_m())))
         self._sets += 1
         if (self._sets - 1) % self.config.image_every:
             return
@@ -231,6 +235,10 @@ class RerunView:
                     self._log_topic(stamp_ns, topic, values)
             elif kind == "can":
                 self._log_can(stamp_ns, *item)
+            elif kind == "scan":  # a top view: the sensor's front up, its left to the left
+                name, points = item
+                self.stream.log(f"lidar/{name}", rr.Points2D(np.column_stack([-points[:, 1], -points[:, 0]]),
+                                                             colors=[(255, 80, 80)], radii=0.03))
 
     def _scalar(self, entity: str, stamp_ns: int, value: float) -> None:
         """A number of a time series, sent with the others of its entity in one column every
@@ -324,6 +332,7 @@ def view_recording(folder: str | Path, target: str | Path, config: ViewConfig = 
                 rows.setdefault(int(row["stamp_ns"]), {})[topic] = {k: v for k, v in row.items() if k != "stamp_ns"}
         events += [(stamp, 2, topics) for stamp, topics in rows.items()]
         events += [(stamp, 3, (i, d, direction)) for stamp, direction, i, d in reader.can_frames()]
+        events += [(scan.stamp_ns, 4, (name, scan)) for name in reader.lidars for scan in reader.scans(name)]
         for index, (stamp, kind, item) in enumerate(sorted(events, key=lambda e: (e[0], e[1]))):
             if kind == 0:
                 images = {name: read_image(path, cv2.IMREAD_UNCHANGED) for name, path in item.items()}
@@ -332,8 +341,10 @@ def view_recording(folder: str | Path, target: str | Path, config: ViewConfig = 
                 view.send(item)
             elif kind == 2:
                 view.write_outputs(stamp, item)
-            else:
+            elif kind == 3:
                 view.write_can(stamp, *item)
+            else:  # a sweep, on its own (the frames' sets are the images')
+                view.write_frames(FrameSet(index, stamp, {}, scans={item[0]: item[1]}))
         truth = reader.body_poses()
         if truth is not None:
             view.write_groundtruth(truth)
