@@ -54,7 +54,8 @@ def test_the_return_waits_while_the_scan_shows_something_beside_the_kart() -> No
     # never more than return_wait_m: then the return goes ahead, as planned last
     waited = BehaviourState(**{**at_return.__dict__, "car_length_m": p.car_length_m + CONFIG.return_wait_m,
                                "odometer_m": start + back_at + CONFIG.return_wait_m - 0.5})
-    assert not behaviour_step(CONFIG, waited, [], 0.0, 0.1, beside)[0].replanned
+    decision = behaviour_step(CONFIG, waited, [], 0.0, 0.1, beside)[0]
+    assert not decision.replanned and "returning as planned" in decision.reason and decision.sensors == "lidar"
 
 
 def test_something_in_the_lane_stops_the_kart_whether_the_camera_saw_it_or_not() -> None:

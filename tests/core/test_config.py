@@ -119,3 +119,18 @@ def test_missing_and_invalid_yaml(tmp_path) -> None:
     listing.write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match="mapping"):
         load_yaml_mapping(listing)
+
+
+def test_a_mapping_key_takes_a_mapping_and_checks_each_value_by_name() -> None:
+    """A dict field (the simulated LiDAR's dropout per surface) merged from YAML: a mapping of numbers; a value that
+    is not one is named with its key. (A dict field was refused outright, even its own default: 'must be dict, got
+    dict', which broke every study whose cells carry the simulator's settings.)"""
+    from kartpilot.sim.lidar import LidarConfig
+
+    merged = merge_config(LidarConfig(), {"dropout": {"person": 0.3, "car": 0}}, "lidar")
+    assert merged.dropout == {"person": 0.3, "car": 0.0} and isinstance(merged.dropout["car"], float)
+    assert merge_config(LidarConfig(), config_to_dict(LidarConfig()), "lidar") == LidarConfig()
+    with pytest.raises(ConfigError, match=r"lidar\.dropout\.person"):
+        merge_config(LidarConfig(), {"dropout": {"person": "half"}}, "lidar")
+    with pytest.raises(ConfigError, match=r"lidar\.dropout' must be"):
+        merge_config(LidarConfig(), {"dropout": [0.1]}, "lidar")

@@ -272,26 +272,27 @@ def behaviour_step(config: BehaviourConfig, state: BehaviourState, detections: l
 
 
 def _hold_return(config: BehaviourConfig, s: BehaviourState, odometer: float, lidar: LidarView
-                 ) -> tuple[ReferencePath, BehaviourState] | None:
+                 ) -> tuple[ReferencePath | None, BehaviourState, str]:
     """Just before an overtake's return, the lane it returns to beside the kart (from ``after_m`` behind its back
     to a metre ahead of its front) as the scan shows it: where something is there (the car, longer than assumed),
-    the pass is replanned ``return_extend_m`` longer, in the same frame; None where the return may go ahead."""
+    the pass replanned ``return_extend_m`` longer, in the same frame, and why; no path where the return may go
+    ahead (with the reason where it goes ahead though the lane beside is not clear: ``return_wait_m`` waited)."""
     passing = config.passing
     back_at = s.car_distance_m + s.car_length_m + passing.rear_m + passing.after_m  # where the return begins
     progress = odometer - s.manoeuvre_start_m
-    if not back_at - config.return_extend_m <= progress <= back_at:
-        return None
-    if s.car_length_m - passing.car_length_m >= config.return_wait_m:
-        return None
     lane = passing.lane_offset_m
-    if side_clear(lidar.points_m, -(passing.rear_m + passing.after_m), passing.front_m + 1.0, -lane - 1.2,
-                  -lane + 1.2):
-        return None
+    if not back_at - config.return_extend_m <= progress <= back_at or side_clear(
+            lidar.points_m, -(passing.rear_m + passing.after_m), passing.front_m + 1.0, -lane - 1.2, -lane + 1.2):
+        return None, s, ""
+    if s.car_length_m - passing.car_length_m >= config.return_wait_m:
+        return None, s, (f"the lane beside still not clear after {config.return_wait_m:g} m more: returning as "
+                         "planned (lidar)")
     length = s.car_length_m + config.return_extend_m
     path = plan_overtake(s.car_distance_m, replace(passing, car_length_m=length))
     if path is None:
-        return None
-    return path, replace(s, car_length_m=length, manoeuvre_end_m=s.manoeuvre_start_m + float(path.s_m[-1]))
+        return None, s, ""
+    return path, replace(s, car_length_m=length, manoeuvre_end_m=s.manoeuvre_start_m + float(path.s_m[-1])), (
+        "something still beside the kart in the lane: the return waits (lidar)")
 
 
 def _measure_bay(config: BehaviourConfig, s: BehaviourState, odometer: float, lidar: LidarView
@@ -382,13 +383,12 @@ def _rules_step(config: BehaviourConfig, state: BehaviourState, detections: list
                                      f"bay {free:.1f} m long {start:.1f} m ahead: parking",
                                      float(path.s_m[-1]), path, sensors=sensors), s
     if s.state == "overtake":
-        held = _hold_return(config, s, odometer, lidar) if lidar is not None else None
+        held, s, why = _hold_return(config, s, odometer, lidar) if lidar is not None else (None, s, "")
         if held is not None:
-            path, s = held
-            return BehaviourDecision(cruise, "overtake", "something still beside the kart in the lane: the return "
-                                     "waits (lidar)", path=path, replanned=True, sensors="lidar"), s
+            return BehaviourDecision(cruise, "overtake", why, path=held, replanned=True, sensors="lidar"), s
         if odometer < s.manoeuvre_end_m:
-            return BehaviourDecision(cruise, "overtake", "overtaking the car"), s
+            return BehaviourDecision(cruise, "overtake", why or "overtaking the car", sensors="lidar" if why else
+                                     "camera"), s
         s = replace(s, state="drive", manoeuvre_end_m=math.nan, manoeuvre_start_m=math.nan, car_distance_m=math.nan,
                     car_length_m=math.nan)
         return BehaviourDecision(cruise, "drive", "back in the lane"), s

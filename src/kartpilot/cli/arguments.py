@@ -290,6 +290,23 @@ def _calibrate(sub: argparse._SubParsersAction) -> None:
     ground.add_argument("--pixels-per-m", type=number(above=1, maximum=1000), default=100.0)
     ground.add_argument("--json", action="store_true", help="print a machine-readable summary")
     ground.set_defaults(handler=_handler("kartpilot.cli.calibrate_commands", "calibrate_ground_command"), charuco=True)
+    lidar = cal_sub.add_parser("lidar", help="the LiDAR's mount (x, y, turn) from a recording of the board held "
+                                             "upright at a few places, seen by the centre camera and the LiDAR")
+    lidar.add_argument("recording", help="a recording with the centre camera's frames and the LiDAR's sweeps")
+    lidar.add_argument("--rig", required=True, help="the rig file: the centre camera's calibration and mount, and "
+                                                   "the LiDAR's mount as measured by hand (the fit starts there)")
+    lidar.add_argument("--camera", default="center", help="the camera that sees the board")
+    lidar.add_argument("--board", required=True, help="the board's squares COLUMNSxROWS (ChArUco) or inner "
+                                                      "corners (a chessboard, with --chessboard)")
+    lidar.add_argument("--square", type=number(above=0), default=0.115, help="square side, m")
+    lidar.add_argument("--marker", type=number(above=0), help="ChArUco marker side, m (default 0.75 of a square)")
+    lidar.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco dictionary")
+    lidar.add_argument("--chessboard", dest="charuco", action="store_false", help="a chessboard, not a ChArUco board")
+    lidar.add_argument("--max-gap", type=number(above=0, maximum=1.0), default=0.1,
+                       help="a frame pairs with the sweep nearest its time within this, s")
+    lidar.add_argument("--out", required=True, type=output_file, help="the rig file to write, with the LiDAR's mount")
+    lidar.add_argument("--json", action="store_true", help="print a machine-readable summary")
+    lidar.set_defaults(handler=_handler("kartpilot.cli.calibrate_commands", "calibrate_lidar_command"), charuco=True)
 
     steering = cal_sub.add_parser("steering", help="the RDW kart's steering: sweep it, fit value to sensor to "
                                                    "road-wheel angle, write it into the rig file")

@@ -26,6 +26,7 @@ from kartpilot.calibration.board import (
     calibrate_mono,
     calibrate_stereo,
     detect_board,
+    find_board,
     measure_marker,
     pair_names,
     read_views,
@@ -35,10 +36,12 @@ from kartpilot.calibration.ground import (
     AGREEMENT_WARN_M,
     BirdseyeView,
     MountSpread,
+    board_pose,
     calibrate_ground,
     ground_agreement,
     stitch_birdseye,
 )
+from kartpilot.calibration.lidar import BoardSighting, board_segment_body, fit_lidar_mount
 from kartpilot.calibration.rig import Rig, load_rig, save_rig
 from kartpilot.core.errors import CalibrationError, ConfigError
 from kartpilot.core.files import write_bytes_atomic
@@ -296,4 +299,45 @@ def calibrate_steering_command(args: argparse.Namespace) -> int:
     print(f"steering: {calibration.counts_per_value:+.1f} counts per unit of value, straight at "
           f"{calibration.count_offset:+.1f} counts (R² {r_squared:.4f}); {calibration.rad_per_value:.4f} rad per unit "
           f"of value, {calibration.max_steer_rad:.3f} rad at the ECU's limit; written to {args.rig}")
+    return 0
+
+
+def calibrate_lidar_command(args: argparse.Namespace) -> int:
+    """The LiDAR's mount from a recording of the board held upright at a few places: each frame of ``--camera``
+    where the board is found, with the sweep nearest its time; the rig file with the mount written to ``--out``."""
+    from kartpilot.record.recording import RecordingReader
+
+    rig = load_rig(args.rig)
+    if rig.lidar is None:
+        raise CalibrationError(f"{args.rig}: no lidar section; give the LiDAR's mount as measured by hand (lidar: "
+                               "mount: {x_m, y_m, z_m, yaw_deg}): the fit starts there")
+    camera = rig.camera(args.camera)
+    reader = RecordingReader(args.recording)
+    if not reader.lidars:
+        raise CalibrationError(f"{args.recording} holds no LiDAR sweeps")
+    name = next(iter(reader.lidars))
+    sweeps = reader.scans(name)
+    stamps = np.array([s.stamp_ns for s in sweeps], np.int64)
+    if not len(stamps):
+        raise CalibrationError(f"{args.recording}: the LiDAR {name!r} has no sweeps")
+    board = _board(args)
+    sightings = []
+    for stamp, path in reader.frames(args.camera):
+        view = find_board(read_image(path), board, path.name)
+        nearest = int(np.argmin(np.abs(stamps - stamp)))
+        if view is None or abs(int(stamps[nearest]) - stamp) > args.max_gap * 1e9:
+            continue
+        board_in_cam, _ = board_pose(view, camera)
+        segment = board_segment_body(camera.pose_body_cam_array @ board_in_cam, board, rig.lidar.z_m)
+        if segment is not None:
+            sightings.append(BoardSighting(path.name, segment, sweeps[nearest].points_m()))
+    fit = fit_lidar_mount(sightings, rig.lidar)
+    save_rig(replace(rig, lidar=fit.mount), args.out)
+    if args.json:
+        print(json.dumps({"mount": asdict(fit.mount), "rms_m": fit.rms_m,
+                          "places": [{"frame": n, "returns": c, "rms_m": r} for n, c, r in fit.per_place]}))
+    else:
+        print(f"{len(sightings)} frames with the board, each with its sweep")
+        print("\n".join(fit.lines()))
+        print(f"rig written to {args.out}")
     return 0

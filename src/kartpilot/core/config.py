@@ -137,6 +137,11 @@ def _coerce(value: Any, tp: Any, dotted: str) -> Any:
         if len(value) != len(args):
             raise ConfigError(f"config key '{dotted}' needs {len(args)} values, got {len(value)}")
         return tuple(_coerce(v, a, f"{dotted}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True)))
+    if origin is dict:  # a mapping of names to values (a LiDAR's dropout per kind of surface)
+        if not isinstance(value, Mapping):
+            raise bad
+        key_tp, value_tp = args or (Any, Any)
+        return {_coerce(k, key_tp, f"{dotted}.{k}"): _coerce(v, value_tp, f"{dotted}.{k}") for k, v in value.items()}
     if tp is bool:
         if isinstance(value, bool):
             return value
