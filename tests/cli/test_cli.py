@@ -199,3 +199,13 @@ def test_a_scenario_on_a_kart_that_is_not_the_sdc_kart_is_a_one_line_error(capsy
     assert main(["sim", "--scenario", "overtake", "--vehicle", "rc-kart"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "sdc-kart or sdc-kart-2026, not rc-kart" in err
+
+
+@pytest.mark.parametrize("given", [["--track", "utrack"], ["--rate", "30"], ["--no-render"], ["--driver", "lanes"],
+                                   ["--real-camera"]])
+def test_a_sim_option_a_scenario_would_ignore_is_refused_by_name(given, capsys):
+    """Issue 56's options accepted and ignored: with --scenario, the course, the driver and the camera are the
+    scenario's; each of these was taken and silently dropped."""
+    assert main(["sim", "--scenario", "overtake", *given]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{given[0]} would be ignored" in err

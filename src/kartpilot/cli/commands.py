@@ -233,8 +233,19 @@ def _print_result(result: RunResult, run: SimRun) -> None:
           f"sim {result.sim_time_s:.1f} s in {result.wall_time_s:.1f} s wall, {run.steps} steps")
 
 
+# the sim options a scenario sets itself (its course, the kart's driver and camera), with their defaults: given with
+# --scenario they would be taken and ignored
+_SCENARIO_SETS = {"track": None, "driver": "centerline", "speed_mode": None, "commands": None, "laps": None,
+                  "speed": None, "weave": None, "edge_offset": None, "rate": None, "cameras": None,
+                  "real_camera": False, "no_cones": False, "no_render": False}
+
+
 def _scenario(args: argparse.Namespace) -> int:
     """One of the event's scenarios on one seed, closed loop, scored by its referee."""
+    ignored = [f"--{k.replace('_', '-')}" for k, default in _SCENARIO_SETS.items() if getattr(args, k) != default]
+    if ignored:
+        raise ConfigError(f"--scenario sets its own course, driver and camera: {', '.join(ignored)} would be ignored "
+                          "(drop it, or write it into a scenario file: docs/scenarios.md)")
     stack = load_stack_config(args.config, args.preset or "kart")
     outputs = SessionOutputs(args.record, args.result, args.video, progress=not args.no_progress, view=args.view)
     outputs.check()
