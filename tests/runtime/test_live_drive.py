@@ -49,6 +49,13 @@ def _post(url: str, body: dict, headers: dict[str, str] | None = None) -> None:
     urllib.request.urlopen(request, timeout=1.0).read()
 
 
+@pytest.fixture(scope="module")
+def camera_video(tmp_path_factory):
+    """The rendered drive's video and its camera, made once for the module's live drives (each reads the video
+    file; none changes it)."""
+    return _camera_video(tmp_path_factory.mktemp("camera"))
+
+
 def _camera_video(tmp_path):
     """A short rendered drive of the SDC kart's centre camera as a video file, and its calibration. The 640x480
     camera of ``sdc-kart-steep``: this test is about the web page and the watchdogs, and on two cores shared with
@@ -84,11 +91,12 @@ def _organiser_camera_maps(tmp_path, video):
 
 
 @pytest.mark.parametrize(("protocol", "pipeline"), [("rdw", "lanes"), ("kartpilot", "lanes"), ("rdw", "mono-vo")])
-def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(protocol, pipeline, tmp_path):
-    video, camera = _camera_video(tmp_path)
+def test_a_live_drive_arms_from_the_web_page_and_stops_when_the_page_goes_away(protocol, pipeline, tmp_path,
+                                                                              camera_video):
+    video, camera = camera_video
     route = Route()
     if pipeline == "mono-vo":  # the one-camera kart: places from the same drive the video shows
-        teach = RecordingReader(tmp_path / "teach")
+        teach = RecordingReader(video.parent / "teach")
         route = Route(places=build_places(teach.posed_frames("center", teach.camera_poses("center")), camera,
                                           "center"))
     if protocol == "rdw":  # the real kart: its cameras from the organiser's camera-mapping files
@@ -216,7 +224,7 @@ def test_the_first_camera_map_whose_devices_all_exist_wins_and_a_misfit_names_ea
     assert "nope.json: no such file" in message
 
 
-def test_a_live_drive_records_the_rig_s_lidar_and_refuses_one_in_error(tmp_path):
+def test_a_live_drive_records_the_rig_s_lidar_and_refuses_one_in_error(tmp_path, camera_video):
     """The rig file names an RPLIDAR (the fake on a pty, tests/sensors/fake_rplidar.py) and its mount: a live drive
     records its sweeps beside the frames, with the mount, and the lane pipeline is given the kart's LiDAR. A device
     that reports its health as Error is refused before the drive starts, in one line, and nothing is sent on the
@@ -226,7 +234,7 @@ def test_a_live_drive_records_the_rig_s_lidar_and_refuses_one_in_error(tmp_path)
     from kartpilot.calibration.rig import load_rig, save_rig
     from kartpilot.core.errors import SensorError
 
-    video, camera = _camera_video(tmp_path)
+    video, camera = camera_video
     fake = FakeRplidar(lambda angle: 3000.0 if angle < 30 or angle > 330 else 0.0)
     try:
         rig = Rig({"center": camera}, None, {"center": CaptureSettings(str(video), fps=15.0)},
