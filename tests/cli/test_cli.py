@@ -209,3 +209,10 @@ def test_a_sim_option_a_scenario_would_ignore_is_refused_by_name(given, capsys):
     assert main(["sim", "--scenario", "overtake", *given]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"{given[0]} would be ignored" in err
+
+
+def test_a_scenario_takes_the_faults_of_what_the_kart_sees_and_refuses_the_others(capsys):
+    assert main(["sim", "--scenario", "overtake", "--inject", "can-bus-off@3"]) == 1
+    assert "--inject can-bus-off: a scenario takes the faults of what the kart sees" in capsys.readouterr().err
+    assert main(["sim", "--track", "straight20", "--inject", "lidar-loss@1"]) == 1
+    assert "works with --scenario" in capsys.readouterr().err

@@ -162,6 +162,9 @@ def _general(sub: argparse._SubParsersAction) -> None:
                      help="one of the event's scenarios (" + ", ".join(SCENARIOS) + ") or a scenario file "
                           "(docs/scenarios.md), on the venue track, closed loop with the event's rules, scored as "
                           "the event does (--seed varies a named one; exit 1 on a fault)")
+    sim.add_argument("--inject", action="append", metavar="KIND@SECONDS",
+                     help="--scenario: a camera's or the LiDAR's fault from its time on (camera-freeze, black-frame, "
+                          "lidar-loss, lidar-freeze); repeatable")
     sim.add_argument("--save-scenario", type=output_file, metavar="FILE",
                      help="--scenario: write the scenario as run (props placed, seed) to this file, which "
                           "reproduces it exactly")
@@ -472,7 +475,8 @@ def _drive(sub: argparse._SubParsersAction) -> None:
     drive_parser.add_argument("--inject", action="append", metavar="KIND@SECONDS",
                               help="--sim: inject a fault (camera-freeze, black-frame, vo-failure, can-bus-off, "
                                    "heartbeat-loss, ecu-error, steering-sensor-loss, steering-sensor-range, "
-                                   "loop-stall, gamepad-unplug, stage-exception); repeatable")
+                                   "loop-stall, gamepad-unplug, stage-exception, lidar-loss, lidar-freeze); "
+                                   "repeatable")
     drive_parser.add_argument("--map", help="the visual map (default: the reference's .map.npz, if there)")
     drive_parser.add_argument("--no-map", action="store_true", help="localise with VO alone")
     drive_parser.add_argument("--speed", type=number(above=0), help="stereo-vo: cap the path's speed profile, m/s")

@@ -42,6 +42,7 @@ from kartpilot.record.recording import RecordingStereoSource
 from kartpilot.record.replay import VIDEO_SUFFIXES, open_frames
 from kartpilot.record.video import VideoFile
 from kartpilot.runtime.config import load_stack_config, sim_lane_preset
+from kartpilot.runtime.faults import SOURCE_FAULTS, parse_injection
 from kartpilot.runtime.scenarios import run_scenario
 from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import SimRun, run_simulation
@@ -255,7 +256,12 @@ def _scenario(args: argparse.Namespace) -> int:
     vehicle = args.vehicle or "sdc-kart"
     if vehicle not in ("sdc-kart", "sdc-kart-2026"):
         raise ConfigError(f"--scenario drives the SDC kart: --vehicle sdc-kart or sdc-kart-2026, not {vehicle}")
-    result = run_scenario(plan, None, stack, outputs=outputs, vehicle=vehicle)
+    injections = [parse_injection(text) for text in args.inject or []]
+    wrong = [i.kind for i in injections if i.kind not in SOURCE_FAULTS]
+    if wrong:
+        raise ConfigError(f"--inject {wrong[0]}: a scenario takes the faults of what the kart sees "
+                          f"({', '.join(SOURCE_FAULTS)}); drive --sim takes the others")
+    result = run_scenario(plan, None, stack, outputs=outputs, vehicle=vehicle, injections=injections)
     if args.record:
         print(f"recorded to {args.record} (kartpilot replay {args.record} --pipeline lanes gives the same decisions)")
     verdict = "passed" if result["passed"] else "failed: " + "; ".join(result["faults"])
@@ -272,6 +278,8 @@ def _scenario(args: argparse.Namespace) -> int:
 def simulate(args: argparse.Namespace) -> int:
     if args.scenario:
         return _scenario(args)
+    if args.inject:
+        raise ConfigError("sim --inject works with --scenario (drive --sim takes every fault)")
     stack = load_stack_config(args.config)
     config, driver = stack.sim, stack.centerline_driver
     overrides = {"track": args.track, "vehicle": args.vehicle, "seed": args.seed, "camera_rate_hz": args.rate}

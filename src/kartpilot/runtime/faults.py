@@ -30,8 +30,8 @@ from kartpilot.core.errors import ConfigError, OdometryError
 from kartpilot.core.types import ActuatorCommand, FrameSet, FrameSource, LaserScan
 from kartpilot.odometry.vo import VisualOdometry, VOStep
 
-__all__ = ["BUS_OFF_S", "KINDS", "FailingVO", "FaultyBus", "InjectedSource", "Injection", "RaisingPipeline",
-           "failing_vo", "parse_injection"]
+__all__ = ["BUS_OFF_S", "KINDS", "SOURCE_FAULTS", "FailingVO", "FaultyBus", "InjectedSource", "Injection",
+           "RaisingPipeline", "failing_vo", "parse_injection"]
 
 V = TypeVar("V", bound=VisualOdometry)
 
@@ -39,6 +39,8 @@ KINDS = ("camera-freeze", "black-frame", "vo-failure", "can-bus-off", "heartbeat
          "steering-sensor-loss", "steering-sensor-range", "loop-stall", "gamepad-unplug", "stage-exception",
          "lidar-loss", "lidar-freeze")
 BUS_OFF_S = 0.5
+SOURCE_FAULTS = ("camera-freeze", "black-frame", "lidar-loss", "lidar-freeze")
+"""The faults of what the kart sees (:class:`InjectedSource`): any frame source takes them."""
 
 
 @dataclass(frozen=True)
