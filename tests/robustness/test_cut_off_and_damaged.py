@@ -66,3 +66,34 @@ def test_positions_that_cover_part_of_the_drive_are_refused(recording, tmp_path,
                  "--out", str(tmp_path / "places.npz")]) == 1
     err = capsys.readouterr().err
     assert "a pose for 4 of the 8 frames" in err and not (tmp_path / "places.npz").exists()
+
+
+def test_a_recording_needs_room_on_its_disk_and_stops_before_the_disk_is_full(tmp_path, monkeypatch, capsys):
+    """Issue 56's bound on what is written: a recording starts only with 200 MB free on its disk (the command says
+    so in one line and leaves nothing), and a drive whose disk fills stops recording before the disk is full, the
+    manifest saying why, as a write that failed would."""
+    import numpy as np
+
+    import kartpilot.record.recording as recording
+    from kartpilot.core.camera import PinholeCamera
+    from kartpilot.core.errors import RecordingError
+    from kartpilot.core.types import FrameSet
+
+    monkeypatch.setattr(recording, "free_bytes", lambda path: 50 * 2**20)
+    assert main(["sim", "--track", "straight20", "--record", str(tmp_path / "run"), "--cameras", "left"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "only 50 MB free" in err and not (tmp_path / "run").exists()
+
+    free = [10 * 2**30]
+    monkeypatch.setattr(recording, "free_bytes", lambda path: free[0])
+    monkeypatch.setattr(recording.RecordingWriter, "MANIFEST_REFRESH_S", 0.0)
+    camera = PinholeCamera(100.0, 100.0, 31.5, 23.5, 64, 48)
+    writer = recording.RecordingWriter(tmp_path / "filling", {"center": camera})
+    image = np.full((48, 64, 3), 90, np.uint8)
+    writer.write_frames(FrameSet(0, 1, {"center": image}))
+    free[0] = 100 * 2**20
+    with pytest.raises(RecordingError, match="nearly full"):
+        writer.write_frames(FrameSet(1, 2, {"center": image}))
+    writer.close()
+    reader = recording.RecordingReader(tmp_path / "filling")
+    assert not reader.closed and "nearly full" in reader.manifest["write_error"] and len(reader.frames("center")) == 1

@@ -9,6 +9,7 @@ import io
 import json
 import os
 import re
+import shutil
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -22,7 +23,7 @@ YAML_MAX_VALUES = 100_000
 """The most values a YAML file may stand for once its aliases are expanded (a config is a few hundred; "a billion
 laughs", nine anchors of ten aliases each, stands for a billion)."""
 
-__all__ = ["MAX_FILE_BYTES", "MAX_JSON_DEPTH", "MAX_TEXT_BYTES", "check_readable", "csv_records",
+__all__ = ["MAX_FILE_BYTES", "MAX_JSON_DEPTH", "MAX_TEXT_BYTES", "check_readable", "csv_records", "free_bytes",
            "is_torn_last_line", "iter_csv_file", "parse_csv", "parse_json", "parse_yaml", "read_file_bytes",
            "read_json_file", "read_text_file", "write_atomic", "write_bytes_atomic", "write_csv_atomic",
            "write_json_atomic", "write_text_atomic"]
@@ -221,6 +222,14 @@ def _expanded_size(root: yaml.Node) -> int:
         stack.append((node, True))
         stack.extend((c, False) for c in children if id(c) not in sizes)
     return sizes[id(root)]
+
+
+def free_bytes(path: str | Path) -> int:
+    """The bytes free for this user on the disk that holds ``path`` (or its nearest folder that exists)."""
+    place = Path(path).absolute()
+    while not place.exists() and place != place.parent:
+        place = place.parent
+    return shutil.disk_usage(place).free
 
 
 def write_atomic(path: str | Path, write: Callable[[BinaryIO], object]) -> Path:

@@ -46,6 +46,7 @@ from kartpilot.core.camera import PinholeCamera, StereoRig, camera_from_dict, ca
 from kartpilot.core.errors import DataError, KartpilotError, RecordingError
 from kartpilot.core.files import (
     csv_records,
+    free_bytes,
     is_torn_last_line,
     iter_csv_file,
     read_json_file,
@@ -99,6 +100,10 @@ class RecordingWriter:
 
     LINE_QUEUE = 10_000
     MANIFEST_REFRESH_S = 1.0
+    MIN_FREE_BYTES = 200 * 2**20
+    """A recording starts only with this much free on its disk, and stops (as a write that failed does: the drive
+    stops and says why) when less is left: a disk run full mid-file loses more than the last frame (the manifest's
+    last refresh, other programs' files)."""
 
     def __init__(self, folder: str | Path, cameras: dict[str, PinholeCamera],
                  stereo_pair: tuple[str, str] | None = None, metadata: dict[str, Any] | None = None,
@@ -110,6 +115,10 @@ class RecordingWriter:
         self.image_format = image_format
         if self.folder.exists() and any(self.folder.iterdir()) and not overwrite:
             raise RecordingError(f"recording folder {self.folder} exists and is not empty")
+        free = free_bytes(self.folder)
+        if free < self.MIN_FREE_BYTES:
+            raise RecordingError(f"only {free / 2**20:.0f} MB free on the disk of {self.folder}: a recording needs "
+                                 f"{self.MIN_FREE_BYTES / 2**20:.0f} MB at least; free some, or record elsewhere")
         if stereo_pair and not set(stereo_pair) <= set(cameras):
             raise RecordingError(f"stereo pair {stereo_pair} names unknown cameras")
         self.cameras = cameras
@@ -255,6 +264,10 @@ class RecordingWriter:
         """Frame sink: write every image of a synchronised set under its camera's name; a camera of the
         rig missing from the set is counted (``missing``: the camera's doing, not the recording's)."""
         if time.monotonic() - self._manifest_written > self.MANIFEST_REFRESH_S:
+            free = free_bytes(self.folder)
+            if free < self.MIN_FREE_BYTES and self._error is None:  # stop before the disk is full, not at it
+                self._error = RecordingError(f"the disk of {self.folder} is nearly full ({free / 2**20:.0f} MB "
+                                             f"left, under {self.MIN_FREE_BYTES / 2**20:.0f} MB): recording stopped")
             self._write_manifest(closed=False)  # the counts, in case the run is cut off
             self._manifest_written = time.monotonic()
         for camera in self.cameras:
