@@ -10,6 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import ActuatorCommand, LaserScan, LidarMount
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.perception.objects import Detection
@@ -141,3 +142,31 @@ def test_nothing_in_range_and_too_few_returns_give_no_objects() -> None:
     two = scan.ranges_m.copy()
     two[400:402] = 3.0
     assert cluster_scan(replace(scan, ranges_m=two), MOUNT, ScanConfig(min_points=3)) == []
+
+
+def test_a_lidar_that_does_not_see_what_the_camera_sees_is_said_to_disagree_until_it_does_again() -> None:
+    """A mount knocked so that the plane passes over the car: the camera's car within reach has no return along its
+    bearing frame after frame; after ten such objects, under a fifth placed, the LiDAR disagrees (and the rules
+    go camera-only); once half again are placed, it agrees. Paint, far things and things a plane misses (a sign)
+    do not count."""
+    from kartpilot.perception.scan import LidarAgreement
+
+    agreement = LidarAgreement(reach_m=10.0)
+    unplaced = Detection("car", (0, 0, 1, 1), 0.9, distance_m=8.0, lateral_m=0.0)
+    placed = Detection("car", (0, 0, 1, 1), 0.9, distance_m=8.0, lateral_m=0.0, source="classical+lidar")
+    ignored = [Detection("stop_line", (0, 0, 1, 1), 0.9, distance_m=5.0, lateral_m=0.0),
+               Detection("car", (0, 0, 1, 1), 0.9, distance_m=15.0, lateral_m=0.0),
+               Detection("speed_sign", (0, 0, 1, 1), 0.9, "10", distance_m=6.0, lateral_m=2.0)]
+    for _ in range(20):
+        assert agreement.update(ignored) == ""
+    for k in range(9):
+        assert agreement.update([unplaced]) == "", k  # not yet ten counted
+    problem = agreement.update([unplaced])
+    assert problem.startswith("disagrees with the camera: 10 of the last 10 objects")
+    for _ in range(5):
+        assert agreement.update([placed]) != ""  # 5 of 15: still under a half
+    for _ in range(5):
+        agreement.update([placed])
+    assert agreement.update([placed]) == ""  # 11 of the last 20 placed
+    with pytest.raises(ConfigError):
+        LidarAgreement(reach_m=10.0, min_share=0.6, recover_share=0.5)

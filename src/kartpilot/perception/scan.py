@@ -28,8 +28,9 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import LaserScan, LidarMount
 from kartpilot.perception.objects import Detection
 
-__all__ = ["STANDING", "LidarView", "ScanCluster", "ScanConfig", "ScanObject", "ScanTracker", "bay_between_barriers",
-           "cluster_scan", "corridor_free_m", "lidar_view", "locate_detections", "scan_points_body", "side_clear"]
+__all__ = ["STANDING", "LidarAgreement", "LidarView", "ScanCluster", "ScanConfig", "ScanObject", "ScanTracker",
+           "bay_between_barriers", "cluster_scan", "corridor_free_m", "lidar_view", "locate_detections",
+           "scan_points_body", "side_clear"]
 
 
 STANDING = ("car", "person", "barrier", "traffic_light", "speed_sign")
@@ -84,6 +85,8 @@ class ScanCluster:
         points: how many returns.
         x_range_m, y_range_m: its points' least and greatest body x and y (where it begins and ends along the
             kart's heading, and beside it).
+        bearings_rad: the bearings, seen from the sensor on the body frame, of its first and last returns (in the
+            sweep's order: counter-clockwise), the angle it takes up.
     """
 
     centre_xy_m: tuple[float, float]
@@ -94,6 +97,7 @@ class ScanCluster:
     points: int
     x_range_m: tuple[float, float] = (math.nan, math.nan)
     y_range_m: tuple[float, float] = (math.nan, math.nan)
+    bearings_rad: tuple[float, float] = (math.nan, math.nan)
 
     @property
     def range_m(self) -> float:
@@ -131,10 +135,11 @@ def cluster_scan(scan: LaserScan, mount: LidarMount, config: ScanConfig = ScanCo
         order = np.roll(np.arange(n), -(int(breaks[0]) + 1))
         cut = np.flatnonzero(gaps[order] > allowed[order]) + 1
         groups = [g for g in np.split(order, cut) if len(g)]
-    return [_cluster(points[g]) for g in groups if len(g) >= config.min_points]
+    sensor = (mount.x_m, mount.y_m)
+    return [_cluster(points[g], sensor) for g in groups if len(g) >= config.min_points]
 
 
-def _cluster(points: NDArray[np.float64]) -> ScanCluster:
+def _cluster(points: NDArray[np.float64], sensor: tuple[float, float] = (0.0, 0.0)) -> ScanCluster:
     centre = points.mean(axis=0)
     spread = points - centre
     if len(points) >= 2 and np.ptp(points, axis=0).max() > 1e-6:
@@ -149,7 +154,9 @@ def _cluster(points: NDArray[np.float64]) -> ScanCluster:
     return ScanCluster((float(middle[0]), float(middle[1])), (float(nearest[0]), float(nearest[1])),
                        float(np.ptp(along_v)), float(np.ptp(across_v)), float(math.atan2(axis[1], axis[0])),
                        len(points), (float(points[:, 0].min()), float(points[:, 0].max())),
-                       (float(points[:, 1].min()), float(points[:, 1].max())))
+                       (float(points[:, 1].min()), float(points[:, 1].max())),
+                       (math.atan2(points[0, 1] - sensor[1], points[0, 0] - sensor[0]),
+                        math.atan2(points[-1, 1] - sensor[1], points[-1, 0] - sensor[0])))
 
 
 @dataclass(frozen=True)
@@ -298,7 +305,14 @@ def locate_detections(detections: list[Detection], clusters: list[ScanCluster], 
     if not clusters:
         return list(detections)
     sensor = np.array([mount.x_m, mount.y_m])
-    bearings = np.array([math.atan2(k.nearest_xy_m[1] - sensor[1], k.nearest_xy_m[0] - sensor[0]) for k in clusters])
+    # each cluster's bearings: its middle and half the angle it takes up (a wide barrier block's returns span more
+    # than the gate; the camera's bearing to it may be to its middle or its near corner)
+    firsts = np.array([k.bearings_rad[0] if math.isfinite(k.bearings_rad[0]) else
+                       math.atan2(k.nearest_xy_m[1] - sensor[1], k.nearest_xy_m[0] - sensor[0]) for k in clusters])
+    lasts = np.array([k.bearings_rad[1] if math.isfinite(k.bearings_rad[1]) else first
+                      for k, first in zip(clusters, firsts, strict=True)])
+    half = np.abs(np.remainder(lasts - firsts + math.pi, math.tau) - math.pi) / 2
+    bearings = firsts + np.remainder(lasts - firsts + math.pi, math.tau) / 2 - math.pi / 2
     ranges = np.array([math.hypot(k.nearest_xy_m[0] - sensor[0], k.nearest_xy_m[1] - sensor[1]) for k in clusters])
     limit = math.radians(config.match_bearing_deg)
     candidates = []
@@ -307,7 +321,7 @@ def locate_detections(detections: list[Detection], clusters: list[ScanCluster], 
             continue
         bearing = math.atan2(d.lateral_m - sensor[1], d.distance_m - sensor[0])
         camera_range = math.hypot(d.distance_m - sensor[0], d.lateral_m - sensor[1])
-        off = np.abs(np.remainder(bearings - bearing + math.pi, math.tau) - math.pi)
+        off = np.maximum(np.abs(np.remainder(bearings - bearing + math.pi, math.tau) - math.pi) - half, 0.0)
         fits = (off <= limit) & (np.abs(ranges - camera_range) <= config.match_range_share * camera_range)
         candidates += [(float(off[j]), i, int(j)) for j in np.flatnonzero(fits)]
     out = list(detections)
@@ -321,3 +335,40 @@ def locate_detections(detections: list[Detection], clusters: list[ScanCluster], 
         x, y = clusters[j].nearest_xy_m
         out[i] = replace(detections[i], distance_m=x, lateral_m=y, source=f"{detections[i].source}+lidar")
     return out
+
+
+class LidarAgreement:
+    """Whether the LiDAR sees what the camera sees: of the last ``window`` things the camera found that a LiDAR's
+    plane meets (a car, a person, a barrier) within ``reach_m``, how many :func:`locate_detections` found a cluster
+    for. A share under ``min_share`` (once ``min_objects`` have been counted) is a LiDAR that disagrees with the
+    cameras (a mount knocked so that its plane passes over or into the ground, a sensor blind on one side): the
+    rules then go on with the cameras alone, and say why, until the share is back over ``recover_share``."""
+
+    KINDS = ("car", "person", "barrier")
+
+    def __init__(self, reach_m: float, window: int = 20, min_objects: int = 10, min_share: float = 0.2,
+                 recover_share: float = 0.5) -> None:
+        if not (reach_m > 0 and window >= min_objects >= 1 and 0 <= min_share < recover_share <= 1):
+            raise ConfigError("lidar agreement: reach_m positive, window >= min_objects >= 1, "
+                              "0 <= min_share < recover_share <= 1")
+        self.reach_m, self.window, self.min_objects = reach_m, window, min_objects
+        self.min_share, self.recover_share = min_share, recover_share
+        self._seen: list[bool] = []
+        self.problem = ""
+
+    def update(self, located: list[Detection]) -> str:
+        """Count this frame's detections (as :func:`locate_detections` returned them); the problem, or ""."""
+        for d in located:
+            if d.label in self.KINDS and math.isfinite(d.distance_m) and 0 < d.distance_m <= self.reach_m:
+                self._seen.append(d.source.endswith("+lidar"))
+        del self._seen[:-self.window]
+        if len(self._seen) < self.min_objects:
+            return self.problem
+        share = sum(self._seen) / len(self._seen)
+        if share < self.min_share:
+            self.problem = (f"disagrees with the camera: {len(self._seen) - sum(self._seen)} of the last "
+                            f"{len(self._seen)} objects it saw within {self.reach_m:g} m have no return along their "
+                            "bearing")
+        elif share >= self.recover_share:
+            self.problem = ""
+        return self.problem

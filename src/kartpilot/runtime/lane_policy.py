@@ -45,7 +45,7 @@ from kartpilot.perception.lanes import (
     lane_on_ground,
 )
 from kartpilot.perception.objects import Detection
-from kartpilot.perception.scan import LidarView, ScanConfig, lidar_view, locate_detections
+from kartpilot.perception.scan import LidarAgreement, LidarView, ScanConfig, lidar_view, locate_detections
 from kartpilot.perception.signals import SignalConfig
 from kartpilot.perception.tape import TapeConfig, TapeObservation, detect_tape_track, draw_tape_track
 from kartpilot.planning.reference_path import ReferencePath
@@ -112,7 +112,9 @@ class LanePolicyConfig:
         scan, lidar_health: on a kart with a LiDAR (the vehicle's or the rig's mount), its sweeps' objects and its
             watchdog: while it gives good sweeps the rules use them (the camera's detections placed by the scan,
             the bay measured, the return held, a stop before what is in the way); once it has given none for
-            ``lidar_health.timeout_s``, the camera-only rules, said in the ``behaviour`` topic.
+            ``lidar_health.timeout_s``, the camera-only rules, said in the ``behaviour`` topic. So too while it
+            disagrees with the camera: most of the cars, people and barriers the camera finds within
+            ``lidar_reach_m`` have no return along their bearing (:class:`~kartpilot.perception.scan.LidarAgreement`).
     """
 
     boundaries: Literal["lines", "tape"] = "lines"
@@ -135,10 +137,13 @@ class LanePolicyConfig:
     handover_m: float = 0.5
     scan: ScanConfig = field(default_factory=ScanConfig)
     lidar_health: LidarHealthConfig = field(default_factory=LidarHealthConfig)
+    lidar_reach_m: float = 10.0
 
     def __post_init__(self) -> None:
         if not self.wheelbase_m > 0:
             raise ConfigError("lane_policy.wheelbase_m must be positive")
+        if not self.lidar_reach_m > 0:
+            raise ConfigError("lane_policy.lidar_reach_m must be positive")
         if not self.speed_mps >= 0:
             raise ConfigError("lane_policy.speed_mps must be 0 (open loop) or positive")
         if self.events and self.speed_mps <= 0:
@@ -248,23 +253,28 @@ class LanePolicy:
         self.lane_ground: tuple[int, tuple[float, float]] | None = None
         self.lidar_mount = lidar_mount
         self.lidar_watchdog = LidarWatchdog(["lidar"], self.config.lidar_health) if lidar_mount is not None else None
+        self.lidar_agreement = LidarAgreement(self.config.lidar_reach_m) if lidar_mount is not None else None
         self.lidar: LidarView | None = None  # the latest good sweep's view, while the LiDAR is healthy
         self.lidar_problem = ""  # why the rules are camera-only, while they are
         self.lidar_events: list[tuple[int, str]] = []  # (stamp, problem or "" when it recovered), each change
 
-    def _lidar_view(self, frames: FrameSet) -> LidarView | None:
-        """The latest good sweep's view while the LiDAR is healthy; None (camera-only) without one."""
-        if self.lidar_watchdog is None or self.lidar_mount is None:
-            return None
-        problems = self.lidar_watchdog.check(frames)
+    def _with_lidar(self, frames: FrameSet, detections: list[Detection]) -> tuple[LidarView | None, list[Detection]]:
+        """The latest good sweep's view while the LiDAR is healthy and agrees with the camera, and the camera's
+        detections placed by it; (None, the detections as they were) otherwise: camera-only."""
+        if self.lidar_watchdog is None or self.lidar_mount is None or self.lidar_agreement is None:
+            return None, detections
+        problem = self.lidar_watchdog.check(frames).get("lidar", "")
         scan = frames.scans.get("lidar")
         if scan is not None and not self.lidar_watchdog.sweep_problems["lidar"]:  # this sweep is a good one
             self.lidar = lidar_view(scan, self.lidar_mount, self.config.scan)
-        problem = problems.get("lidar", "")
+        located = detections
+        if not problem and self.lidar is not None:  # the camera says what it is, the scan where
+            located = locate_detections(detections, list(self.lidar.clusters), self.lidar_mount, self.config.scan)
+            problem = self.lidar_agreement.update(located)
         if bool(problem) != bool(self.lidar_problem):  # lost, or back: once each (the text counts up meanwhile)
             self.lidar_events.append((frames.stamp_ns, problem))
         self.lidar_problem = problem
-        return None if problem else self.lidar
+        return (None, detections) if problem else (self.lidar, located)
 
     def observe_vehicle(self, feedback: VehicleFeedback) -> None:
         """The kart's own measurements before a step; a fresh speed closes the speed loop (``speed_mps``)."""
@@ -289,11 +299,8 @@ class LanePolicy:
             lane = lane_on_ground(observation, self.centre_camera)
             if lane is not None:  # where the lane runs, for a manoeuvre that starts in a frame that lacks it
                 self.lane_ground = (frames.stamp_ns, lane)
-            self.last_objects = self.objects(centre_image) if centre_image is not None else []
-            view = self._lidar_view(frames)
-            if view is not None and self.lidar_mount is not None:  # the camera says what it is, the scan where
-                self.last_objects = locate_detections(self.last_objects, list(view.clusters), self.lidar_mount,
-                                                      self.config.scan)
+            found = self.objects(centre_image) if centre_image is not None else []
+            view, self.last_objects = self._with_lidar(frames, found)
             self.last_behaviour, self.behaviour = behaviour_step(
                 self.config.behaviour, self.behaviour, self.last_objects, self.measured_speed_mps or 0.0, self.dt_s,
                 view)
