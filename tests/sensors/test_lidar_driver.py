@@ -180,3 +180,19 @@ def test_a_device_given_on_the_command_line_is_not_taken_for_a_file(capsys) -> N
     assert "not a regular file" not in err and "kartpilot: error: LiDAR on /dev/null" in err
     main(["drive", "--live", "/nonexistent-rig.yaml", "--gamepad", "/dev/null"])
     assert "not a regular file" not in capsys.readouterr().err
+
+
+def test_a_device_that_never_answers_is_one_clear_error_within_the_timeout(tmp_path) -> None:
+    """A pty with nothing behind it (a cable to a sensor without power): the first question times out, and the
+    error names the port; nothing is left open."""
+    import os
+
+    master, slave = os.openpty()
+    try:
+        scanner = RplidarScanner(RplidarConfig(port=os.ttyname(slave), timeout_s=0.2))
+        with pytest.raises(SensorError, match=rf"LiDAR on {os.ttyname(slave)}: .*(no data|Descriptor)"):
+            scanner.start()
+        assert not scanner.running
+    finally:
+        os.close(master)
+        os.close(slave)

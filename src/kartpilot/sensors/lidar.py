@@ -192,7 +192,7 @@ class RplidarScanner:
             self._device.clean_input()
             self.info = self._device.get_info()
             self.health = self._device.get_health()
-        except RPLidarException as exc:
+        except (RPLidarException, SensorError) as exc:  # the library's, or no answer within the timeout
             self.close()
             raise SensorError(f"{where}: {exc}") from None
         except (OSError, ValueError, KeyError, IndexError) as exc:
