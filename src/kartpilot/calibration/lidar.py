@@ -29,7 +29,7 @@ from scipy.optimize import least_squares
 
 from kartpilot.calibration.board import BoardConfig
 from kartpilot.core.errors import CalibrationError
-from kartpilot.core.geometry import Array
+from kartpilot.core.geometry import Array, transform_points_2d
 from kartpilot.core.types import LidarMount
 
 __all__ = ["BoardSighting", "LidarFit", "board_extent_m", "board_segment_body", "fit_lidar_mount"]
@@ -104,11 +104,6 @@ class LidarFit:
         return out
 
 
-def _to_body(points: Array, x: float, y: float, yaw: float) -> Array:
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.column_stack([x + c * points[:, 0] - s * points[:, 1], y + s * points[:, 0] + c * points[:, 1]])
-
-
 def _near_segment(points: Array, segment: Array, gate_m: float) -> Array:
     a, b = segment
     edge = b - a
@@ -123,7 +118,8 @@ def _normal(segment: Array) -> Array:
 
 def _residuals(params: Array, taken: list[tuple[Array, Array]]) -> Array:
     """Each return's signed distance, on the body frame, to its board's line, the LiDAR at ``params``."""
-    return np.concatenate([(_to_body(points, *params) - segment[0]) @ _normal(segment) for points, segment in taken])
+    return np.concatenate([(transform_points_2d(points, *params) - segment[0]) @ _normal(segment)
+                           for points, segment in taken])
 
 
 def fit_lidar_mount(sightings: Sequence[BoardSighting], initial: LidarMount, min_points: int = 5) -> LidarFit:
@@ -142,7 +138,7 @@ def fit_lidar_mount(sightings: Sequence[BoardSighting], initial: LidarMount, min
     x = np.array([initial.x_m, initial.y_m, initial.yaw_rad])
     chosen: list[Array] = []
     for gate in GATES_M:
-        chosen = [_near_segment(_to_body(s.points_lidar_m, *x), s.segment_body_m, gate) for s in sightings]
+        chosen = [_near_segment(transform_points_2d(s.points_lidar_m, *x), s.segment_body_m, gate) for s in sightings]
         used = [k for k, keep in enumerate(chosen) if int(keep.sum()) >= min_points]
         used_turn = max((min(abs(headings[a] - headings[b]), 180.0 - abs(headings[a] - headings[b]))
                          for a in used for b in used), default=0.0)
@@ -157,7 +153,7 @@ def fit_lidar_mount(sightings: Sequence[BoardSighting], initial: LidarMount, min
     everything = []
     for k, sighting in enumerate(sightings):
         keep = chosen[k]
-        points = _to_body(sighting.points_lidar_m[keep], *x)
+        points = transform_points_2d(sighting.points_lidar_m[keep], *x)
         distance = (points - sighting.segment_body_m[0]) @ _normal(sighting.segment_body_m)
         everything.append(distance)
         rms = float(np.sqrt(np.mean(distance ** 2))) if len(distance) else math.nan

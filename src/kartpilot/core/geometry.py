@@ -165,6 +165,13 @@ def planar_pose(x_m: float, y_m: float, yaw_rad: float) -> Array:
     return pose
 
 
+def transform_points_2d(points: Array, x_m: float, y_m: float, yaw_rad: float) -> NDArray[np.float64]:
+    """(M, 2) points in a frame at planar pose ``x_m, y_m, yaw_rad``, in the frame that pose is given in."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    return np.column_stack([x_m + c * points[:, 0] - s * points[:, 1], y_m + s * points[:, 0] + c * points[:, 1]])
+
+
 def arc_2d(speed_mps: float, yaw_rate_radps: float, dt_s: float) -> tuple[float, float, float]:
     """The planar motion ``(dx, dy, dyaw)``, in the frame it starts from, of ``dt_s`` at a constant speed along x
     and a constant yaw rate: an arc integrated exactly, a line when the yaw rate is 0 (negative ``dt_s``: the

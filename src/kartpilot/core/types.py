@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kartpilot.core.errors import ConfigError
+from kartpilot.core.geometry import Array, planar_pose, transform_points_2d
 
 __all__ = [
     "ActuatorCommand",
@@ -177,20 +178,15 @@ class LidarMount:
             raise ConfigError(f"a LiDAR mount at x {self.x_m}, y {self.y_m}, z {self.z_m} m, yaw {self.yaw_rad} rad: "
                              "finite, within 10 m of the rear axle, its plane above the road and at most 3 m up")
 
-    def pose_body_lidar(self) -> NDArray[np.float64]:
+    def pose_body_lidar(self) -> Array:
         """The sensor's 4x4 pose on the body (its frame as ROS's laser frames are: x ahead, y left, z up)."""
-        c, s = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
-        pose = np.eye(4)
-        pose[:2, :2] = [[c, -s], [s, c]]
-        pose[:3, 3] = self.x_m, self.y_m, self.z_m
+        pose = planar_pose(self.x_m, self.y_m, self.yaw_rad)
+        pose[2, 3] = self.z_m
         return pose
 
     def to_body(self, points_m: NDArray[np.float64]) -> NDArray[np.float64]:
         """(M, 2) points in the sensor's frame as x, y on the kart's body."""
-        c, s = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
-        points = np.asarray(points_m, np.float64).reshape(-1, 2)
-        return np.column_stack([self.x_m + c * points[:, 0] - s * points[:, 1],
-                                self.y_m + s * points[:, 0] + c * points[:, 1]])
+        return transform_points_2d(points_m, self.x_m, self.y_m, self.yaw_rad)
 
 
 @dataclass(frozen=True)

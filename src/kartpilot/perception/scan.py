@@ -99,14 +99,6 @@ class ScanCluster:
     y_range_m: tuple[float, float] = (math.nan, math.nan)
     bearings_rad: tuple[float, float] = (math.nan, math.nan)
 
-    @property
-    def range_m(self) -> float:
-        return math.hypot(*self.nearest_xy_m)
-
-    @property
-    def bearing_rad(self) -> float:
-        return math.atan2(self.centre_xy_m[1], self.centre_xy_m[0])
-
 
 def scan_points_body(scan: LaserScan, mount: LidarMount) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """(points (M, 2) in the body frame, their ranges (M,)) of the beams with a return, in beam order."""
