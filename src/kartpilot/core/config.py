@@ -23,7 +23,7 @@ import dataclasses
 import math
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -86,6 +86,15 @@ def merge_config(default: T, overrides: Mapping[str, Any] | None, where: str = "
         return dataclasses.replace(default, **changes)
     except (ValueError, TypeError) as exc:
         raise ConfigError(f"config '{where or '<root>'}': {exc}") from exc
+
+
+def check_values(section: str, config: Any, checks: Iterable[tuple[str, bool, str]]) -> None:
+    """A config's own checks of its numbers, each ``(field, it holds, what it must be)``: the first that fails, or
+    whose value is not finite, is an error naming ``section.field``, its value and what it must be."""
+    for name, ok, allowed in checks:
+        value = getattr(config, name)
+        if not (ok and math.isfinite(float(value))):
+            raise ConfigError(f"{section}.{name} {value}: must be {allowed}")
 
 
 def config_to_dict(config: Any) -> dict[str, Any]:

@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from kartpilot.core.config import check_values
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import LaserScan, LidarMount
 from kartpilot.perception.objects import Detection
@@ -62,14 +63,14 @@ class ScanConfig:
     match_range_share: float = 0.5
 
     def __post_init__(self) -> None:
-        checks = (("gap_m", self.gap_m > 0), ("gap_beams", self.gap_beams >= 0), ("min_points", self.min_points >= 1),
-                  ("track_gate_m", self.track_gate_m > 0), ("track_lost_s", self.track_lost_s > 0),
-                  ("velocity_smoothing", 0 < self.velocity_smoothing <= 1),
-                  ("match_bearing_deg", 0 < self.match_bearing_deg <= 45),
-                  ("match_range_share", 0 < self.match_range_share <= 1))
-        for name, ok in checks:
-            if not (ok and math.isfinite(float(getattr(self, name)))):
-                raise ConfigError(f"scan.{name} {getattr(self, name)}: out of range")
+        check_values("scan", self, (("gap_m", self.gap_m > 0, "positive"),
+                                    ("gap_beams", self.gap_beams >= 0, "0 or more"),
+                                    ("min_points", self.min_points >= 1, "1 or more"),
+                                    ("track_gate_m", self.track_gate_m > 0, "positive"),
+                                    ("track_lost_s", self.track_lost_s > 0, "positive"),
+                                    ("velocity_smoothing", 0 < self.velocity_smoothing <= 1, "above 0, at most 1"),
+                                    ("match_bearing_deg", 0 < self.match_bearing_deg <= 45, "above 0, at most 45"),
+                                    ("match_range_share", 0 < self.match_range_share <= 1, "above 0, at most 1")))
 
 
 @dataclass(frozen=True)

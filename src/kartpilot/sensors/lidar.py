@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from kartpilot.core.config import check_values
 from kartpilot.core.errors import ConfigError, SensorError
 from kartpilot.core.types import FrameSet, FrameSource, LaserScan
 
@@ -74,14 +75,11 @@ class RplidarConfig:
             raise ConfigError(f"lidar.scan_mode {self.scan_mode!r}: normal or express")
         if not 0 <= self.motor_pwm <= 1023:
             raise ConfigError(f"lidar.motor_pwm {self.motor_pwm}: 0 to 1023")
-        checks = (("step_deg", 0.1 <= self.step_deg <= 10, "0.1 to 10"),
-                  ("range_min_m", 0 <= self.range_min_m < self.range_max_m, "0 up to range_max_m"),
-                  ("range_max_m", self.range_max_m <= 100, "at most 100"),
-                  ("max_resyncs", self.max_resyncs >= 0, "not negative"),
-                  ("timeout_s", 0 < self.timeout_s <= 10, "above 0, at most 10"))
-        for name, ok, allowed in checks:
-            if not (ok and math.isfinite(float(getattr(self, name)))):
-                raise ConfigError(f"lidar.{name} {getattr(self, name)}: must be {allowed}")
+        check_values("lidar", self, (("step_deg", 0.1 <= self.step_deg <= 10, "0.1 to 10"),
+                                     ("range_min_m", 0 <= self.range_min_m < self.range_max_m, "0 up to range_max_m"),
+                                     ("range_max_m", self.range_max_m <= 100, "at most 100"),
+                                     ("max_resyncs", self.max_resyncs >= 0, "not negative"),
+                                     ("timeout_s", 0 < self.timeout_s <= 10, "above 0, at most 10")))
 
 
 def sweep_from_measures(measures: Sequence[tuple[float, float, float]], stamp_ns: int, scan_time_s: float,

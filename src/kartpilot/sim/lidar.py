@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from kartpilot.core.config import check_values
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import LaserScan, LidarMount
 from kartpilot.sim.track import PROP_SIZES_M, Track
@@ -60,15 +61,12 @@ class LidarConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        checks = (("rate_hz", 1.0 <= self.rate_hz <= 50.0, "1 to 50"),
-                  ("step_deg", 0.05 <= self.step_deg <= 5.0, "0.05 to 5"),
-                  ("range_min_m", 0.0 <= self.range_min_m < self.range_max_m, "0 up to range_max_m"),
-                  ("range_max_m", self.range_max_m <= 100.0, "at most 100"),
-                  ("noise_m", 0.0 <= self.noise_m <= 0.5, "0 to 0.5"),
-                  ("noise_share", 0.0 <= self.noise_share <= 0.2, "0 to 0.2"))
-        for name, ok, allowed in checks:
-            if not (ok and math.isfinite(float(getattr(self, name)))):
-                raise ConfigError(f"lidar.{name} {getattr(self, name)}: must be {allowed}")
+        check_values("lidar", self, (("rate_hz", 1.0 <= self.rate_hz <= 50.0, "1 to 50"),
+                                     ("step_deg", 0.05 <= self.step_deg <= 5.0, "0.05 to 5"),
+                                     ("range_min_m", 0.0 <= self.range_min_m < self.range_max_m, "0 up to range_max_m"),
+                                     ("range_max_m", self.range_max_m <= 100.0, "at most 100"),
+                                     ("noise_m", 0.0 <= self.noise_m <= 0.5, "0 to 0.5"),
+                                     ("noise_share", 0.0 <= self.noise_share <= 0.2, "0 to 0.2")))
         for kind, share in self.dropout.items():
             if kind not in KINDS or not 0.0 <= share < 1.0:
                 raise ConfigError(f"lidar.dropout.{kind} {share}: a kind of {', '.join(KINDS)} and a share in [0, 1)")
