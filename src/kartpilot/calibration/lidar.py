@@ -122,6 +122,11 @@ def _residuals(params: Array, taken: list[tuple[Array, Array]]) -> Array:
                            for points, segment in taken])
 
 
+def _widest_turn_deg(headings_deg: Sequence[float]) -> float:
+    """The largest angle between two of the boards' lines (headings in degrees, a line's modulo 180)."""
+    return max((min(abs(a - b), 180.0 - abs(a - b)) for a in headings_deg for b in headings_deg), default=0.0)
+
+
 def fit_lidar_mount(sightings: Sequence[BoardSighting], initial: LidarMount, min_points: int = 5) -> LidarFit:
     """The LiDAR's mount that puts its returns on the camera's boards (module docstring). ``initial``: the mount
     measured by hand (its height is kept)."""
@@ -130,7 +135,7 @@ def fit_lidar_mount(sightings: Sequence[BoardSighting], initial: LidarMount, min
                                f"at least {MIN_TURN_DEG:g} deg from each other")
     headings = [math.degrees(math.atan2(*(s.segment_body_m[1] - s.segment_body_m[0])[::-1])) % 180.0
                 for s in sightings]
-    turn = max(min(abs(a - b), 180.0 - abs(a - b)) for a in headings for b in headings)
+    turn = _widest_turn_deg(headings)
     if turn < MIN_TURN_DEG:
         raise CalibrationError(f"the board faced the same way at every place (its turns differ by {turn:.1f} deg at "
                                f"most): turn it by {MIN_TURN_DEG:g} deg or more between places, or the LiDAR's turn "
@@ -140,9 +145,7 @@ def fit_lidar_mount(sightings: Sequence[BoardSighting], initial: LidarMount, min
     for gate in GATES_M:
         chosen = [_near_segment(transform_points_2d(s.points_lidar_m, *x), s.segment_body_m, gate) for s in sightings]
         used = [k for k, keep in enumerate(chosen) if int(keep.sum()) >= min_points]
-        used_turn = max((min(abs(headings[a] - headings[b]), 180.0 - abs(headings[a] - headings[b]))
-                         for a in used for b in used), default=0.0)
-        if len(used) < 2 or used_turn < MIN_TURN_DEG:
+        if len(used) < 2 or _widest_turn_deg([headings[k] for k in used]) < MIN_TURN_DEG:
             raise CalibrationError(f"the LiDAR's returns lie on the camera's boards at {len(used)} place(s) within "
                                    f"{gate * 100:.0f} cm of the hand-measured mount; is the rig's lidar mount within "
                                    "a few decimetres and a few degrees, and does the scan plane cross the board?")

@@ -126,7 +126,7 @@ class RerunView:
 
     def write_frames(self, frames: FrameSet) -> None:
         for name, scan in frames.scans.items():  # every sweep, whatever happens to the images
-            self._queue(("scan", scan.stamp_ns, (name, scan.points_m())))
+            self._queue(("scan", scan.stamp_ns, (name, scan)))
         self._sets += 1
         if (self._sets - 1) % self.config.image_every:
             return
@@ -236,7 +236,8 @@ class RerunView:
             elif kind == "can":
                 self._log_can(stamp_ns, *item)
             elif kind == "scan":  # a top view: the sensor's front up, its left to the left
-                name, points = item
+                name, scan = item
+                points = scan.points_m()
                 self.stream.log(f"lidar/{name}", rr.Points2D(np.column_stack([-points[:, 1], -points[:, 0]]),
                                                              colors=[(255, 80, 80)], radii=0.03))
 
