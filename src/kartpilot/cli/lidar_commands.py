@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 from kartpilot.core.errors import RecordingError
@@ -29,7 +30,7 @@ def lidar_monitor(args: argparse.Namespace) -> int:
         for name, summary in summaries.items():
             print(f"{name}: {summary.line()}")
         if args.json:
-            write_json_atomic(Path(args.json), {name: s.__dict__ for name, s in summaries.items()})
+            write_json_atomic(Path(args.json), {name: asdict(s) for name, s in summaries.items()})
         return 0
     config = RplidarConfig(port=args.port, baudrate=args.baudrate)
     with RplidarScanner(config).start() as scanner:
@@ -52,7 +53,7 @@ def lidar_monitor(args: argparse.Namespace) -> int:
         except KeyboardInterrupt:
             pass
         if args.json:
-            write_json_atomic(Path(args.json), {"lidar": summary.__dict__, "error": scanner.error})
+            write_json_atomic(Path(args.json), {"lidar": asdict(summary), "error": scanner.error})
         if scanner.error:
             print(f"kartpilot: error: {scanner.error}", file=sys.stderr)
             return 1

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from typing import Any
 
 import numpy as np
@@ -54,7 +55,7 @@ def recording_info(reader: RecordingReader) -> dict[str, Any]:
         "commands": {"count": len(commands)},
         "outputs": {topic: len(reader.outputs(topic)) for topic in reader.output_topics()},
         "can_frames": len(reader.can_frames()),
-        "lidars": {name: {**summarise_sweeps(reader.scans(name)).__dict__, "mount": mount.__dict__}
+        "lidars": {name: {**asdict(summarise_sweeps(reader.scans(name))), "mount": asdict(mount)}
                    for name, mount in reader.lidars.items()},
         "dropped_lines": int(reader.manifest.get("dropped_lines", 0) or 0),
         "metadata": reader.manifest.get("metadata", {}),

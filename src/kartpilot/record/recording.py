@@ -34,6 +34,7 @@ import re
 import threading
 import time
 from collections.abc import Iterator, Mapping
+from dataclasses import asdict
 from pathlib import Path
 from typing import IO, Any
 
@@ -189,7 +190,7 @@ class RecordingWriter:
             "command_count": self.command_count,
             "output_counts": self.output_counts,
             "can_count": self.can_count,
-            "lidars": {name: _mount_to_dict(mount) for name, mount in self.lidars.items()},
+            "lidars": {name: asdict(mount) for name, mount in self.lidars.items()},
             "scan_counts": self.scan_counts,
             "has_groundtruth": (self.folder / "groundtruth.tum").is_file(),
             "image_format": self.image_format,
@@ -364,10 +365,6 @@ class RecordingWriter:
             handle.close()
         self._closed = True
         self._write_manifest(closed=True)
-
-
-def _mount_to_dict(mount: LidarMount) -> dict[str, float]:
-    return {"x_m": mount.x_m, "y_m": mount.y_m, "z_m": mount.z_m, "yaw_rad": mount.yaw_rad}
 
 
 def mount_from_dict(name: str, data: Any, where: str) -> LidarMount:

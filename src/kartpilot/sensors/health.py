@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from kartpilot.core.config import check_values
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import FrameSet, Image, LaserScan
 
@@ -112,8 +113,8 @@ class LidarHealthConfig:
     min_returns: int = 0
 
     def __post_init__(self) -> None:
-        if not self.timeout_s > 0 or self.min_returns < 0:
-            raise ConfigError("lidar_health.timeout_s must be positive and min_returns not negative")
+        check_values("lidar_health", self, (("timeout_s", self.timeout_s > 0, "positive"),
+                                            ("min_returns", self.min_returns >= 0, "0 or more")))
 
 
 def scan_problem(scan: LaserScan, previous: LaserScan | None, config: LidarHealthConfig) -> str:
