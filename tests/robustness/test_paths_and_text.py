@@ -129,3 +129,22 @@ def test_an_option_is_an_output_or_an_input_by_its_own_command(photos, capsys):
     video.write_bytes(b"not really a video")
     _refused(capsys, ["calibrate", "mono", "--video", str(video), "--out", str(video)], "also an input (--video)")
     assert video.read_bytes() == b"not really a video"
+
+
+def test_a_yaml_cut_off_is_one_line_saying_where_and_a_folder_given_for_a_file_is_named_a_folder(tmp_path, capsys):
+    """PyYAML's error is an excerpt of the file over several lines; a command's error is one. And a folder given
+    where a rig or a config file is wanted was answered "not found" for a path that exists."""
+    from kartpilot.cli.main import main
+
+    cut = tmp_path / "cut.yaml"
+    cut.write_text("cameras:\n  center: {width_px: 640")
+    (tmp_path / "folder").mkdir()
+    for argv, said in ((["sim", "--track", "straight20", "--config", str(cut)], "at line 2, column 25"),
+                       (["lidar", "monitor", "--recording", str(tmp_path / "folder")], "not a kartpilot recording"),
+                       (["sim", "--track", "straight20", "--config", str(tmp_path / "folder")], "is a folder"),
+                       (["calibrate", "lidar", str(tmp_path), "--rig", str(tmp_path / "folder"), "--board", "7x5",
+                         "--out", str(tmp_path / "out.yaml")], "is a folder")):
+        assert main(argv) == 1
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and said in err, err
+    assert not (tmp_path / "out.yaml").exists()

@@ -157,7 +157,7 @@ def _capture_from_yaml(name: str, data: Any, source: Path) -> CaptureSettings:
 def load_rig(path: str | Path) -> Rig:
     """Read and check a rig file."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():  # a folder or a pipe is said by the text reader's own check
         raise CalibrationError(f"{path}: no such rig file")
     try:
         data = parse_yaml(read_text_file(path), path)

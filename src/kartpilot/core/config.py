@@ -42,7 +42,7 @@ INT_LIMIT = 2**31 - 1
 def load_yaml_mapping(path: str | Path) -> dict[str, Any]:
     """Read a YAML file whose top level is a mapping (an empty file gives ``{}``)."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():  # a folder or a pipe is said by the text reader's own check
         raise ConfigError(f"config file not found: {path}")
     try:
         data = parse_yaml(read_text_file(path), path)

@@ -180,13 +180,16 @@ def check_readable(path: Path, most_bytes: int | None = None, what: str = "file"
 def parse_yaml(text: str, source: str | Path) -> Any:
     """YAML text as Python values, as ``yaml.safe_load`` reads it, except that a document whose aliases expand to
     more than :data:`YAML_MAX_VALUES` values, or that nests too deeply to read, raises DataError naming
-    ``source``; a syntax error raises ``yaml.YAMLError`` as before."""
+    ``source``; a syntax error raises ``yaml.YAMLError`` as before, its message one line (what is wrong, and
+    where: a person's terminal and a command's one-line error, not PyYAML's excerpt of the file)."""
     loader = yaml.SafeLoader(text)
     try:
         try:
             node = loader.get_single_node()
         except RecursionError:
             raise DataError(f"{source}: nested too deeply to read") from None
+        except yaml.MarkedYAMLError as exc:
+            raise yaml.YAMLError(_yaml_error_line(exc)) from None
         if node is None:
             return None
         if _expanded_size(node) > YAML_MAX_VALUES:
@@ -198,6 +201,14 @@ def parse_yaml(text: str, source: str | Path) -> Any:
             raise DataError(f"{source}: nested too deeply to read") from None
     finally:
         loader.dispose()
+
+
+def _yaml_error_line(exc: yaml.MarkedYAMLError) -> str:
+    """PyYAML's error as one line: the problem, where it is, and what it was reading."""
+    mark = exc.problem_mark or exc.context_mark
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    context = f" ({exc.context})" if exc.context else ""
+    return f"{exc.problem or 'not YAML'}{where}{context}"
 
 
 def _expanded_size(root: yaml.Node) -> int:

@@ -35,7 +35,7 @@ __all__ = ["EurocSource", "read_euroc_camera"]
 
 
 def _load_opencv_yaml(path: Path) -> dict[str, Any]:
-    if not path.is_file():
+    if not path.exists():  # a folder or a pipe is said by the text reader's own check
         raise CalibrationError(f"camera calibration not found: {path}")
     text = "\n".join(line for line in read_text_file(path).splitlines() if not line.startswith("%YAML"))
     try:
