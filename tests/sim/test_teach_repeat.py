@@ -12,7 +12,7 @@ from kartpilot.runtime.experiment import THESIS_END_ERROR_M, TeachRepeatConfig, 
 @pytest.mark.slow
 def test_teach_repeat_on_straight20_ends_where_the_teach_drive_ended(tmp_path):
     result = run_teach_repeat(TeachRepeatConfig(track="straight20", speed_mps=0.62, seed=1, camera_rate_hz=12.5),
-                              tmp_path, video=False)
+                              tmp_path, video=False, keep_teach=False)
     print(f"straight20 at 0.62 m/s: end point {result['end_error_along_m']:+.3f} m along, "
           f"{result['end_error_across_m']:+.3f} m across (thesis {THESIS_END_ERROR_M} m); "
           f"max {result['max_distance_from_taught_path_m']:.3f} m from the taught path; "
@@ -27,3 +27,4 @@ def test_teach_repeat_on_straight20_ends_where_the_teach_drive_ended(tmp_path):
     assert json.loads((tmp_path / "result.json").read_text())["end_error_along_m"] == result["end_error_along_m"]
     for name in ("path.png", "steering.png", "reference.csv", "reference.map.npz", "drive_log.csv"):
         assert (tmp_path / name).stat().st_size > 0, name
+    assert not (tmp_path / "teach").exists()  # the reference came from the teach drive's frames as they came

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kartpilot.core.camera import StereoRig
 from kartpilot.core.errors import DataError
 from kartpilot.core.geometry import Array, invert_pose, planar_pose, vo_ground_pose
 from kartpilot.core.trajectory import Trajectory
@@ -19,7 +20,8 @@ from kartpilot.odometry.visual_map import MapBuilder, MapConfig, VisualMap, vo_f
 from kartpilot.odometry.vo import VisualOdometry, VOStep
 from kartpilot.sensors.base import StereoSource
 
-__all__ = ["LocalizedRun", "VORun", "bridge_unreadable", "run_mono_localizer", "run_teach", "run_vo"]
+__all__ = ["LocalizedRun", "VORun", "bridge_unreadable", "run_mono_localizer", "run_teach", "run_vo",
+           "teach_over"]
 
 
 @dataclass(frozen=True)
@@ -119,8 +121,15 @@ def bridge_unreadable(read: Trajectory, read_indices: Sequence[int], all_indices
 def run_teach(source: StereoSource, pose_body_cam: Array, config: StereoVOConfig | None = None,
               map_config: MapConfig | None = None) -> tuple[VORun, VisualMap]:
     """VO over a taught drive, keeping keyframes for a visual map as it goes."""
+    return teach_over(source.frame_sets(), source.rig, source.name, pose_body_cam, config, map_config)
+
+
+def teach_over(frames: Iterable[FrameSet | int], rig: StereoRig, name: str, pose_body_cam: Array,
+               config: StereoVOConfig | None = None, map_config: MapConfig | None = None) -> tuple[VORun, VisualMap]:
+    """:func:`run_teach` over rectified stereo frame sets (cameras ``left`` and ``right``) as they come, from a
+    source or from a drive as it is driven."""
     builder = MapBuilder(map_config)
-    vo = StereoVO(source.rig, vo_for_map(config, builder.config.keyframe_spacing_m))
+    vo = StereoVO(rig, vo_for_map(config, builder.config.keyframe_spacing_m))
 
     def keep(estimate: VOStep) -> None:
         latest = vo.last_features()
@@ -128,7 +137,7 @@ def run_teach(source: StereoSource, pose_body_cam: Array, config: StereoVOConfig
             ground = np.array(vo_ground_pose(estimate.pose_world_cam, pose_body_cam))
             builder.add(estimate.pose_world_cam, ground, *latest)
 
-    run = run_vo(source.frame_sets(), vo, source.name, on_frame=keep)
+    run = run_vo(frames, vo, name, on_frame=keep)
     return run, builder.build()
 
 

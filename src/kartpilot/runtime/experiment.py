@@ -1,9 +1,9 @@
 """The thesis's autonomous-run experiment in one call, in the simulator.
 
-1. **Teach**: the ``centerline`` driver drives the track once while every stereo pair
-   is recorded (the thesis's manual drive).
-2. **Reference**: stereo VO runs over the recording; its trajectory becomes the
-   reference path (resampled, smoothed, with a speed profile), saved as CSV.
+1. **Teach**: the ``centerline`` driver drives the track once (the thesis's manual drive),
+   recorded unless asked not to.
+2. **Reference**: stereo VO runs over the teach drive's stereo pairs as they are drawn; its
+   trajectory becomes the reference path (resampled, smoothed, with a speed profile), saved as CSV.
 3. **Repeat**: the kart starts again from the same place and follows the reference
    with the live stereo-VO pipeline and the path follower, until it stops at the end.
 4. **Score**: the referee's verdict, the end point against the teach drive's end point
@@ -17,7 +17,10 @@ from __future__ import annotations
 
 import logging
 import math
+import queue
 import shutil
+import threading
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
@@ -27,17 +30,19 @@ from scipy.spatial import cKDTree
 
 from kartpilot.control.path_follow import BiasConfig, PathFollowConfig, steer_bias_of_drive
 from kartpilot.control.stanley import StanleyConfig
+from kartpilot.core.camera import StereoRig
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.files import write_json_atomic
 from kartpilot.core.geometry import Array, ground_poses
+from kartpilot.core.types import ActuatorCommand, FrameSet
 from kartpilot.core.vehicle import VehicleParams, get_vehicle
 from kartpilot.eval.plots import plot_path_following, plot_steering
-from kartpilot.odometry.run import run_teach
+from kartpilot.odometry.run import VORun, teach_over
 from kartpilot.odometry.stereo_vo import StereoVOConfig
-from kartpilot.odometry.visual_map import map_path_for
+from kartpilot.odometry.visual_map import MapConfig, VisualMap, map_path_for
 from kartpilot.planning.reference_path import PathConfig, ReferencePath, build_reference_path, save_reference_path
-from kartpilot.record.recording import RecordingReader, RecordingStereoSource
 from kartpilot.runtime.config import StackConfig
+from kartpilot.runtime.loop import Outputs
 from kartpilot.runtime.path_policy import DriveConfig
 from kartpilot.runtime.pipelines import Route
 from kartpilot.runtime.session import SessionOutputs
@@ -120,8 +125,9 @@ def path_distance(reference_xy: Array, run_xy: Array, spacing_m: float = 0.02) -
 def run_teach_repeat(config: TeachRepeatConfig, out: str | Path, progress: bool = False, video: bool = True,
                      keep_teach: bool = True) -> dict[str, object]:
     """Teach, build the reference, repeat, score; write ``out/result.json`` and the plots. Returns the result.
-    ``keep_teach=False`` removes the teach drive's recording (its lossless frames: most of the output's size) once
-    the reference and the visual map are built from it."""
+    ``keep_teach=False`` does not record the teach drive (its lossless frames would be most of the output's size,
+    and most of the teach drive's time): the reference and the visual map are built from its frames as they come
+    either way."""
     out = Path(out)
     vehicle = get_vehicle("rc-kart")
     pair = vehicle.stereo_pair
@@ -134,18 +140,25 @@ def run_teach_repeat(config: TeachRepeatConfig, out: str | Path, progress: bool 
     teach_dir = out / "teach"
     if teach_dir.exists():
         shutil.rmtree(teach_dir)
-    print(f"1/3 teach: the centerline driver drives {config.track} at {config.speed_mps} m/s, recording")
-    teach = run_simulation(replace(sim, referee=replace(sim.referee, run_on_m=0.5)), "centerline",
-                           CenterlineDriverConfig(speed_mps=config.speed_mps),
-                           outputs=SessionOutputs(record_dir=teach_dir, progress=progress))
+    print(f"1/3 teach: the centerline driver drives {config.track} at {config.speed_mps} m/s"
+          + (", recording" if keep_teach else ""))
+    print("2/3 reference: stereo VO over the teach drive's frames as they come"
+          + (", keeping a visual map" if config.use_map and config.controller == "tuned" else ""))
+    tap = _TeachTap(pair, vehicle.stereo_rig(), body_cam, config.vo, config.drive.map)
+    try:
+        teach = run_simulation(replace(sim, referee=replace(sim.referee, run_on_m=0.5)), "centerline",
+                               CenterlineDriverConfig(speed_mps=config.speed_mps),
+                               outputs=SessionOutputs(record_dir=teach_dir if keep_teach else None, progress=progress),
+                               taps=(tap,))
+    except BaseException:
+        tap.abandon()
+        raise
+    vo_run, visual_map = tap.finish()
     if teach.ground_truth is None or teach.result.disqualified:
         raise ConfigError(f"the teach drive failed: {teach.result.reason}")
 
     drive = config.drive if config.controller == "tuned" else plain_stanley_drive_config(config.speed_mps, vehicle)
     use_map = config.use_map and config.controller == "tuned"
-    print("2/3 reference: stereo VO over the recording" + (", keeping a visual map" if use_map else ""))
-    vo_run, visual_map = run_teach(RecordingStereoSource(teach_dir), body_cam, config.vo,
-                                   config.drive.map)
     vo_ground = ground_poses(vo_run.trajectory.poses, body_cam)
     path_config = replace(drive.path, cruise_speed_mps=config.speed_mps)
     reference = build_reference_path(vo_ground[:, :2], path_config)
@@ -153,9 +166,7 @@ def run_teach_repeat(config: TeachRepeatConfig, out: str | Path, progress: bool 
     visual_map.save(map_path_for(out / "reference.csv"))
 
     drive = replace(drive, path=path_config)
-    commands = RecordingReader(teach_dir).commands()
-    if not keep_teach:
-        shutil.rmtree(teach_dir)
+    commands = tap.commands
     if config.controller == "tuned":
         bias = steer_bias_of_drive(reference, vo_ground, np.array([e.stamp_ns for e in vo_run.estimates]),
                                    np.array([c.stamp_ns for c in commands]), np.array([c.steer_rad for c in commands]),
@@ -169,6 +180,62 @@ def run_teach_repeat(config: TeachRepeatConfig, out: str | Path, progress: bool 
                                                    drive_log=out / "drive_log.csv",
                                                    result_path=out / "repeat_result.json", progress=progress))
     return score(config, out, teach, repeat, reference, body_cam, vo_run.summary())
+
+
+class _TeachTap:
+    """A sink of the teach drive: its stereo pairs go to VO (:func:`~kartpilot.odometry.run.teach_over`) in a thread
+    as they are drawn, and its commands are kept. Nothing is written and read back: the teach drive's frames as
+    PNG files were 29 of the 50 s of CPU a straight20 teach drive took, and reading them back 10 s more. VO sees
+    the frames the repeat drive's pipeline sees (grey from the simulator's colour image, as live)."""
+
+    def __init__(self, pair: tuple[str, str], rig: StereoRig, body_cam: Array, vo: StereoVOConfig,
+                 map_config: MapConfig) -> None:
+        self._pair = pair
+        self.commands: list[ActuatorCommand] = []
+        self._queue: queue.Queue[FrameSet | None] = queue.Queue(maxsize=4)
+        self._result: tuple[VORun, VisualMap] | None = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._teach, args=(rig, body_cam, vo, map_config),
+                                        name="teach-vo", daemon=True)
+        self._thread.start()
+
+    def _frames(self) -> Iterator[FrameSet]:
+        while (frames := self._queue.get()) is not None:
+            yield frames
+
+    def _teach(self, rig: StereoRig, body_cam: Array, vo: StereoVOConfig, map_config: MapConfig) -> None:
+        try:
+            self._result = teach_over(self._frames(), rig, "teach drive", body_cam, vo, map_config)
+        except BaseException as exc:
+            self._error = exc
+            while self._queue.get() is not None:  # let the drive end; it is told at the next frame
+                pass
+
+    def write_frames(self, frames: FrameSet) -> None:
+        if self._error is not None:
+            raise self._error
+        left, right = self._pair
+        self._queue.put(FrameSet(frames.index, frames.stamp_ns, {"left": frames.images[left],
+                                                                 "right": frames.images[right]}))
+
+    def send(self, command: ActuatorCommand) -> None:
+        self.commands.append(command)
+
+    def write_outputs(self, stamp_ns: int, outputs: Outputs) -> None:
+        pass
+
+    def finish(self) -> tuple[VORun, VisualMap]:
+        """The VO run and the visual map, once the drive is over."""
+        self.abandon()
+        if self._error is not None:
+            raise self._error
+        assert self._result is not None
+        return self._result
+
+    def abandon(self) -> None:
+        """Tell VO that the drive is over and wait for it (a drive that failed: its result is not asked for)."""
+        self._queue.put(None)
+        self._thread.join()
 
 
 def summary_line(result: dict[str, object]) -> str:

@@ -94,8 +94,9 @@ def load_commands(path: str | Path) -> list[ActuatorCommand]:
 def run_simulation(config: SimConfig, driver: str = "centerline",
                    driver_config: CenterlineDriverConfig | None = None, commands: str | Path | None = None,
                    stack: StackConfig | None = None, route: Route | None = None,
-                   outputs: SessionOutputs | None = None) -> SimRun:
+                   outputs: SessionOutputs | None = None, taps: Sequence[Recorder] = ()) -> SimRun:
     """Drive one run and write what was asked for. The result JSON always goes next to the recording.
+    ``taps`` are more sinks of every frame set, command and output, after the recording and the view.
 
     ``lanes`` is the lane pipeline; the ``path`` driver is the stereo-VO pipeline following the route's
     reference (relocalising against its visual map, if any). A path run does not end at the finish line but
@@ -115,7 +116,7 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
             "groundtruth_camera": _gt_camera(sim)})
         source = _UntilStopped(sim, path_policy) if path_policy is not None else sim
         view = outputs.open_view(sim.cameras if config.render_images else {})
-        stats, wall_s = _run(sim, source, policy, sim, _Recorders(writer, view), outputs, path_policy)
+        stats, wall_s = _run(sim, source, policy, sim, _Recorders(writer, view, tuple(taps)), outputs, path_policy)
         result = sim.result(wall_s)
         pipeline_ms, summary = path_policy.summary(stats.steps) if path_policy is not None else ({}, {})
         ended = "the pipeline stopped the kart" if path_policy is not None and path_policy.stopped else \
@@ -167,10 +168,11 @@ class _Recorders:
 
     writer: RecordingWriter | None = None
     view: RerunView | None = None
+    taps: tuple[Recorder, ...] = ()
 
     @property
     def sinks(self) -> list[Recorder]:
-        return [r for r in (self.writer, self.view) if r is not None]
+        return [*(r for r in (self.writer, self.view) if r is not None), *self.taps]
 
     def close(self, sim: Simulator, path_policy: PathFollowPolicy | None) -> None:
         """Both closed, with the ground truth (and the view with the reference path)."""

@@ -324,7 +324,7 @@ def path_follow_job(cell: Cell, context: JobContext) -> dict[str, Any]:
 def _teach_repeat(config: TeachRepeatConfig, folder: Path) -> dict[str, Any]:
     cv2.setNumThreads(1)
     with contextlib.redirect_stdout(io.StringIO()):
-        return run_teach_repeat(config, folder, video=False)
+        return run_teach_repeat(config, folder, video=False, keep_teach=False)  # a cell keeps its result only
 
 
 def teach_repeat_job(cell: Cell, context: JobContext) -> dict[str, Any]:
