@@ -113,6 +113,28 @@ def test_a_red_light_stops_the_kart_before_the_line_and_green_lets_it_go(speed_k
     assert "stop_red" in states and "wait_red" in states and states[-1] == "drive"
 
 
+@pytest.mark.parametrize("view_to_m", [3.0, 6.0, 9.0])
+def test_a_light_past_its_line_stays_in_view_while_the_kart_waits_where_the_line_allows(view_to_m):
+    """A signal head 5 m past its line, 2 m up, rises out of the top of a low camera's image as the kart comes (its
+    ``view_to_m``): the kart stops farther back, so that it can see the green, up to ``stop_margin_max_m`` before
+    the line; where even that cannot keep it in view, at that margin. The light is seen only while in view."""
+    config = BehaviourConfig(front_m=0.0)
+
+    def scene(x, t):
+        light = 17.0 - x
+        seen = [Detection("traffic_light", (0, 0, 1, 1), 0.9, "red" if t < 15 else "green", distance_m=light,
+                          lateral_m=-2.0, view_to_m=view_to_m)] if light >= view_to_m - 0.1 else []
+        return seen + ([_at("stop_line", 12.0 - x)] if 12.0 - x > 1.2 else [])
+
+    log = drive(config, scene, speed=4.0, seconds=22)
+    stopped = [x for t, x, v, s in log if 10 < t < 14.5]
+    gap = 12.0 - stopped[-1]
+    wanted = min(max(config.stop_margin_m, view_to_m - 5.0), config.stop_margin_max_m)
+    print(f"\nlight in view to {view_to_m:g} m: stopped {gap:.2f} m before the line")
+    assert gap == pytest.approx(wanted, abs=0.1)
+    assert (log[-1][1] > 14.0) is (view_to_m <= 5.0 + config.stop_margin_max_m)  # went on at green where it saw it
+
+
 def test_paint_beyond_the_red_light_taken_for_a_stop_line_does_not_move_the_stop_point():
     """Standing at the line at red, the kart sees for one frame something beyond the light taken for a stop line
     (a bend's boundary square to it, the tripod's foot): the light's own line lies before the light, and the line

@@ -15,7 +15,14 @@ from kartpilot.perception.detect import DetectorConfig, ObjectDetector, crossing
 from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, place_on_ground
 from kartpilot.perception.obstacles import ObstacleConfig, detect_barriers, detect_car, detect_standing_people
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
-from kartpilot.perception.signals import SignalConfig, detect_speed_signs, detect_traffic_lights, exposure, road_grey
+from kartpilot.perception.signals import (
+    SignalConfig,
+    detect_speed_signs,
+    detect_traffic_lights,
+    exposure,
+    road_grey,
+    view_to_m,
+)
 from kartpilot.sim.textures import speed_sign_texture
 
 CAMERA = get_vehicle("sdc-kart").camera("center")  # 848x480, 0.56 m up, 6.8 deg down: horizon near row 163
@@ -163,6 +170,47 @@ def test_a_lamp_that_does_not_glow_is_not_a_light():
     assert detect_traffic_lights(shirt, replace(lenient, lamp_contrast=1.3), camera=CAMERA) == []
     with pytest.raises(ConfigError, match="lamp_contrast"):
         SignalConfig(lamp_contrast=0.9)
+
+
+def test_a_lamp_is_its_colour_throughout_and_a_face_at_red_s_edge_is_none():
+    """A face in warm light before a dark tree, over a dark jacket, was a red lamp in rendered pedestrian scenes: its
+    hue lies at the edge of red's, and noise took about half of its pixels into red's, which the closing joined
+    into a lamp's blob. A lamp's pixels have its hue nearly all (``lamp_colour_share``); the same noise on a lit red
+    lamp leaves it a light."""
+    rng = np.random.default_rng(3)
+
+    def frame(colour: tuple[int, int, int]) -> np.ndarray:
+        image = scene()
+        cv2.rectangle(image, (630, 10), (686, 110), (22, 30, 20), -1)  # the tree's dark crown
+        cv2.rectangle(image, (646, 46), (670, 110), (70, 20, 15), -1)  # a dark blue jacket
+        cv2.rectangle(image, (651, 30), (665, 45), colour, -1)  # the face, or a square lamp
+        noisy = image.astype(np.float32) + rng.normal(0.0, 6.0, image.shape)
+        return np.clip(noisy, 0, 255).astype(np.uint8)
+
+    face = frame((56, 79, 126))  # skin in warm light: hue 12 of OpenCV's 180, red's ends at 10
+    assert detect_traffic_lights(face, SignalConfig(lamp_colour_share=0.0), camera=CAMERA)  # the blob alone
+    assert detect_traffic_lights(face, camera=CAMERA) == []
+    assert [d.state for d in detect_traffic_lights(frame((30, 30, 235)), camera=CAMERA)] == ["red"]
+    with pytest.raises(ConfigError, match="lamp_colour_share"):
+        SignalConfig(lamp_colour_share=1.5)
+
+
+def test_a_light_says_how_near_the_kart_can_come_with_it_still_in_view():
+    """A signal head 2.1 m up beside the road rises out of the top of the low centre camera's image as the kart
+    comes: its top meets the image's top row (less the margin) at the light's ``view_to_m``, and a point no camera
+    sees now has none."""
+    top = np.array([12.0, -2.0, 2.1])
+    near = view_to_m(CAMERA, top)
+    pose = CAMERA.pose_body_cam_array
+    row = lambda x: CAMERA.project(((np.array([x, -2.0, 2.1]) - pose[:3, 3]) @ pose[:3, :3])[None])[0, 1]  # noqa: E731
+    assert row(near) >= 2.0 > row(near - 0.05)
+    assert 4.0 < near < 8.0  # 1.5 m above a camera 6.8 deg down, its image 20 deg above its axis
+    assert math.isnan(view_to_m(CAMERA, np.array([12.0, -2.0, 9.0])))  # above the view already
+    image = scene()
+    cv2.rectangle(image, (640, 40), (676, 112), (25, 25, 25), -1)
+    cv2.circle(image, (658, 58), 12, (30, 30, 235), -1)
+    light = detect_traffic_lights(image, camera=CAMERA)[0]
+    assert 0.0 < light.view_to_m < light.distance_m
 
 
 def test_a_red_barrier_on_the_ground_is_a_barrier_not_a_light():

@@ -21,3 +21,7 @@ def test_a_fixed_failure_stays_fixed(path):
     print(f"\n{path.stem}: {result['faults'] or 'passed'}; the rules' states {[row[1] for row in result['states']]}, "
           f"for objects the scenario does not hold: {phantom_states(result, plan.kinds) or 'none'}")
     assert not [fault for fault in result["faults"] if not fault.startswith("did not")], result["faults"]
+    # no red light where the scenario has none (a face taken for one held the kart for good); a tree's trunk taken
+    # for a person beside the road, which the kart waits for a moment behind, is left (not dropped by a rule that
+    # could drop a real person standing before a tree)
+    assert not {"stop_red", "wait_red"} & set(phantom_states(result, plan.kinds))

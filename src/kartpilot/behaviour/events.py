@@ -61,6 +61,10 @@ class BehaviourConfig:
         limit_kmh: the speed limit until a sign says otherwise (the event's signs: 10, 15 and 20 km/h).
         limit_margin: drive this share under the posted limit (a speedometer's and a controller's error).
         stop_margin_m: where the kart's front stops before a stop line (the event: 0.2 to 1.5 m).
+        stop_margin_max_m: where a light standing past its line would leave the camera's view before the kart
+            stops (a signal head 2 m up, a few metres past the line, rises out of the top of a low camera's image:
+            the kart then waited for a green it could not see), the kart stops farther back, up to this far before
+            the line (the light's ``view_to_m``).
         crossing_margin_m: where the kart's front stops before a crossing it yields at: out of the last metres
             before it, where a kart still rolling as a pedestrian steps onto the road is faulted (the scenario
             referee watches 3 m).
@@ -102,6 +106,7 @@ class BehaviourConfig:
     limit_kmh: float = 20.0
     limit_margin: float = 0.1
     stop_margin_m: float = 0.7
+    stop_margin_max_m: float = 1.4
     crossing_margin_m: float = 3.0
     front_m: float = 1.5
     decel_mps2: float = 1.5
@@ -139,6 +144,9 @@ class BehaviourConfig:
                                                  self.brake_delay_s) < 0:
             raise ConfigError("behaviour: limit_margin must be in [0, 1), stop_margin_m, crossing_margin_m, "
                               "line_refine_m and brake_delay_s not negative")
+        if self.stop_margin_max_m < self.stop_margin_m:
+            raise ConfigError("behaviour: stop_margin_max_m must be at least stop_margin_m (the farthest back the "
+                              "kart may stop before a line for its light to stay in view)")
 
 
 @dataclass(frozen=True)
@@ -404,6 +412,9 @@ def _rules_step(config: BehaviourConfig, state: BehaviourState, detections: list
         if line is not None and line.distance_m <= min(config.stop_line_range_m, red.distance_m
                                                        + max(1.0, 0.1 * red.distance_m)):
             stop_at = odometer + line.distance_m - config.front_m - config.stop_margin_m
+            if math.isfinite(red.view_to_m):  # where the light would leave the view, farther back if it must
+                farthest = odometer + line.distance_m - config.front_m - config.stop_margin_max_m
+                stop_at = min(stop_at, max(odometer + red.distance_m - red.view_to_m, farthest))
             # nearer is always taken; farther only by a line's placement as the kart comes (a line far beyond the
             # one the kart is stopping or standing at is another, or paint taken for one, seen for a frame)
             if not math.isfinite(s.stop_at_m) or stop_at <= s.stop_at_m + config.line_refine_m:

@@ -41,6 +41,9 @@ class Detection:
         lateral_m: how far left (+) or right (-) of the kart's centre line it stands (body y), NaN likewise.
         far_m: for a thing that reaches away along the ground (a barrier seen along its side), how far ahead its
             farthest foot stands; NaN where not measured.
+        view_to_m: for a thing placed by its size (a signal head, a sign), the least distance ahead (body x) it can
+            come to, the kart driving straight at it, with its top still in the camera's view; NaN where not
+            measured.
         track_id: the same object's id over frames (0: not tracked).
         source: which detector found it (``classical`` or the ONNX model's file name).
     """
@@ -52,6 +55,7 @@ class Detection:
     distance_m: float = math.nan
     lateral_m: float = math.nan
     far_m: float = math.nan
+    view_to_m: float = math.nan
     track_id: int = 0
     source: str = "classical"
 

@@ -36,13 +36,14 @@ import numpy as np
 
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
+from kartpilot.core.geometry import Array
 from kartpilot.core.glyphs import text_mask
 from kartpilot.core.types import Image
 from kartpilot.perception.colour import ColourPlanes, green_mask, mask_components, red_mask
 from kartpilot.perception.objects import Detection
 
 __all__ = ["SignalConfig", "detect_signals", "detect_speed_signs", "detect_traffic_lights", "exposure",
-           "place_by_size", "read_speed_value", "road_colour", "road_grey"]
+           "place_by_size", "read_speed_value", "road_colour", "road_grey", "view_to_m"]
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,13 @@ class SignalConfig:
             by the lamp's size, then reaches past the housing); the venue's dim, grainy green lamp (its brightest
             pixels 120 to 160) under another camera's curve (gamma 1.5) kept only scattered specks at the lit level
             and was lost in 5 of 6 views (``signals_altered`` in ``benchmarks/detect.py``). 1: the lit level alone.
+        lamp_colour_share: a lamp is its colour throughout: of its pixels (the closed blob that passed), at least
+            this share have the lamp's hue and saturation themselves, at any brightness (the closing only mends
+            specks that noise or glare took from it). A face in warm light, its hue at the edge of red's, before a
+            dark tree over a dark jacket, was a red lamp in rendered pedestrian scenes (the kart waited for a green
+            that never came): 0.46 to 0.60 of it had red's hue, the rest closed in. The real lamps (the Hanze red,
+            the venue's green) at every size and alteration of ``signals_altered`` in ``benchmarks/detect.py``:
+            0.94 or more.
         lamp_diameter_m, sign_diameter_m: real sizes, for the distance.
         min_lamp_height_m, camera_height_m: a lit lamp is at least this high above the ground, seen from a
             camera this high (the real kart's centre camera: 0.56 m).
@@ -113,6 +121,7 @@ class SignalConfig:
     housing_share: float = 0.45
     lamp_contrast: float = 1.3
     lamp_extent: float = 0.65
+    lamp_colour_share: float = 0.8
     lamp_diameter_m: float = 0.2
     min_lamp_height_m: float = 1.2
     camera_height_m: float = 0.56
@@ -135,6 +144,8 @@ class SignalConfig:
             raise ConfigError("signals: need 0 < min_lamp_px < max_lamp_px <= 1")
         if not 0.0 < self.lamp_extent <= 1.0:
             raise ConfigError("signals: lamp_extent must be in (0, 1] (a share of the lamp's brightest value)")
+        if not 0.0 <= self.lamp_colour_share <= 1.0:
+            raise ConfigError("signals: lamp_colour_share must be in [0, 1] (a share of the lamp's pixels)")
         if self.lamp_contrast < 1.0:
             raise ConfigError("signals: lamp_contrast must be at least 1 (a lamp is brighter than its housing)")
         if not 0.0 < self.min_exposure <= 1.0 or not 0 < self.sky_level <= 255:
@@ -166,9 +177,28 @@ def place_by_size(detection: Detection, camera: PinholeCamera | None, width_px: 
     depth = camera.fx_px * size_m / diameter  # along the camera's axis
     x = (detection.box_px[0] + detection.box_px[2]) / 2 * scale
     y = (detection.box_px[1] + detection.box_px[3]) / 2 * scale  # the same field of view: one scale
-    ray = camera.rays(np.array([[x, y]]))[0]
-    body = camera.pose_body_cam_array[:3, :3] @ (ray * depth) + camera.pose_body_cam_array[:3, 3]
-    return replace(detection, distance_m=float(body[0]), lateral_m=float(body[1]))
+    rays = camera.rays(np.array([[x, y], [x, detection.box_px[1] * scale]]))
+    pose = camera.pose_body_cam_array
+    body, top = (pose[:3, :3] @ (rays * depth).T).T + pose[:3, 3]
+    return replace(detection, distance_m=float(body[0]), lateral_m=float(body[1]),
+                   view_to_m=float(body[0] - top[0] + view_to_m(camera, top)))
+
+
+def view_to_m(camera: PinholeCamera, point_body: Array, margin_px: float = 2.0, step_m: float = 0.05) -> float:
+    """The least distance ahead (body x) a point in the body frame can come to, the kart driving straight on, and
+    still be in the camera's image (``margin_px`` inside its edges); NaN where it is not in view now."""
+    ahead = np.arange(float(point_body[0]), 0.0, -step_m)
+    points = np.c_[ahead, np.full((len(ahead), 2), np.asarray(point_body, float)[1:3])]
+    pose = camera.pose_body_cam_array
+    in_cam = (points - pose[:3, 3]) @ pose[:3, :3]  # R^T (p - t), row-wise
+    front = in_cam[:, 2] > 1e-6
+    uv = camera.project(np.where(front[:, None], in_cam, 1.0))
+    seen = front & (uv[:, 0] >= margin_px) & (uv[:, 0] <= camera.width_px - 1 - margin_px) & (uv[:, 1] >= margin_px) \
+        & (uv[:, 1] <= camera.height_px - 1 - margin_px)
+    if len(seen) == 0 or not seen[0]:
+        return math.nan
+    lost = np.flatnonzero(~seen)
+    return float(ahead[lost[0] - 1]) if len(lost) else float(ahead[-1])
 
 
 def exposure(gray: Image, horizon_row: int, sky_level: float, least: float) -> float:
@@ -254,12 +284,14 @@ def _lights(image: Image, planes: _Planes, config: SignalConfig, camera: Pinhole
     lamps: list[tuple[float, float, float, Detection]] = []  # (lamp's brightness, centre column, row, light)
     above = hsv[: int(config.horizon * h)]  # a lit lamp is above the horizon
     for state, colour in (("red", red_mask), ("green", green_mask)):
-        coloured = colour(above, config.lamp_saturation, round(config.lamp_extent * lit))
+        hued = colour(above, config.lamp_saturation, 0)
+        coloured = cv2.bitwise_and(hued, cv2.inRange(above[..., 2], round(config.lamp_extent * lit), 255))
         count, labels, stats, (x0, y0) = mask_components(cv2.morphologyEx(coloured, cv2.MORPH_CLOSE, _SQUARE))
         value = hsv[y0:y0 + labels.shape[0], x0:x0 + labels.shape[1], 2]  # the labelled box's
         coloured = coloured[y0:y0 + labels.shape[0], x0:x0 + labels.shape[1]]
+        hued = hued[y0:y0 + labels.shape[0], x0:x0 + labels.shape[1]]
         for k in np.flatnonzero(np.maximum(stats[1:count, 2], stats[1:count, 3]) >= config.min_lamp_px * h) + 1:
-            found = [(core.edge, lamp) for core in _lamp_cores(value, coloured, labels, int(k), stats[k], lit,
+            found = [(core.edge, lamp) for core in _lamp_cores(value, coloured, hued, labels, int(k), stats[k], lit,
                                                                 config.lamp_extent, (x0, y0))
                      if (lamp := _light(state, core, planes, lit, config, camera)) is not None]
             # a dim lamp as its whole glass where that passes, not its brightest specks (sized by the glass)
@@ -278,6 +310,7 @@ class _Core(NamedTuple):
     cy: float
     level: float
     edge: int
+    own: int  # of its pixels, those of the lamp's hue and saturation
 
 
 def _light(state: str, core: _Core, planes: _Planes, lit: int, config: SignalConfig,
@@ -286,10 +319,10 @@ def _light(state: str, core: _Core, planes: _Planes, lit: int, config: SignalCon
     they are no lamp: no lamp's shape or size, too low, left of the kart, no dark housing round them, no glow."""
     hsv, gray, scale = planes
     h, w = gray.shape
-    bw, bh, area, cx, cy, level, edge = core
+    bw, bh, area, cx, cy, level, edge, own = core
     horizon = config.horizon * h
     if not config.min_lamp_px * h <= max(bw, bh) <= config.max_lamp_px * h or not 0.6 <= bw / max(bh, 1) <= 1.6 \
-            or area < 0.45 * bw * bh:
+            or area < 0.45 * bw * bh or own < config.lamp_colour_share * area:
         return None
     # the lamp's diameter: a thresholded disc's box is about a pixel wider than the disc (a partly covered pixel at
     # each edge passes, since a lamp's colour mixed with its dark housing keeps its saturation)
@@ -326,8 +359,8 @@ _SQUARE = np.ones((3, 3), np.uint8)
 """The 3x3 kernel of every closing and erosion here."""
 
 
-def _lamp_cores(value: Image, coloured: Image, labels: Image, k: int, stat: np.ndarray, lit: int, extent: float,
-                origin: tuple[int, int] = (0, 0)) -> list[_Core]:
+def _lamp_cores(value: Image, coloured: Image, hued: Image, labels: Image, k: int, stat: np.ndarray, lit: int,
+                extent: float, origin: tuple[int, int] = (0, 0)) -> list[_Core]:
     """The lamps that component ``k`` of the lamp-coloured pixels (``coloured``, at least ``extent * lit`` bright,
     closed) may hold: the pieces of it at ``lit`` (the detector's lamps until 2026-11-27) and, where its brightest
     pixel is under ``lit / extent``, the pieces down to ``extent`` of that brightest too; each reaching ``lit``
@@ -338,11 +371,13 @@ def _lamp_cores(value: Image, coloured: Image, labels: Image, k: int, stat: np.n
     then reaches past the housing: the Hanze red lamp was lost at a lit level of 75). A dim lamp (the venue's green
     in daylight, its brightest pixels 120 to 160) under another camera's curve (gamma 1.5) kept only scattered
     specks at ``lit``, too sparse a shape for a lamp; down to ``extent`` of its brightest it is the whole glass.
-    ``value``, ``coloured``, ``labels`` and ``stat`` are of a box of the image whose top-left is ``origin``; the
-    cores' centres are the image's."""
+    ``hued``: the pixels of the lamp's hue and saturation at any brightness (each core counts its own).
+    ``value``, ``coloured``, ``hued``, ``labels`` and ``stat`` are of a box of the image whose top-left is
+    ``origin``; the cores' centres are the image's."""
     x0, y0, bw0, bh0 = (int(v) for v in stat[:4])
     inside = labels[y0:y0 + bh0, x0:x0 + bw0] == k
     crop = value[y0:y0 + bh0, x0:x0 + bw0]
+    hue_crop = hued[y0:y0 + bh0, x0:x0 + bw0]
     peak = int(crop[inside].max())
     if peak < lit:
         return []
@@ -359,11 +394,13 @@ def _lamp_cores(value: Image, coloured: Image, labels: Image, k: int, stat: np.n
             x, y, bw, bh, area = (int(v) for v in stats[j])
             if max(bw, bh) < 3:
                 continue
-            own = crop[y:y + bh, x:x + bw][pieces[y:y + bh, x:x + bw] == j]
+            piece = pieces[y:y + bh, x:x + bw] == j
+            own = crop[y:y + bh, x:x + bw][piece]
             if int(own.max()) >= lit:
                 out.append(_Core(bw, bh, area, origin[0] + x0 + float(centroids[j][0]),
                                  origin[1] + y0 + float(centroids[j][1]),
-                                 float(np.mean(own)), edge))
+                                 float(np.mean(own)), edge,
+                                 int(np.count_nonzero(hue_crop[y:y + bh, x:x + bw][piece]))))
     return out
 
 
