@@ -244,3 +244,30 @@ def test_a_person_who_crossed_and_stops_at_the_far_end_does_not_hold_the_kart():
 
     log = drive(config, scene, seconds=30)
     assert log[-1][1] > 21 and log[-1][3] == "drive"
+
+
+def test_the_one_who_crossed_holds_the_kart_only_by_coming_back_onto_its_road():
+    """Having walked across, the person stands at the road's far edge, placed nearer (1.85 m) as the kart comes on,
+    and is lost at the image's edge and seen again as another track: that is the one who crossed, and the kart goes
+    on. A person on that side who steps back into the kart's way holds it again; one waiting on the side the
+    pedestrian came from still holds it."""
+    config = BehaviourConfig(limit_kmh=15, front_m=0.0)
+
+    def scene(x, t, back=False, other=False):
+        lateral = min(-3.0 + 0.8 * max(t - 2.0, 0.0), 2.2)
+        if lateral >= 2.2 and t > 9.0:
+            lateral = max(2.2 - 1.5 * (t - 9.0), 0.3) if back else 1.85
+        track = 5 if t < 9.0 else 6  # lost and seen again
+        seen = [Detection("person", (0, 0, 1, 1), 0.9, "on_crossing", distance_m=22 - x, lateral_m=lateral,
+                          track_id=track)]
+        if other:
+            seen.append(Detection("person", (0, 0, 1, 1), 0.9, "beside_crossing", distance_m=22 - x, lateral_m=-3.0,
+                                  track_id=9))
+        return [*seen, *([_at("crosswalk", 20 - x)] if 20 - x < 10 else [])]
+
+    log = drive(config, scene, seconds=30)
+    assert log[-1][1] > 21 and log[-1][3] == "drive"
+    back = drive(config, lambda x, t: scene(x, t, back=True), seconds=30)
+    assert back[-1][3] == "yield" and back[-1][1] < 20
+    other = drive(config, lambda x, t: scene(x, t, other=True), seconds=30)
+    assert other[-1][3] == "yield" and other[-1][1] < 20

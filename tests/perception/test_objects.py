@@ -13,7 +13,13 @@ from kartpilot.core.glyphs import text_mask
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.perception.detect import DetectorConfig, ObjectDetector, crossing_states, merge_people
 from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, place_on_ground
-from kartpilot.perception.obstacles import ObstacleConfig, detect_barriers, detect_car, detect_standing_people
+from kartpilot.perception.obstacles import (
+    ObstacleConfig,
+    a_tree_trunk,
+    detect_barriers,
+    detect_car,
+    detect_standing_people,
+)
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
 from kartpilot.perception.signals import (
     SignalConfig,
@@ -211,6 +217,33 @@ def test_a_light_says_how_near_the_kart_can_come_with_it_still_in_view():
     cv2.circle(image, (658, 58), 12, (30, 30, 235), -1)
     light = detect_traffic_lights(image, camera=CAMERA)[0]
     assert 0.0 < light.view_to_m < light.distance_m
+
+
+def test_a_tree_s_trunk_under_its_crown_is_no_person_and_a_person_before_a_tree_is_one():
+    """A trunk is as tall, thin and still as a person waiting beside a crossing (the kart waited for one for good in
+    a rendered pedestrian scene): foliage above it and one colour from top to foot. A person before the same crown
+    (head, coat, legs) is still one, and so is a dark column with sky above it."""
+    hsv_of = lambda im: cv2.cvtColor(im, cv2.COLOR_BGR2HSV)  # noqa: E731
+    config = ObstacleConfig()
+
+    def frame(body: list[tuple[int, int, tuple[int, int, int]]], crown: bool) -> np.ndarray:
+        image = scene()
+        if crown:
+            cv2.rectangle(image, (600, 20), (720, 70), (25, 70, 30), -1)  # dark green foliage
+        for top, bottom, colour in body:
+            cv2.rectangle(image, (652, top), (667, bottom), colour, -1)
+        noisy = image.astype(np.float32) + np.random.default_rng(1).normal(0.0, 3.0, image.shape)
+        return np.clip(noisy, 0, 255).astype(np.uint8)
+
+    box = (652.0, 71.0, 668.0, 190.0)
+    trunk = frame([(71, 190, (25, 35, 55))], crown=True)
+    person = frame([(71, 86, (90, 120, 170)), (87, 135, (120, 40, 30)), (136, 190, (30, 30, 30))], crown=True)
+    pole = frame([(71, 190, (25, 35, 55))], crown=False)
+    assert a_tree_trunk(trunk, hsv_of(trunk), box, config)
+    assert not a_tree_trunk(person, hsv_of(person), box, config)
+    assert not a_tree_trunk(pole, hsv_of(pole), box, config)
+    with pytest.raises(ConfigError, match="trunk_foliage_share"):
+        ObstacleConfig(trunk_foliage_share=0.0)
 
 
 def test_a_red_barrier_on_the_ground_is_a_barrier_not_a_light():

@@ -84,7 +84,10 @@ class BehaviourConfig:
         corridor_m: a person this close to the kart's line (either side) is on its road, crossing or not.
         person_clearance_m: with no crossing seen, the kart's front stops this far before such a person.
         crossed_m: a person beside a crossing who is this much farther from the kart's line than the nearest they
-            came has crossed it (they no longer hold the kart).
+            came, having come within ``corridor_m`` of it and left it again, has crossed it; on that side, people hold
+            the kart only within ``corridor_m - crossed_m`` of its line (come back onto its road) until the kart
+            has driven ``crossing_range_m`` on (the one who crossed, stopped at the road's edge and placed nearer
+            as the kart comes, or lost at the image's edge and seen again as another track, held it for good).
         clear_s: the crossing counts as clear after this long with no person seen on or beside it.
         stopped_mps: the kart counts as stopped below this speed.
         overtake: pass a stationary car in the lane (where the road allows it: the scenario, a team's
@@ -163,6 +166,8 @@ class BehaviourState:
     odometer_m: float = 0.0
     clear_for_s: float = 0.0
     nearest_lateral_m: tuple[tuple[int, float], ...] = ()  # per person's track id: the least |lateral| seen
+    crossed_to: int = 0  # the side (+1 left, -1 right) a person crossed the kart's corridor to, the metres driven
+    crossed_at_m: float = math.nan  # then: beside the crossing on that side, people do not hold the kart
     manoeuvre_end_m: float = math.nan
     red_seen_s: float = 0.0
     green_seen_s: float = 0.0
@@ -350,9 +355,23 @@ def _rules_step(config: BehaviourConfig, state: BehaviourState, detections: list
     # a person on the road in the kart's way (whether a crossing is seen yet or not: the camera finds a zebra on
     # the ground nearer than it finds a person), or on or beside a crossing unless they have crossed the kart's
     # line and walk away from it (one who stops at the crossing's far end is seen on it or beside it by turns)
-    waiting = [p for p in people if abs(p.lateral_m) <= config.corridor_m
-               or (p.state in ("on_crossing", "beside_crossing")
-                   and abs(p.lateral_m) - nearest.get(p.track_id, math.inf) < config.crossed_m)]
+    crossed = [p for p in people if nearest.get(p.track_id, math.inf) <= config.corridor_m < abs(p.lateral_m)
+               and abs(p.lateral_m) - nearest[p.track_id] >= config.crossed_m]
+    if crossed:  # one who came into the kart's way and walked on across it
+        s = replace(s, crossed_to=1 if crossed[0].lateral_m > 0 else -1, crossed_at_m=s.odometer_m)
+    elif s.crossed_to and not s.odometer_m - s.crossed_at_m <= config.crossing_range_m:
+        s = replace(s, crossed_to=0, crossed_at_m=math.nan)  # that crossing is behind the kart
+    # on the side a pedestrian has crossed to, a person standing at the road's edge (placed nearer as the kart
+    # comes on, or seen again under another track after being lost at the image's edge) is the one who crossed:
+    # they hold the kart again by coming back crossed_m into its corridor
+    def holds(p: Detection) -> bool:
+        if s.crossed_to and (p.lateral_m > 0) == (s.crossed_to > 0):
+            return abs(p.lateral_m) <= config.corridor_m - config.crossed_m
+        return abs(p.lateral_m) <= config.corridor_m or (
+            p.state in ("on_crossing", "beside_crossing")
+            and abs(p.lateral_m) - nearest.get(p.track_id, math.inf) < config.crossed_m)
+
+    waiting = [p for p in people if holds(p)]
 
     car = min((d for d in detections if d.label == "car" and math.isfinite(d.distance_m) and d.distance_m > 0
                and abs(d.lateral_m) <= config.car_corridor_m), key=lambda d: d.distance_m, default=None)

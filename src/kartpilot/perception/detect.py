@@ -27,6 +27,7 @@ from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig
 from kartpilot.perception.obstacles import (
     ObstacleConfig,
     Upright,
+    a_tree_trunk,
     detect_barriers,
     detect_car,
     detect_people,
@@ -117,6 +118,10 @@ def detect_classical(image: Image, camera: PinholeCamera | None, config: Detecto
     # a signal head or a sign on its pole is as tall and as thin as a person, and so is its pole alone
     people = [p for p in people if not any(_inside(d.box_px, p.box_px) or _under(p.box_px, d.box_px) for d in out
                                             if d.label in ("traffic_light", "speed_sign"))]
+    # and a tree's trunk under its crown is as tall, thin and still as a person waiting beside a crossing (the kart
+    # waited for one for good): foliage above it, and one colour from its top to its foot
+    if planes.hsv is not None:
+        people = [p for p in people if not a_tree_trunk(image, planes.hsv, p.box_px, config.obstacles)]
     # what stands on the ground is not paint on it (seen from above, a barrier's white stripes would lie across
     # the road)
     out += detect_road_marks(image, camera, config.road_marks, [d.box_px for d in barriers + cars + people],
