@@ -190,7 +190,7 @@ def test_a_person_walking_across_holds_the_kart_until_they_have_crossed_and_walk
         lateral = min(-3.0 + 0.8 * max(t - 4.0, 0.0), 3.5)  # from 3 m right to 3.5 m left, from t = 4 s
         person = Detection("person", (0, 0, 1, 1), 0.9, "beside_crossing" if abs(lateral) > 2.5 else "on_crossing",
                            distance_m=22 - x, lateral_m=lateral, track_id=7)
-        zebra = [_at("crosswalk", 20 - x)] if 20 - x < 10 else []
+        zebra = [_at("crosswalk", 20 - x, lateral_m=0.0)] if 20 - x < 10 else []
         return [person, *zebra]
 
     log = drive(config, walker, seconds=25)
@@ -205,7 +205,7 @@ def test_a_person_walking_across_holds_the_kart_until_they_have_crossed_and_walk
     def waiter(x, t):
         person = Detection("person", (0, 0, 1, 1), 0.9, "beside_crossing", distance_m=22 - x, lateral_m=-3.0,
                            track_id=3)
-        return [person, *([_at("crosswalk", 20 - x)] if 20 - x < 10 else [])]
+        return [person, *([_at("crosswalk", 20 - x, lateral_m=0.0)] if 20 - x < 10 else [])]
 
     log = drive(config, waiter, seconds=25)
     assert log[-1][3] == "yield" and 20 - log[-1][1] >= 0.2
@@ -240,7 +240,7 @@ def test_a_person_who_crossed_and_stops_at_the_far_end_does_not_hold_the_kart():
         lateral = min(-3.0 + 0.8 * max(t - 2.0, 0.0), 2.6)
         state = "on_crossing" if abs(lateral) <= 2.5 or int(t * 10) % 2 else "beside_crossing"
         person = Detection("person", (0, 0, 1, 1), 0.9, state, distance_m=22 - x, lateral_m=lateral, track_id=5)
-        return [person, *([_at("crosswalk", 20 - x)] if 20 - x < 10 else [])]
+        return [person, *([_at("crosswalk", 20 - x, lateral_m=0.0)] if 20 - x < 10 else [])]
 
     log = drive(config, scene, seconds=30)
     assert log[-1][1] > 21 and log[-1][3] == "drive"
@@ -263,7 +263,7 @@ def test_the_one_who_crossed_holds_the_kart_only_by_coming_back_onto_its_road():
         if other:
             seen.append(Detection("person", (0, 0, 1, 1), 0.9, "beside_crossing", distance_m=22 - x, lateral_m=-3.0,
                                   track_id=9))
-        return [*seen, *([_at("crosswalk", 20 - x)] if 20 - x < 10 else [])]
+        return [*seen, *([_at("crosswalk", 20 - x, lateral_m=0.0)] if 20 - x < 10 else [])]
 
     log = drive(config, scene, seconds=30)
     assert log[-1][1] > 21 and log[-1][3] == "drive"
@@ -271,3 +271,24 @@ def test_the_one_who_crossed_holds_the_kart_only_by_coming_back_onto_its_road():
     assert back[-1][3] == "yield" and back[-1][1] < 20
     other = drive(config, lambda x, t: scene(x, t, other=True), seconds=30)
     assert other[-1][3] == "yield" and other[-1][1] < 20
+
+
+def test_a_person_waiting_beside_a_crossing_in_a_bend_has_not_crossed_the_kart_s_line():
+    """In a bend the kart's own line points off the road ahead: a person standing 2.6 m beside a crossing is placed
+    on that line from far off and 2.6 m beside it only near (the kart-frame lateral sweeps by the bend's curve). They
+    have not crossed it: measured across the road from the crossing seen with them, they never moved, and the kart
+    waits for them."""
+    config = BehaviourConfig(limit_kmh=15, front_m=0.0)
+
+    def bend(distance_m: float) -> float:  # where the road's centre lies, seen from the kart, in a 48 m bend
+        return distance_m**2 / (2 * 48.0)
+
+    def scene(x, t):
+        d = 22 - x
+        person = Detection("person", (0, 0, 1, 1), 0.9, "beside_crossing" if d < 12 else "on_crossing",
+                           distance_m=d, lateral_m=-2.6 + bend(d), track_id=4)
+        zebra = [_at("crosswalk", 20 - x, lateral_m=bend(20 - x))] if 20 - x < 16 else []
+        return [person, *zebra]
+
+    log = drive(config, scene, seconds=25)
+    assert log[-1][3] == "yield" and 20 - log[-1][1] >= 0.2

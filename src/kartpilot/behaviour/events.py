@@ -199,6 +199,7 @@ class BehaviourDecision:
 
 
 _TRACKED_PEOPLE = 32
+_CROSSING_DEPTH_M = 3.0  # a zebra's length along the road (not reported; the usual crossing's)
 
 
 ACTED_ON = ("traffic_light", "speed_sign", "stop_line", "crosswalk", "person", "car", "barrier", "parking_bay")
@@ -346,30 +347,44 @@ def _rules_step(config: BehaviourConfig, state: BehaviourState, detections: list
     crossing = _nearest(detections, "crosswalk")
     people = [d for d in detections if d.label == "person" and math.isfinite(d.distance_m)
               and 0 < d.distance_m <= config.crossing_range_m]
+    # a person's offset across the road: from the crossing seen with them where there is one (in a bend the kart's
+    # own line points off the road ahead: a person standing 2.6 m beside a crossing 17 m ahead was placed on the
+    # kart's line, then 2.4 m beside it at 10 m, and so "crossed" it without a step); else from the kart's line
+    def across(p: Detection) -> float:
+        if crossing is not None and math.isfinite(crossing.lateral_m) and \
+                abs(p.distance_m - crossing.distance_m) <= _CROSSING_DEPTH_M + config.person_clearance_m:
+            return p.lateral_m - crossing.lateral_m
+        return math.nan
+
+    def offset(p: Detection) -> float:
+        road = across(p)
+        return road if math.isfinite(road) else p.lateral_m
+
     nearest = dict(s.nearest_lateral_m)
     for p in people:
-        if p.track_id > 0:
-            nearest[p.track_id] = min(nearest.get(p.track_id, math.inf), abs(p.lateral_m))
+        if p.track_id > 0 and math.isfinite(across(p)):
+            nearest[p.track_id] = min(nearest.get(p.track_id, math.inf), abs(across(p)))
     # the newest tracks only (ids grow): a long drive's people do not pile up
     s = replace(s, nearest_lateral_m=tuple(sorted(nearest.items()))[-_TRACKED_PEOPLE:])
     # a person on the road in the kart's way (whether a crossing is seen yet or not: the camera finds a zebra on
     # the ground nearer than it finds a person), or on or beside a crossing unless they have crossed the kart's
     # line and walk away from it (one who stops at the crossing's far end is seen on it or beside it by turns)
-    crossed = [p for p in people if nearest.get(p.track_id, math.inf) <= config.corridor_m < abs(p.lateral_m)
-               and abs(p.lateral_m) - nearest[p.track_id] >= config.crossed_m]
+    crossed = [p for p in people if nearest.get(p.track_id, math.inf) <= config.corridor_m < abs(across(p))
+               and abs(across(p)) - nearest[p.track_id] >= config.crossed_m]
     if crossed:  # one who came into the kart's way and walked on across it
-        s = replace(s, crossed_to=1 if crossed[0].lateral_m > 0 else -1, crossed_at_m=s.odometer_m)
+        s = replace(s, crossed_to=1 if across(crossed[0]) > 0 else -1, crossed_at_m=s.odometer_m)
     elif s.crossed_to and not s.odometer_m - s.crossed_at_m <= config.crossing_range_m:
         s = replace(s, crossed_to=0, crossed_at_m=math.nan)  # that crossing is behind the kart
+
     # on the side a pedestrian has crossed to, a person standing at the road's edge (placed nearer as the kart
     # comes on, or seen again under another track after being lost at the image's edge) is the one who crossed:
     # they hold the kart again by coming back crossed_m into its corridor
     def holds(p: Detection) -> bool:
-        if s.crossed_to and (p.lateral_m > 0) == (s.crossed_to > 0):
-            return abs(p.lateral_m) <= config.corridor_m - config.crossed_m
+        if s.crossed_to and (offset(p) > 0) == (s.crossed_to > 0):
+            return abs(offset(p)) <= config.corridor_m - config.crossed_m
         return abs(p.lateral_m) <= config.corridor_m or (
             p.state in ("on_crossing", "beside_crossing")
-            and abs(p.lateral_m) - nearest.get(p.track_id, math.inf) < config.crossed_m)
+            and abs(offset(p)) - nearest.get(p.track_id, math.inf) < config.crossed_m)
 
     waiting = [p for p in people if holds(p)]
 
