@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from kartpilot.core.errors import DataError
 from kartpilot.core.types import ActuatorCommand, FrameSet
 from kartpilot.core.vehicle import camera_pose_on_body
 from kartpilot.odometry.run import run_teach
@@ -39,4 +40,15 @@ def test_a_vo_that_fails_ends_the_drive_with_its_error() -> None:
         for index in range(100):  # more frames than the queue holds: the drive is told, not left blocked
             tap.write_frames(FrameSet(index, index * 10**8, {"left": broken, "right": broken}))
     with pytest.raises(type(raised.value)):
+        tap.finish()
+
+
+def test_a_drive_that_never_started_leaves_vo_with_nothing_and_ends():
+    """The teach drive could not start (its track was not there): abandoned with no frames, VO ends at once and
+    says there was nothing to teach from, rather than waiting for a drive that will never come (the experiment
+    hung so)."""
+    source = SyntheticStereoSource(SyntheticStereoConfig(frames=3))
+    tap = _TeachTap(("left", "right"), source.rig, BODY_CAM, StereoVOConfig(), MapConfig())
+    tap.abandon()
+    with pytest.raises(DataError):
         tap.finish()

@@ -83,9 +83,10 @@ class BehaviourConfig:
             distance makes the kart yield.
         corridor_m: a person this close to the kart's line (either side) is on its road, crossing or not.
         person_clearance_m: with no crossing seen, the kart's front stops this far before such a person.
-        crossed_m: a person beside a crossing who is this much farther from the kart's line than the nearest they
-            came, having come within ``corridor_m`` of it and left it again, has crossed it; on that side, people hold
-            the kart only within ``corridor_m - crossed_m`` of its line (come back onto its road) until the kart
+        crossed_m: a person beside a crossing who is this much farther across the road from its middle than the
+            nearest they came (measured from the crossing seen with them: in a bend the kart's own line points off
+            the road ahead), having come within ``corridor_m`` of it and left it again, has crossed; on that side,
+            people hold the kart only within ``corridor_m - crossed_m`` (come back onto its road) until the kart
             has driven ``crossing_range_m`` on (the one who crossed, stopped at the road's edge and placed nearer
             as the kart comes, or lost at the image's edge and seen again as another track, held it for good).
         clear_s: the crossing counts as clear after this long with no person seen on or beside it.
@@ -157,17 +158,18 @@ class BehaviourState:
     """What persists between frames: the state, the posted limit, the stop point (metres driven at which to
     stop; NaN for none: it is kept by the metres driven once the line goes out of view under the kart's nose),
     the metres driven so far, the time since a person was last seen at a crossing, for each person tracked
-    the nearest they came to the kart's line (one who crossed it and walks away is done), and how long a red and
-    a green light have been seen without a break."""
+    the nearest they came to the crossing's middle and the side the last one crossed to (one who crossed and walks
+    away is done), and how long a red and a green light have been seen without a break."""
 
     state: State = "drive"
     limit_kmh: float = math.nan
     stop_at_m: float = math.nan
     odometer_m: float = 0.0
     clear_for_s: float = 0.0
-    nearest_lateral_m: tuple[tuple[int, float], ...] = ()  # per person's track id: the least |lateral| seen
-    crossed_to: int = 0  # the side (+1 left, -1 right) a person crossed the kart's corridor to, the metres driven
-    crossed_at_m: float = math.nan  # then: beside the crossing on that side, people do not hold the kart
+    # per person's track id: the least |offset| from the crossing's middle seen while one was seen with them
+    nearest_lateral_m: tuple[tuple[int, float], ...] = ()
+    crossed_to: int = 0  # the side (+1 left, -1 right) a person last crossed the kart's corridor to, and the
+    crossed_at_m: float = math.nan  # metres driven then (on that side, people hold the kart only on its road)
     manoeuvre_end_m: float = math.nan
     red_seen_s: float = 0.0
     green_seen_s: float = 0.0

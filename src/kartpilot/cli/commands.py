@@ -280,6 +280,9 @@ def simulate(args: argparse.Namespace) -> int:
         return _scenario(args)
     if args.inject:
         raise ConfigError("sim --inject works with --scenario (drive --sim takes every fault)")
+    if args.commands is not None and args.driver != "commands":
+        raise ConfigError(f"--commands is what --driver commands replays: with --driver {args.driver} it would be "
+                          "ignored")
     stack = load_stack_config(args.config)
     config, driver = stack.sim, stack.centerline_driver
     overrides = {"track": args.track, "vehicle": args.vehicle, "seed": args.seed, "camera_rate_hz": args.rate}

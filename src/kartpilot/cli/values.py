@@ -55,6 +55,18 @@ def number(kind: type[int] | type[float] = float, *, minimum: float | None = Non
     return parse
 
 
+def input_path(text: str) -> str:
+    """A file or folder the command reads, as given: its reader checks it where it is read (the one door of each
+    kind, ``core.files`` and ``core.images``). The type marks the argument as an input, for the matrix that tries
+    every bad file on every input (``tests/robustness/test_input_matrix.py``)."""
+    return text
+
+
+def config_path(text: str) -> str:
+    """A YAML file merged over a command's defaults (:func:`input_path`; an empty one is the defaults)."""
+    return text
+
+
 def output_file(text: str) -> Path:
     """A file to write: its folder must exist and be writable, and the path must not be a folder or a device.
     The command writes it whole or not at all (through a temporary file and a rename)."""

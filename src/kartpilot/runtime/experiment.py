@@ -195,6 +195,7 @@ class _TeachTap:
         self._queue: queue.Queue[FrameSet | None] = queue.Queue(maxsize=4)
         self._result: tuple[VORun, VisualMap] | None = None
         self._error: BaseException | None = None
+        self._ended = False  # the drive's end has reached VO
         self._thread = threading.Thread(target=self._teach, args=(rig, body_cam, vo, map_config),
                                         name="teach-vo", daemon=True)
         self._thread.start()
@@ -202,13 +203,16 @@ class _TeachTap:
     def _frames(self) -> Iterator[FrameSet]:
         while (frames := self._queue.get()) is not None:
             yield frames
+        self._ended = True
 
     def _teach(self, rig: StereoRig, body_cam: Array, vo: StereoVOConfig, map_config: MapConfig) -> None:
         try:
             self._result = teach_over(self._frames(), rig, "teach drive", body_cam, vo, map_config)
         except BaseException as exc:
             self._error = exc
-            while self._queue.get() is not None:  # let the drive end; it is told at the next frame
+            # let the drive end (it is told at its next frame), unless it has ended already: a drive that could not
+            # start (a track that is not there) leaves VO no frames, and waiting for its end again would never end
+            while not self._ended and self._queue.get() is not None:
                 pass
 
     def write_frames(self, frames: FrameSet) -> None:

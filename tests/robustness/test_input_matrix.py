@@ -1,0 +1,120 @@
+"""Every bad file on every input argument (issue 56): the arguments come from the CLI's own definitions (those
+typed ``values.input_path`` or ``values.config_path``), so a new command's inputs are tried without a line here.
+Each is given a path that does not exist, a folder, a file of random bytes, an empty file (not for a YAML config,
+where empty means the defaults) and a name that is not UTF-8; every required argument beside it gets the same,
+and the outputs a scratch folder. Each case must end at once with exit 1 (or 2, a usage error), a last line of
+``kartpilot: ...`` or a usage error, and no traceback. A 60 s alarm catches a command that goes on with a bad input
+instead (one did: the teach-and-repeat experiment waited for good on a track that did not exist)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from kartpilot.cli import values
+from kartpilot.cli.main import build_parser, main
+
+KINDS = ("missing", "folder", "garbage", "empty", "not utf-8")
+
+
+def _leaves(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()) -> Iterator[tuple[tuple[str, ...],
+                                                                                           argparse.ArgumentParser]]:
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        yield path, parser
+        return
+    for name, sub in subs[0].choices.items():
+        yield from _leaves(sub, (*path, name))
+
+
+def _inputs() -> list[tuple[tuple[str, ...], str]]:
+    """(the command's words, the input argument's option or name) of every input argument of every command."""
+    out = []
+    for path, parser in _leaves(build_parser()):
+        for action in parser._actions:
+            if action.type in (values.input_path, values.config_path):
+                out.append((path, action.option_strings[0] if action.option_strings else action.dest))
+    return out
+
+
+INPUTS = _inputs()
+
+
+def _bad(tmp: Path, kind: str) -> str:
+    if kind == "missing":
+        return str(tmp / "no-such-input.yaml")
+    if kind == "folder":
+        (tmp / "a-folder").mkdir(exist_ok=True)
+        return str(tmp / "a-folder")
+    name = {"garbage": "garbage.yaml", "empty": "empty.yaml",
+            "not utf-8": os.fsdecode(b"input-\xff.yaml")}[kind]
+    (tmp / name).write_bytes(os.urandom(512) if kind == "garbage" else b"" if kind == "empty" else b": [\n")
+    return str(tmp / name)
+
+
+def _argv(path: tuple[str, ...], target: str, bad: str, tmp: Path) -> list[str]:
+    """The command with ``bad`` in ``target`` and in every required input, scratch outputs, a choice's first."""
+    parser = dict(_leaves(build_parser()))[path]
+    argv = list(path)
+    for action in parser._actions:
+        if isinstance(action, argparse._HelpAction) or action.dest == "help":
+            continue
+        mine = (action.option_strings[0] if action.option_strings else action.dest) == target
+        if not mine and action.option_strings and not action.required:
+            continue
+        if mine or action.type in (values.input_path, values.config_path) or (action.type is None \
+                and action.choices is None):
+            value = bad
+        elif action.choices is not None:
+            value = sorted(action.choices)[0]
+        else:
+            value = str(tmp / "out" / "result.txt")
+        argv += [action.option_strings[0], value] if action.option_strings else [value]
+    return argv
+
+
+class _HangError(Exception):
+    pass
+
+
+def _hang(*_: object) -> None:
+    raise _HangError
+
+
+@pytest.mark.parametrize(("path", "target"), INPUTS, ids=[" ".join((*p, t)) for p, t in INPUTS])
+def test_every_bad_file_on_every_input_is_one_line(tmp_path, capsys, path, target):
+    parser = dict(_leaves(build_parser()))[path]
+    config = any(a.type is values.config_path and (a.option_strings or [a.dest])[0] == target
+                 for a in parser._actions)
+    previous = signal.signal(signal.SIGALRM, _hang)
+    try:
+        for kind in KINDS:
+            if kind == "empty" and config:
+                continue  # an empty YAML config is the defaults
+            argv = _argv(path, target, _bad(tmp_path, kind), tmp_path)
+            signal.alarm(60)
+            try:
+                code = main(argv)
+            except _HangError:
+                pytest.fail(f"{' '.join(argv)}: still running after 60 s with a bad input")
+            finally:
+                signal.alarm(0)
+            err = capsys.readouterr().err.strip().splitlines()
+            assert code in (1, 2), f"{kind}: {argv} exited {code}"
+            assert err and not any("Traceback" in line for line in err), f"{kind}: {argv}: {err}"
+            assert err[-1].startswith("kartpilot") and "error" in err[-1], f"{kind}: {argv}: {err[-1]}"
+    finally:
+        signal.signal(signal.SIGALRM, previous)
+
+
+def test_the_matrix_covers_the_commands_that_read_files():
+    """Each command that takes a file or folder in is in the matrix (its arguments are typed as inputs)."""
+    commands = {" ".join(p) for p, _ in INPUTS}
+    for command in ("odometry kitti", "eval trajectory", "lanes", "detect", "calibrate ground", "replay",
+                    "recordings info", "places query", "drive", "sim", "study run"):
+        assert command in commands, command
