@@ -110,7 +110,7 @@ class BehaviourConfig:
     limit_kmh: float = 20.0
     limit_margin: float = 0.1
     stop_margin_m: float = 0.7
-    stop_margin_max_m: float = 1.4
+    stop_margin_max_m: float = 1.2
     crossing_margin_m: float = 3.0
     front_m: float = 1.5
     decel_mps2: float = 1.5
