@@ -30,6 +30,13 @@ def test_frames_as_they_come_give_what_vo_over_the_source_gives() -> None:
     assert np.allclose(run.trajectory.poses, expected.trajectory.poses)
     assert len(visual_map) == len(expected_map) > 0
     assert [c.steer_rad for c in tap.commands] == pytest.approx([0.01 * i for i in range(len(source))])
+    dropped = _TeachTap(("cam_l", "cam_r"), source.rig, BODY_CAM, StereoVOConfig(), MapConfig())
+    for index in range(len(source)):  # a camera that dropped a frame: VO bridges it, as over a source
+        frame = source.frame(index)
+        images = {"cam_l": frame.left} if index == 7 else {"cam_l": frame.left, "cam_r": frame.right}
+        dropped.write_frames(FrameSet(index, frame.stamp_ns, images))
+    bridged, _ = dropped.finish()
+    assert bridged.unreadable_frames == (7,) and len(bridged.trajectory) == len(source)
 
 
 def test_a_vo_that_fails_ends_the_drive_with_its_error() -> None:

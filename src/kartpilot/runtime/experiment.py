@@ -192,7 +192,7 @@ class _TeachTap:
                  map_config: MapConfig) -> None:
         self._pair = pair
         self.commands: list[ActuatorCommand] = []
-        self._queue: queue.Queue[FrameSet | None] = queue.Queue(maxsize=4)
+        self._queue: queue.Queue[FrameSet | int | None] = queue.Queue(maxsize=4)
         self._result: tuple[VORun, VisualMap] | None = None
         self._error: BaseException | None = None
         self._ended = False  # the drive's end has reached VO
@@ -200,7 +200,7 @@ class _TeachTap:
                                         name="teach-vo", daemon=True)
         self._thread.start()
 
-    def _frames(self) -> Iterator[FrameSet]:
+    def _frames(self) -> Iterator[FrameSet | int]:
         while (frames := self._queue.get()) is not None:
             yield frames
         self._ended = True
@@ -219,6 +219,9 @@ class _TeachTap:
         if self._error is not None:
             raise self._error
         left, right = self._pair
+        if left not in frames.images or right not in frames.images:  # a camera dropped its frame: VO bridges it
+            self._queue.put(frames.index)
+            return
         self._queue.put(FrameSet(frames.index, frames.stamp_ns, {"left": frames.images[left],
                                                                  "right": frames.images[right]}))
 
