@@ -44,7 +44,7 @@ import numpy as np
 
 from kartpilot.behaviour.manoeuvres import OvertakeConfig, ParkConfig, plan_overtake, plan_park
 from kartpilot.core.errors import ConfigError
-from kartpilot.perception.objects import Detection
+from kartpilot.perception.objects import CROSSING_DEPTH_M, Detection
 from kartpilot.perception.scan import LidarView, bay_between_barriers, corridor_free_m, side_clear
 from kartpilot.planning.reference_path import ReferencePath
 
@@ -201,7 +201,6 @@ class BehaviourDecision:
 
 
 _TRACKED_PEOPLE = 32
-_CROSSING_DEPTH_M = 3.0  # a zebra's length along the road (not reported; the usual crossing's)
 
 
 ACTED_ON = ("traffic_light", "speed_sign", "stop_line", "crosswalk", "person", "car", "barrier", "parking_bay")
@@ -354,7 +353,7 @@ def _rules_step(config: BehaviourConfig, state: BehaviourState, detections: list
     # kart's line, then 2.4 m beside it at 10 m, and so "crossed" it without a step); else from the kart's line
     def across(p: Detection) -> float:
         if crossing is not None and math.isfinite(crossing.lateral_m) and \
-                abs(p.distance_m - crossing.distance_m) <= _CROSSING_DEPTH_M + config.person_clearance_m:
+                abs(p.distance_m - crossing.distance_m) <= CROSSING_DEPTH_M + config.person_clearance_m:
             return p.lateral_m - crossing.lateral_m
         return math.nan
 

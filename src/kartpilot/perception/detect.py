@@ -23,7 +23,14 @@ from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError, PerceptionError
 from kartpilot.core.types import Image
 from kartpilot.perception.colour import ColourPlanes
-from kartpilot.perception.objects import Detection, ObjectTracker, TrackerConfig, box_iou, place_on_ground
+from kartpilot.perception.objects import (
+    CROSSING_DEPTH_M,
+    Detection,
+    ObjectTracker,
+    TrackerConfig,
+    box_iou,
+    place_on_ground,
+)
 from kartpilot.perception.obstacles import (
     ObstacleConfig,
     Upright,
@@ -180,9 +187,8 @@ def crossing_states(detections: list[Detection], beside_m: float) -> list[Detect
     for d in detections:
         if d.label == "person" and math.isfinite(d.distance_m):
             for z in zebras:
-                depth = 3.0  # a zebra's length along the road is not reported; the usual crossing is 3 m
-                along = z.distance_m - beside_m <= d.distance_m <= z.distance_m + depth + beside_m
-                if z.distance_m <= d.distance_m <= z.distance_m + depth and abs(d.lateral_m) <= 2.5:
+                along = z.distance_m - beside_m <= d.distance_m <= z.distance_m + CROSSING_DEPTH_M + beside_m
+                if z.distance_m <= d.distance_m <= z.distance_m + CROSSING_DEPTH_M and abs(d.lateral_m) <= 2.5:
                     d = replace(d, state="on_crossing")
                     break
                 if along and abs(d.lateral_m) <= 2.5 + beside_m:

@@ -20,10 +20,14 @@ from kartpilot.calibration.ground import ground_points
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 
-__all__ = ["CLASSES", "Detection", "ObjectTracker", "TrackerConfig", "box_iou", "place_on_ground"]
+__all__ = ["CLASSES", "CROSSING_DEPTH_M", "Detection", "ObjectTracker", "TrackerConfig", "box_iou", "place_on_ground"]
 
 CLASSES = ("traffic_light", "speed_sign", "stop_line", "crosswalk", "person", "car", "barrier", "parking_bay")
 """kartpilot's object classes; a team's model maps its own class ids onto these (``--classes``)."""
+
+
+CROSSING_DEPTH_M = 3.0
+"""A zebra crossing's length along the road: not reported by its detector, the usual crossing's."""
 
 
 @dataclass(frozen=True)
