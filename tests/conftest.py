@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -58,6 +59,16 @@ def track_starting_at(folder: Path, name: str, start_s_m: float) -> str:
     path = folder / f"{name}-from-{start_s_m:g}m.yaml"
     path.write_text(yaml.safe_dump(spec))
     return str(path)
+
+
+def subcommands(parser: argparse.ArgumentParser, prefix: str = "") -> dict[str, argparse.ArgumentParser]:
+    """Every leaf subcommand of ``parser`` by its words (``"calibrate ground"``), with its own parser."""
+    found: dict[str, argparse.ArgumentParser] = {}
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                found |= subcommands(sub, f"{prefix} {name}".strip())
+    return found or {prefix: parser}
 
 
 def data_path(*parts: str) -> Path:

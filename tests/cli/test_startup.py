@@ -6,12 +6,12 @@ whatever this test process has loaded already. Speed itself is measured in ``ben
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import subprocess
 import sys
 
 import pytest
+from tests.conftest import subcommands
 
 from kartpilot.cli import arguments
 from kartpilot.cli.main import build_parser
@@ -56,17 +56,8 @@ def test_the_guard_sees_a_heavy_import() -> None:
         ["matplotlib"]
 
 
-def _subcommands(parser: argparse.ArgumentParser, prefix: str = "") -> dict[str, argparse.ArgumentParser]:
-    found = {}
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            for name, sub in action.choices.items():
-                found |= _subcommands(sub, f"{prefix} {name}".strip())
-    return found or {prefix: parser}
-
-
 def test_every_subcommand_names_a_handler_that_exists() -> None:
-    commands = _subcommands(build_parser())
+    commands = subcommands(build_parser())
     assert {"lanes", "detect", "sim", "drive", "calibrate ground", "study run", "odometry kitti"} <= set(commands)
     for name, parser in commands.items():
         handler = parser.get_default("handler")

@@ -11,10 +11,10 @@ from __future__ import annotations
 import argparse
 import os
 import signal
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from tests.conftest import subcommands
 
 from kartpilot.cli import values
 from kartpilot.cli.main import build_parser, main
@@ -22,24 +22,14 @@ from kartpilot.cli.main import build_parser, main
 KINDS = ("missing", "folder", "garbage", "empty", "not utf-8")
 
 
-def _leaves(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()) -> Iterator[tuple[tuple[str, ...],
-                                                                                           argparse.ArgumentParser]]:
-    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    if not subs:
-        yield path, parser
-        return
-    for name, sub in subs[0].choices.items():
-        yield from _leaves(sub, (*path, name))
+COMMANDS = subcommands(build_parser())
 
 
-def _inputs() -> list[tuple[tuple[str, ...], str]]:
+def _inputs() -> list[tuple[str, str]]:
     """(the command's words, the input argument's option or name) of every input argument of every command."""
-    out = []
-    for path, parser in _leaves(build_parser()):
-        for action in parser._actions:
-            if action.type in (values.input_path, values.config_path):
-                out.append((path, action.option_strings[0] if action.option_strings else action.dest))
-    return out
+    return [(command, action.option_strings[0] if action.option_strings else action.dest)
+            for command, parser in COMMANDS.items() for action in parser._actions
+            if action.type in (values.input_path, values.config_path)]
 
 
 INPUTS = _inputs()
@@ -57,10 +47,10 @@ def _bad(tmp: Path, kind: str) -> str:
     return str(tmp / name)
 
 
-def _argv(path: tuple[str, ...], target: str, bad: str, tmp: Path) -> list[str]:
+def _argv(command: str, target: str, bad: str, tmp: Path) -> list[str]:
     """The command with ``bad`` in ``target`` and in every required input, scratch outputs, a choice's first."""
-    parser = dict(_leaves(build_parser()))[path]
-    argv = list(path)
+    parser = COMMANDS[command]
+    argv = command.split()
     for action in parser._actions:
         if isinstance(action, argparse._HelpAction) or action.dest == "help":
             continue
@@ -86,9 +76,9 @@ def _hang(*_: object) -> None:
     raise _HangError
 
 
-@pytest.mark.parametrize(("path", "target"), INPUTS, ids=[" ".join((*p, t)) for p, t in INPUTS])
-def test_every_bad_file_on_every_input_is_one_line(tmp_path, capsys, path, target):
-    parser = dict(_leaves(build_parser()))[path]
+@pytest.mark.parametrize(("command", "target"), INPUTS, ids=[f"{c} {t}" for c, t in INPUTS])
+def test_every_bad_file_on_every_input_is_one_line(tmp_path, capsys, command, target):
+    parser = COMMANDS[command]
     config = any(a.type is values.config_path and (a.option_strings or [a.dest])[0] == target
                  for a in parser._actions)
     previous = signal.signal(signal.SIGALRM, _hang)
@@ -96,7 +86,7 @@ def test_every_bad_file_on_every_input_is_one_line(tmp_path, capsys, path, targe
         for kind in KINDS:
             if kind == "empty" and config:
                 continue  # an empty YAML config is the defaults
-            argv = _argv(path, target, _bad(tmp_path, kind), tmp_path)
+            argv = _argv(command, target, _bad(tmp_path, kind), tmp_path)
             signal.alarm(60)
             try:
                 code = main(argv)
@@ -114,7 +104,7 @@ def test_every_bad_file_on_every_input_is_one_line(tmp_path, capsys, path, targe
 
 def test_the_matrix_covers_the_commands_that_read_files():
     """Each command that takes a file or folder in is in the matrix (its arguments are typed as inputs)."""
-    commands = {" ".join(p) for p, _ in INPUTS}
+    commands = {c for c, _ in INPUTS}
     for command in ("odometry kitti", "eval trajectory", "lanes", "detect", "calibrate ground", "replay",
                     "recordings info", "places query", "drive", "sim", "study run"):
         assert command in commands, command
