@@ -315,8 +315,8 @@ def load_scenario_file(path: str | Path) -> Scenario:
     path = Path(path)
     mapping = dict(load_yaml_mapping(path))
     if not mapping:  # a file cut off or the wrong one, not a course: it would drive the defaults for a minute
-        raise ConfigError(f"the scenario file {path} is empty: a scenario gives at least its track "
-                          "(docs/scenarios.md)")
+        raise ConfigError(f"the scenario file {path} holds no keys (it is empty, or comments only): a scenario "
+                          "gives at least its track (docs/scenarios.md)")
     marks = mapping.pop("marks", None)
     plan = merge_config(_blank(path.stem), mapping, "scenario")
     if marks is not None:
