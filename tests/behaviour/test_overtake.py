@@ -3,6 +3,7 @@ the referee uses, the rules' transitions, and (slow) both scenarios closed loop.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -134,3 +135,50 @@ def test_the_rules_park_in_a_bay_and_stay_parked():
     assert odometer == pytest.approx(length, abs=0.5)  # stopped where the path ends
     decision, _ = behaviour_step(config, state, [bay], 0.0, 0.1)
     assert decision.state == "parked"  # for good
+
+
+def _park_from(bay: Detection, views: list[list[Detection]], speed_mps: float = 2.0, dt_s: float = 0.1):
+    """The rules parking on ``bay`` and then seeing ``views`` frame by frame at ``speed_mps``: the decisions."""
+    config = BehaviourConfig(park=True)
+    decision, state = behaviour_step(config, BehaviourState.start(config), [bay], speed_mps, dt_s)
+    assert decision.state == "park"
+    out = [(decision, state)]
+    for seen in views:
+        out.append(behaviour_step(config, out[-1][1], seen, speed_mps, dt_s))
+    return out
+
+
+def test_a_far_barrier_seen_nearer_replans_the_bay_before_the_s_and_moves_the_stop_after():
+    """Planned from afar on a bay 2 m too long (the camera's error at 20 m); the far barrier seen again from
+    nearer: the path is replanned (shorter) while its S lies ahead, and after the S began only the stop comes
+    nearer, never farther."""
+    bay = Detection("parking_bay", (0, 0, 1, 1), 0.9, "9.5", distance_m=10.0, lateral_m=-2.5)
+    far = 10.0 + 7.5  # where the far barrier truly stands from the kart's start
+    frames = [[Detection("barrier", (0, 0, 1, 1), 0.9, distance_m=far - 0.2 * (k + 1), lateral_m=-2.6)]
+              for k in range(60)]
+    steps = _park_from(bay, frames)
+    first = steps[0][0]
+    replanned = [d for d, _ in steps[1:] if d.path is not None]
+    assert replanned and all(d.replanned for d in replanned)
+    assert float(replanned[-1].path.s_m[-1]) < float(first.path.s_m[-1]) - 1.5
+    _, state = steps[-1]
+    assert state.bay_m[1] == pytest.approx(7.5, abs=0.05)
+    # the kart's front stops front_gap_m before the far barrier
+    config = ParkConfig()
+    assert state.stop_at_m == pytest.approx(far - config.front_gap_m - config.front_m, abs=0.3)
+    # once the S has begun (no more paths), the stop only comes nearer
+    last_path = max(k for k, (d, _) in enumerate(steps) if d.path is not None)
+    after = [s.stop_at_m for _, s in steps[last_path:]]
+    assert len(after) > 10 and all(b <= a + 1e-9 for a, b in itertools.pairwise(after))
+
+
+def test_what_is_not_the_far_barrier_leaves_the_plan_alone():
+    """A barrier on the other side, one beyond the gate, the near barrier itself, and one seen from no nearer
+    than the plan's: nothing replanned."""
+    bay = Detection("parking_bay", (0, 0, 1, 1), 0.9, "7.5", distance_m=10.0, lateral_m=-2.5)
+    others = [Detection("barrier", (0, 0, 1, 1), 0.9, distance_m=15.0, lateral_m=2.5),  # across the road
+              Detection("barrier", (0, 0, 1, 1), 0.9, distance_m=12.0, lateral_m=-2.5),  # before the bay's end
+              Detection("barrier", (0, 0, 1, 1), 0.9, distance_m=9.8, lateral_m=-2.5)]  # the near one
+    steps = _park_from(bay, [others] * 3)
+    assert all(d.path is None for d, _ in steps[1:])
+    assert steps[-1][1].bay_m == steps[0][1].bay_m and steps[-1][1].stop_at_m == steps[0][1].stop_at_m

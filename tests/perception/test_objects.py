@@ -19,6 +19,7 @@ from kartpilot.perception.obstacles import (
     detect_barriers,
     detect_car,
     detect_standing_people,
+    find_parking_bay,
 )
 from kartpilot.perception.onnx_detector import OnnxDetector, load_class_map
 from kartpilot.perception.signals import (
@@ -786,3 +787,16 @@ def test_in_a_small_image_a_person_is_reported_only_as_far_as_their_foot_places_
     assert len(detect_standing_people(near, CAMERA)) == 1
     assert detect_standing_people(far, CAMERA) == []
     assert len(detect_standing_people(far, CAMERA, ObstacleConfig(foot_row_share=0.2))) == 1  # seen, left out
+
+
+def test_a_bay_s_line_leaves_out_a_barrier_the_image_s_side_cuts():
+    """Beside the kart, the near barrier's outer part has left the view: its place is the visible part's, nearer
+    the kart's line. The bay's line is then the whole barrier's; with both whole, their middle."""
+    near = Detection("barrier", (700.0, 300.0, CAMERA.width_px - 1.0, 380.0), 0.9, distance_m=4.0, lateral_m=-1.9,
+                     far_m=4.4)
+    far = Detection("barrier", (560.0, 200.0, 600.0, 230.0), 0.9, distance_m=11.5, lateral_m=-2.6)
+    (bay,) = find_parking_bay([near, far], CAMERA)
+    assert bay.lateral_m == pytest.approx(-2.6) and float(bay.state) == pytest.approx(7.1)
+    whole = replace(near, box_px=(600.0, 300.0, 700.0, 380.0))
+    (bay,) = find_parking_bay([whole, far], CAMERA)
+    assert bay.lateral_m == pytest.approx((-1.9 - 2.6) / 2)

@@ -26,8 +26,10 @@ States:
 - ``wait_car``: the same car with ``overtake`` off, or too near to pass: stopping ``car_gap_m`` behind it and
   waiting until the lane has been clear for ``clear_s``.
 - ``park``: a parking bay (two barriers beside the road, a free length between them) within ``bay_range_m``
-  (with ``park`` on): the path into it is planned once and followed, slowing to stop where it ends; ``parked``
-  once stopped there, for good.
+  (with ``park`` on): the path into it is planned and followed, slowing to stop where it ends; ``parked``
+  once stopped there, for good. The camera places a far barrier worse the farther it stands (a degree of the
+  mount's pitch moves a foot 25 m ahead by metres), so the bay is measured again from every nearer view of its far
+  barrier: the path replanned while its S has not begun, the stop point brought nearer after.
 
 Braking is planned from the stop point's distance, the measured speed and the brake's delay (the RDW brake
 actuator travels before it bites, ``brake_delay_s``): the target speed is the one from which ``decel_mps2`` stops
@@ -98,6 +100,9 @@ class BehaviourConfig:
         car_gap_m: where the kart's front stops behind a car it does not pass.
         park: park in the first bay between barriers seen within ``bay_range_m`` (the event's last scenario), once
             the kart has driven ``park_after_m`` (a team's knowledge of the course: where its bay comes last).
+        bay_gate_m, bay_gate_share: while parking, a barrier on the bay's side is its far barrier seen again when
+            it stands within ``max(bay_gate_m, bay_gate_share * D)`` of where the bay's far end was put, D being
+            the distance it was last measured from (the camera's error grows with the distance's square).
         lidar_corridor_m: with a LiDAR, anything in the strip this far either side of the kart's line ahead of its
             front is in its way, seen by the camera or not: the kart stops ``lidar_gap_m`` before it.
         lidar_gap_m: where the kart's front stops before something the LiDAR sees in its way.
@@ -133,6 +138,8 @@ class BehaviourConfig:
     park: bool = False
     park_after_m: float = 0.0
     bay_range_m: float = 12.0
+    bay_gate_m: float = 1.0
+    bay_gate_share: float = 0.25
     parking: ParkConfig = field(default_factory=ParkConfig)
     lidar_corridor_m: float = 0.9
     lidar_gap_m: float = 1.5
@@ -148,6 +155,8 @@ class BehaviourConfig:
                                                  self.brake_delay_s) < 0:
             raise ConfigError("behaviour: limit_margin must be in [0, 1), stop_margin_m, crossing_margin_m, "
                               "line_refine_m and brake_delay_s not negative")
+        if self.bay_gate_m <= 0 or not 0 <= self.bay_gate_share <= 1:
+            raise ConfigError("behaviour: bay_gate_m must be positive, bay_gate_share between 0 and 1")
         if self.stop_margin_max_m < self.stop_margin_m:
             raise ConfigError("behaviour: stop_margin_max_m must be at least stop_margin_m (the farthest back the "
                               "kart may stop before a line for its light to stay in view)")
@@ -180,6 +189,7 @@ class BehaviourState:
     car_length_m: float = math.nan  # car still beside the kart)
     bay_m: tuple[float, float, float] = (math.nan, math.nan, math.nan)  # parking: the bay's start (metres driven),
     bay_measured: bool = False  # free length and line as planned; whether the scan has measured it since
+    bay_seen_m: float = math.nan  # how far ahead the bay's far end stood when the camera last measured it
 
     @classmethod
     def start(cls, config: BehaviourConfig) -> BehaviourState:
@@ -328,6 +338,48 @@ def _measure_bay(config: BehaviourConfig, s: BehaviourState, odometer: float, li
                          bay_m=(odometer + start, free, lateral_m))
 
 
+def _bay_seen_again(config: BehaviourConfig, s: BehaviourState, odometer: float, detections: list[Detection]
+                    ) -> tuple[ReferencePath | None, BehaviourState] | None:
+    """While parking on the camera's estimate of the bay: its far barrier seen from nearer than it was last measured
+    (a barrier on the bay's side, beyond its start, within the gate of where its far end was put; or the bay
+    itself), the nearest such view taken, with the bay's start and line from the bay seen in the same frame (its
+    line, the barriers' middle, is placed worse from afar too: a degree of the mount's roll moves it by a metre at
+    12 m). While the S into the bay has not begun, the path is replanned from them (the lane's frame where parking
+    began); after, the stop point only comes nearer (the kart then stands nearly along the bay, so the barrier's
+    distance ahead is its distance along it). None when no such view is in this frame."""
+    start_m, free_m, lateral_m = s.bay_m
+    side = math.copysign(1.0, lateral_m)
+    gate = max(config.bay_gate_m, config.bay_gate_share * s.bay_seen_m)
+    far_views, bays = [], []  # (the far end in metres driven, how far ahead); (the start in metres driven, line)
+    for d in detections:
+        if not (math.isfinite(d.distance_m) and math.isfinite(d.lateral_m)) or d.lateral_m * side <= 0:
+            continue
+        if d.label == "parking_bay":
+            try:
+                free = float(d.state)
+            except ValueError:
+                continue
+            far_views.append((odometer + d.distance_m + free, d.distance_m + free))
+            if abs(odometer + d.distance_m - start_m) <= gate and abs(d.lateral_m - lateral_m) <= gate:
+                bays.append((odometer + d.distance_m, d.lateral_m))
+        elif d.label == "barrier":
+            far_views.append((odometer + d.distance_m, d.distance_m))
+    far_views = [v for v in far_views if v[1] < s.bay_seen_m and abs(v[0] - (start_m + free_m)) <= gate
+                 and v[0] - start_m >= config.parking.min_free_m / 2]
+    if not far_views:
+        return None
+    far, ahead = min(far_views, key=lambda v: v[1])
+    start, line = min(bays, key=lambda b: b[0]) if bays else (start_m, lateral_m)
+    progress = odometer - s.manoeuvre_start_m
+    path = plan_park(start - s.manoeuvre_start_m, far - start, line, config.parking)
+    if path is not None and float(path.x_m[np.argmax(np.abs(path.y_m) > 0.01)]) >= progress:
+        return path, replace(s, bay_m=(start, far - start, line), bay_seen_m=ahead,
+                             stop_at_m=s.manoeuvre_start_m + float(path.s_m[-1]))
+    stop = odometer + ahead - config.parking.front_gap_m - config.parking.front_m
+    return None, replace(s, bay_m=(start_m, far - start_m, lateral_m), bay_seen_m=ahead,
+                         stop_at_m=min(s.stop_at_m, stop))
+
+
 def _rules_step(config: BehaviourConfig, state: BehaviourState, detections: list[Detection], speed_mps: float,
                 dt_s: float, lidar: LidarView | None) -> tuple[BehaviourDecision, BehaviourState]:
     if not math.isfinite(speed_mps):
@@ -400,6 +452,14 @@ def _rules_step(config: BehaviourConfig, state: BehaviourState, detections: list
             return BehaviourDecision(min(cruise, config.parking.speed_mps), "park", f"bay measured {s.bay_m[1]:.2f} m "
                                      "long between its barriers (lidar)", s.stop_at_m - odometer, bay_path,
                                      replanned=True, sensors="lidar"), s
+    if s.state == "park" and not s.bay_measured:
+        again = _bay_seen_again(config, s, odometer, detections)
+        if again is not None:
+            replanned, s = again
+            if replanned is not None:
+                return BehaviourDecision(min(cruise, config.parking.speed_mps), "park", f"bay measured again: "
+                                         f"{s.bay_m[1]:.2f} m long, its far end {s.bay_seen_m:.1f} m ahead",
+                                         s.stop_at_m - odometer, replanned, replanned=True), s
     if s.state == "park":
         remaining = s.stop_at_m - odometer
         if speed_mps <= config.stopped_mps and remaining < 0.5:
@@ -421,7 +481,8 @@ def _rules_step(config: BehaviourConfig, state: BehaviourState, detections: list
         path = plan_park(start, free, bay.lateral_m, config.parking) if math.isfinite(free) else None
         if path is not None:
             s = replace(s, state="park", stop_at_m=odometer + float(path.s_m[-1]), manoeuvre_start_m=odometer,
-                        bay_m=(odometer + start, free, bay.lateral_m), bay_measured=measured is not None)
+                        bay_m=(odometer + start, free, bay.lateral_m), bay_measured=measured is not None,
+                        bay_seen_m=start + free)
             return BehaviourDecision(min(cruise, config.parking.speed_mps), "park",
                                      f"bay {free:.1f} m long {start:.1f} m ahead: parking",
                                      float(path.s_m[-1]), path, sensors=sensors), s

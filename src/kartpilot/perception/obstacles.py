@@ -631,9 +631,18 @@ def find_parking_bay(barriers: list[Detection], camera: PinholeCamera | None, mi
     The same side: the line from one to the next turns less than ``max_bend_deg`` from the kart's heading (the
     road may bend between them: by a kart's side offset, barriers on the same side 9 m apart in a bend differ by
     2 m or more; barriers across the road from each other lie square to it). A free length over
-    ``max_length_m`` is road between two barriers, not a bay."""
+    ``max_length_m`` is road between two barriers, not a bay.
+
+    The bay's line (its ``lateral_m``) is the middle of the two barriers' places, less any barrier whose box the
+    image's side cuts (its place is then the visible part's: a near barrier beside the road leaving the view
+    seemed to come 0.7 m nearer the kart's line as its outer part went out)."""
     if camera is None:
         return []
+
+    def whole(d: Detection) -> bool:
+        return d.box_px[0] > edge_px and d.box_px[2] < camera.width_px - 1 - edge_px
+
+    edge_px = 1.0
     placed = [b for b in barriers if math.isfinite(b.distance_m)]
     slope = math.tan(math.radians(max_bend_deg))
     out = []
@@ -648,8 +657,9 @@ def find_parking_bay(barriers: list[Detection], camera: PinholeCamera | None, mi
         if min_length_m <= free <= max_length_m:
             box = (min(a.box_px[0], b.box_px[0]), min(a.box_px[1], b.box_px[1]), max(a.box_px[2], b.box_px[2]),
                    max(a.box_px[3], b.box_px[3]))
+            placed_whole = [d.lateral_m for d in (a, b) if whole(d)] or [a.lateral_m, b.lateral_m]
             out.append(Detection("parking_bay", box, min(a.confidence, b.confidence), f"{free:.1f}",
-                                 distance_m=start, lateral_m=(a.lateral_m + b.lateral_m) / 2))
+                                 distance_m=start, lateral_m=float(np.mean(placed_whole))))
     return out
 
 
