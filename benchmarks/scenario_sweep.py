@@ -43,6 +43,13 @@ def render(results: dict[str, Any]) -> str:
                  f"{results['wall_s'] / 60:.0f} min "
                  f"on {results['cpus']:g} cores ({results['per_event_s']:.0f} s of a core per event); "
                  f"`benchmarks/scenario_sweep.py`*")
+    pitch = results["summary"].get("pitch", {"events": 0})
+    if pitch["events"]:
+        lines += ["", f"The camera's pitch measured from the lanes while driving (`kartpilot.perception.horizon`), "
+                  f"over the {pitch['events']} events: the mount was off by {pitch['median_off_deg']:.2f} deg at the "
+                  f"median, {pitch['max_off_deg']:.2f} at most; measured, {pitch['median_error_deg']:.2f} deg off at "
+                  f"the median, {pitch['max_error_deg']:.2f} at most (measured in "
+                  f"{100 * pitch['measured_share']:.0f} % of the events; the others kept the rig's mount)."]
     if failures:
         lines += ["", "| failed event | fault | cause |", "|---|---|---|"]
         for failure in failures:

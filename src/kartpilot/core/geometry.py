@@ -26,6 +26,7 @@ __all__ = [
     "ground_poses",
     "invert_pose",
     "mount_pose",
+    "pitched_mount",
     "planar_pose",
     "pose_from_quaternion",
     "pose_from_rotvec",
@@ -132,6 +133,13 @@ def mount_pose(x_m: float = 0.0, y_m: float = 0.0, z_m: float = 0.0, yaw_deg: fl
 
 # planar poses of the rear axle on the road: x forward, y left, yaw (the odometry frame)
 Pose2D = tuple[float, float, float]
+
+
+def pitched_mount(pose_body_cam: Array, pitch_down_deg: float) -> Array:
+    """The mount turned about the camera's own horizontal axis, its view ``pitch_down_deg`` further down."""
+    tilted = np.array(pose_body_cam, dtype=float)
+    tilted[:3, :3] = tilted[:3, :3] @ Rotation.from_rotvec([-math.radians(pitch_down_deg), 0.0, 0.0]).as_matrix()
+    return tilted
 
 
 def ground_poses(poses_world_cam: Array, pose_body_cam: Array) -> Array:

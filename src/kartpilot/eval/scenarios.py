@@ -24,7 +24,9 @@ from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-__all__ = ["CAUSES", "failure_causes", "pass_rate", "phantom_states", "sweep_summary"]
+import numpy as np
+
+__all__ = ["CAUSES", "failure_causes", "mount_pitch_recovered", "pass_rate", "phantom_states", "sweep_summary"]
 
 CAUSES = ("not seen", "seen late", "wrong decision", "controller", "seen what is not there")
 
@@ -91,7 +93,7 @@ def pass_rate(passed: int, total: int, z: float = 1.96) -> tuple[float, float, f
 
 def sweep_summary(rows: Iterable[Mapping[str, Any]], scenarios: Sequence[str]) -> dict[str, Any]:
     """Per scenario: events, passed, the pass rate and its interval; every failure with its causes; the causes
-    counted per scenario."""
+    counted per scenario; the camera's pitch as measured against the mount's (:func:`mount_pitch_recovered`)."""
     by: dict[str, list[Mapping[str, Any]]] = {name: [] for name in scenarios}
     failures = []
     for row in rows:
@@ -108,4 +110,20 @@ def sweep_summary(rows: Iterable[Mapping[str, Any]], scenarios: Sequence[str]) -
                          for item in failure["faults"])
         table[name] = {"events": len(mine), "passed": passed, "pass_rate": rate, "interval": [low, high],
                        "causes": dict(causes)}
-    return {"scenarios": table, "failures": failures}
+    return {"scenarios": table, "failures": failures, "pitch": mount_pitch_recovered(
+        [row for mine in by.values() for row in mine])}
+
+
+def mount_pitch_recovered(rows: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
+    """How well the lanes measured the camera's pitch: over the events that carry both the mount's true pitch
+    off the rig (``mount_pitch_deg``) and the measured one (``pitch_off_deg``), the median and the largest error
+    left, against the error that was there (the mount's own)."""
+    pairs = [(float(row["mount_pitch_deg"]), float(row["pitch_off_deg"])) for row in rows
+             if "mount_pitch_deg" in row and "pitch_off_deg" in row]
+    if not pairs:
+        return {"events": 0}
+    true, measured = np.array(pairs).T
+    left = np.abs(measured - true)
+    return {"events": len(pairs), "median_off_deg": float(np.median(np.abs(true))), "max_off_deg":
+            float(np.max(np.abs(true))), "median_error_deg": float(np.median(left)), "max_error_deg":
+            float(np.max(left)), "measured_share": float(np.mean(measured != 0.0))}

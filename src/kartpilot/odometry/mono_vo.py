@@ -52,7 +52,7 @@ from scipy.spatial.transform import Rotation
 
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
-from kartpilot.core.geometry import Array, mount_pose
+from kartpilot.core.geometry import Array, mount_pose, pitched_mount
 from kartpilot.core.types import FrameSet, Image
 from kartpilot.core.vehicle import VehicleParams
 from kartpilot.odometry.motion_check import MotionLimits, StepVelocity, check_motion
@@ -356,13 +356,6 @@ def align_road_arc(previous: list[NDArray[np.float32]], current: list[NDArray[np
     typical = float(np.median(finite)) if len(finite) else 0.0
     quality = float(coarse[i, j]) / typical if typical > 0 else math.inf  # a blank road aligns everywhere
     return yaw, length, quality
-
-
-def pitched_mount(pose_body_cam: Array, pitch_down_deg: float) -> Array:
-    """The mount turned about the camera's own horizontal axis, its view ``pitch_down_deg`` further down."""
-    tilted = pose_body_cam.copy()
-    tilted[:3, :3] = pose_body_cam[:3, :3] @ cv2.Rodrigues(np.array([-math.radians(pitch_down_deg), 0.0, 0.0]))[0]
-    return tilted
 
 
 def mount_normal(pose_body_cam: Array) -> Array:

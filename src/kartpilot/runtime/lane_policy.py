@@ -35,6 +35,7 @@ from kartpilot.core.geometry import invert_pose, transform_points
 from kartpilot.core.types import ActuatorCommand, FrameSet, Image, LidarMount, VehicleFeedback, VehiclePose
 from kartpilot.odometry.dead_reckoning import dead_reckon
 from kartpilot.perception.detect import DetectorConfig, ObjectDetector
+from kartpilot.perception.horizon import HorizonConfig, HorizonEstimator
 from kartpilot.perception.lanes import (
     LaneConfig,
     LaneObservation,
@@ -115,6 +116,9 @@ class LanePolicyConfig:
             ``lidar_health.timeout_s``, the camera-only rules, said in the ``behaviour`` topic. So too while it
             disagrees with the camera: most of the cars, people and barriers the camera finds within
             ``lidar_reach_m`` have no return along their bearing (:class:`~kartpilot.perception.scan.LidarAgreement`).
+        horizon: with the event's rules, the centre camera's pitch measured from the lane's boundaries while
+            driving (:mod:`kartpilot.perception.horizon`): what the detectors find is placed with the camera as
+            it is mounted, not as the rig says (the ``behaviour`` topic's ``pitch_off_deg``).
     """
 
     boundaries: Literal["lines", "tape"] = "lines"
@@ -138,6 +142,7 @@ class LanePolicyConfig:
     scan: ScanConfig = field(default_factory=ScanConfig)
     lidar_health: LidarHealthConfig = field(default_factory=LidarHealthConfig)
     lidar_reach_m: float = 10.0
+    horizon: HorizonConfig = field(default_factory=HorizonConfig)
 
     def __post_init__(self) -> None:
         if not self.wheelbase_m > 0:
@@ -245,6 +250,7 @@ class LanePolicy:
         self.measured_steer_rad: float | None = None
         self.speed_state = SpeedPIState()
         self.objects = ObjectDetector(self.config.detector, centre) if self.config.events else None
+        self.horizon = HorizonEstimator(centre, self.config.horizon)
         self.behaviour = BehaviourState.start(self.config.behaviour)
         self.last_behaviour: BehaviourDecision | None = None
         self.last_objects: list[Detection] = []
@@ -296,7 +302,9 @@ class LanePolicy:
                                                 away.get("right", 0.0), self.dt_s)
         self.last_observation = observation
         if self.objects is not None:
-            lane = lane_on_ground(observation, self.centre_camera)
+            # the camera as it is mounted, its pitch measured from the boundaries: what it finds placed with it
+            camera = self.objects.camera = self.horizon.update(observation)
+            lane = lane_on_ground(observation, camera)
             if lane is not None:  # where the lane runs, for a manoeuvre that starts in a frame that lacks it
                 self.lane_ground = (frames.stamp_ns, lane)
             found = self.objects(centre_image) if centre_image is not None else []
@@ -417,6 +425,7 @@ class LanePolicy:
             b = self.last_behaviour
             topics["behaviour"] = {"state": b.state, "reason": b.reason, "speed_cap_mps": b.speed_cap_mps,
                                    "stop_distance_m": b.stop_distance_m, "limit_kmh": self.behaviour.limit_kmh,
+                                   "pitch_off_deg": self.horizon.pitch_deg,
                                    "objects": ";".join(f"{d.label}:{d.state}@{d.distance_m:.1f}"
                                                        for d in self.last_objects)}
             if self.lidar_watchdog is not None:  # a kart with a LiDAR: what the decision came from, and why not

@@ -96,10 +96,12 @@ def run_scenario(name: str | Scenario, seed: int | None = None, stack: StackConf
 
 
 def _result(referee: ScenarioReferee, judge: _Judge, sim: Simulator, policy: LanePolicy) -> dict[str, Any]:
-    """The referee's verdict, the rules' states, the simulator's own disqualification, and on a kart with a LiDAR
-    when it stopped and started giving good sweeps (``lidar``: [time, why] each)."""
+    """The referee's verdict, the rules' states, the camera's pitch as the lanes measured it (``pitch_off_deg``,
+    off the rig's mount), the simulator's own disqualification, and on a kart with a LiDAR when it stopped and
+    started giving good sweeps (``lidar``: [time, why] each)."""
     result = referee.result(judge.front_s_m)
     result["states"] = judge.states
+    result["pitch_off_deg"] = round(policy.horizon.pitch_deg, 3)  # the camera's pitch as measured while driving
     if sim.vehicle.lidar is not None:
         result["lidar"] = [[round(stamp * 1e-9, 2), problem or "recovered"] for stamp, problem in policy.lidar_events]
     if sim.referee.disqualified:

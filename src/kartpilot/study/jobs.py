@@ -367,6 +367,7 @@ def scenario_job(cell: Cell, context: JobContext) -> dict[str, Any]:
     text = scenario_text(plan)
     return {"scenario": plan.name, "passed": bool(result["passed"]), "faults": list(result["faults"]),
             "states": result.get("states", []), "scenario_file": text,
+            "pitch_off_deg": result.get("pitch_off_deg", 0.0), "mount_pitch_deg": plan.effects.mount_pitch_deg,
             "kinds": plan.kinds,
             "sunny": plan.render.sky == "clear", "duration_s": plan.duration_s}
 
