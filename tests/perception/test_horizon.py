@@ -144,3 +144,15 @@ def test_on_the_real_venue_clip_only_frames_that_agree_count():
     assert 1 <= len(kept) < HorizonConfig().min_frames
     assert np.ptp(kept) < 0.2 and np.all(np.abs(kept) < 0.5)
     assert estimator.camera is RIG
+
+
+def test_a_kart_standing_still_counts_one_view_once():
+    """At a start line the same view comes over and over: it would agree with itself whatever it read. A frame
+    counts once the kart has moved ``spacing_m`` since the last one that did."""
+    estimator = HorizonEstimator(RIG)
+    for _ in range(40):
+        estimator.update(_lane(1.0), moved_m=0.0)
+    assert len(estimator.frames) <= 1 and estimator.camera is RIG
+    for _ in range(30):  # at 1.5 m/s and 15 frames a second: every third frame counts
+        estimator.update(_lane(1.0), moved_m=0.1)
+    assert 9 <= len(estimator.frames) <= 11

@@ -40,21 +40,26 @@ class HorizonConfig:
         enabled: measure the pitch while driving and place what the detectors find with it.
         ahead_m: the tangents are taken where the ground this far ahead of the camera is seen.
         window: the last this many frames with both boundaries are kept.
+        spacing_m: a frame counts once the kart has moved this far since the last one that did (a kart standing at
+            a start line sees one view over and over: it would agree with itself whatever it read).
         min_frames, max_spread_deg: a correction is used once this many frames are kept and the middle half of
             them lies within ``max_spread_deg`` (a lane that agrees with itself; until then the rig's mount, or the
             last correction used).
-        max_bend_deg: a frame counts where neither boundary's direction in the image turns more than this between
-            its nearest row seen and where the ground twice ``ahead_m`` ahead is (a straight line's image is
-            straight; in a tight bend or at a junction the curves' tangents lean: of the real venue clip, taken
-            in bends, a few frames pass).
+        seen_to_m, max_bend_deg: a frame counts where both boundaries are seen from ``ahead_m`` to ``seen_to_m``
+            ahead at least (a boundary seen over a metre or two gives no direction to trust), and neither one's
+            direction in the image turns more than ``max_bend_deg`` between its nearest row and there (a
+            straight line's image is straight; in a tight bend or at a junction the curves' tangents lean: of the
+            real venue clip, taken in bends, a few frames pass).
         max_pitch_deg: a frame's pitch farther off than this is not a lane's (a boundary taken for another line).
     """
 
     enabled: bool = True
     ahead_m: float = 5.0
     window: int = 90
+    spacing_m: float = 0.25
     min_frames: int = 15
     max_spread_deg: float = 0.5
+    seen_to_m: float = 6.0
     max_bend_deg: float = 10.0
     max_pitch_deg: float = 3.0
 
@@ -62,8 +67,10 @@ class HorizonConfig:
         check_values("horizon", self, (
             ("ahead_m", self.ahead_m > 0, "positive"),
             ("window", self.window >= 1, "at least 1"),
+            ("spacing_m", self.spacing_m >= 0, "0 or more"),
             ("min_frames", 1 <= self.min_frames <= self.window, "between 1 and window"),
             ("max_spread_deg", self.max_spread_deg > 0, "positive"),
+            ("seen_to_m", self.seen_to_m > self.ahead_m, "more than ahead_m"),
             ("max_bend_deg", 0 < self.max_bend_deg <= 90, "in (0, 90]"),
             ("max_pitch_deg", 0 < self.max_pitch_deg <= 15, "in (0, 15]")))
 
@@ -123,30 +130,34 @@ class HorizonEstimator:
         self.camera = camera  # as it is mounted, once measured: the rig's until then
         self.pitch_deg = 0.0
         self.frames: deque[float] = deque(maxlen=config.window)
+        self._moved_m = 0.0  # since the last frame kept
         to_camera = invert_pose(camera.pose_body_cam_array)
         x = camera.pose_body_cam_array[0, 3]
-        ahead = transform_points(to_camera, np.array([[x + config.ahead_m, 0.0, 0.0], [x + 2 * config.ahead_m, 0.0,
+        ahead = transform_points(to_camera, np.array([[x + config.ahead_m, 0.0, 0.0], [x + config.seen_to_m, 0.0,
                                                                                         0.0]]))
         rows = camera.project(ahead)[:, 1] if np.all(ahead[:, 2] > 0) else (math.nan, math.nan)
         self._row, self._far_row = float(rows[0]), float(rows[1])
 
-    def update(self, observation: LaneObservation | None) -> PinholeCamera:
-        """One frame's boundaries; the camera as it is mounted, as far as measured."""
+    def update(self, observation: LaneObservation | None, moved_m: float = math.inf) -> PinholeCamera:
+        """One frame's boundaries, and how far the kart moved since the frame before (unknown: infinite, every
+        frame counts); the camera as it is mounted, as far as measured."""
+        self._moved_m += moved_m if math.isfinite(moved_m) else self.config.spacing_m
         if not self.config.enabled or observation is None or not math.isfinite(self._row):
             return self.camera
         left, right = observation.left_curve, observation.right_curve
-        if left is None or right is None:
+        if left is None or right is None or self._moved_m < self.config.spacing_m:
             return self.camera
+        if max(left.y_far, right.y_far) > self._far_row or not self._row <= min(left.y_near, right.y_near):
+            return self.camera  # both boundaries seen from ahead_m to seen_to_m ahead at least
         if max(bend_deg(left, self._far_row), bend_deg(right, self._far_row)) > self.config.max_bend_deg:
             return self.camera
-        if not max(left.y_far, right.y_far) <= self._row <= min(left.y_near, right.y_near):
-            return self.camera  # both boundaries seen where the ground ahead_m ahead is, or no tangents there
         point = meeting_point(left, right, self._row)
         if point is None:
             return self.camera
         pitch = pitch_off_deg(self.rig_camera, point)
         if abs(pitch) <= self.config.max_pitch_deg:
             self.frames.append(pitch)
+            self._moved_m = 0.0
         if len(self.frames) >= self.config.min_frames:
             low, measured, high = np.percentile(self.frames, (25, 50, 75))
             if high - low <= self.config.max_spread_deg and abs(measured - self.pitch_deg) >= 0.01:

@@ -303,7 +303,8 @@ class LanePolicy:
         self.last_observation = observation
         if self.objects is not None:
             # the camera as it is mounted, its pitch measured from the boundaries: what it finds placed with it
-            camera = self.objects.camera = self.horizon.update(observation)
+            moved = self.measured_speed_mps * self.dt_s if self.measured_speed_mps is not None else math.inf
+            camera = self.objects.camera = self.horizon.update(observation, abs(moved))
             lane = lane_on_ground(observation, camera)
             if lane is not None:  # where the lane runs, for a manoeuvre that starts in a frame that lacks it
                 self.lane_ground = (frames.stamp_ns, lane)
