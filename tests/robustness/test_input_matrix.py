@@ -1,7 +1,9 @@
 """Every bad file on every input argument (issue 56): the arguments come from the CLI's own definitions (those
 typed ``values.input_path`` or ``values.config_path``), so a new command's inputs are tried without a line here.
 Each is given a path that does not exist, a folder, a file of random bytes, an empty file (not for a YAML config,
-where empty means the defaults) and a name that is not UTF-8; every required argument beside it gets the same,
+where empty means the defaults), a name that is not UTF-8, a named pipe (a reader that opens it waits for good), a
+loop of symbolic links, UTF-16 text, text with a byte-order mark and Windows line ends whose keys nothing knows, and
+brackets nested 100,000 deep; every required argument beside it gets the same,
 and the outputs a scratch folder. Each case must end at once with exit 1 (or 2, a usage error), a last line of
 ``kartpilot: ...`` or a usage error, and no traceback. A 60 s alarm catches a command that goes on with a bad input
 instead (one did: the teach-and-repeat experiment waited for good on a track that did not exist)."""
@@ -19,7 +21,8 @@ from tests.conftest import subcommands
 from kartpilot.cli import values
 from kartpilot.cli.main import build_parser, main
 
-KINDS = ("missing", "folder", "garbage", "empty", "not utf-8")
+KINDS = ("missing", "folder", "garbage", "empty", "not utf-8", "fifo", "symlink loop", "utf-16", "bom crlf",
+         "nested bomb")
 
 
 COMMANDS = subcommands(build_parser())
@@ -41,9 +44,21 @@ def _bad(tmp: Path, kind: str) -> str:
     if kind == "folder":
         (tmp / "a-folder").mkdir(exist_ok=True)
         return str(tmp / "a-folder")
-    name = {"garbage": "garbage.yaml", "empty": "empty.yaml",
-            "not utf-8": os.fsdecode(b"input-\xff.yaml")}[kind]
-    (tmp / name).write_bytes(os.urandom(512) if kind == "garbage" else b"" if kind == "empty" else b": [\n")
+    if kind == "fifo":  # a reader that opens it waits for a writer for good
+        if not (tmp / "a-fifo").exists():
+            os.mkfifo(tmp / "a-fifo")
+        return str(tmp / "a-fifo")
+    if kind == "symlink loop":
+        if not (tmp / "loop-a").is_symlink():
+            (tmp / "loop-a").symlink_to(tmp / "loop-b")
+            (tmp / "loop-b").symlink_to(tmp / "loop-a")
+        return str(tmp / "loop-a")
+    contents = {"garbage": os.urandom(512), "empty": b"", "not utf-8": b": [\n",
+                "utf-16": "speed_mps: 1.0\nname: x\n".encode("utf-16"),
+                "bom crlf": b"\xef\xbb\xbfno_such_key: 1\r\nnor_this: [1, 2]\r\n",
+                "nested bomb": b"[" * 100_000 + b"]" * 100_000}
+    name = os.fsdecode(b"input-\xff.yaml") if kind == "not utf-8" else f"{kind.replace(' ', '-')}.yaml"
+    (tmp / name).write_bytes(contents[kind])
     return str(tmp / name)
 
 
