@@ -19,9 +19,10 @@ from typing import Any
 
 from common import write_json
 from kartpilot.core.config import config_to_dict
-from kartpilot.eval.scenarios import CAUSES
+from kartpilot.core.files import read_json_file
+from kartpilot.eval.scenarios import CAUSES, sweep_summary
 from kartpilot.sim.variation import DayRanges
-from kartpilot.study.sweep import SINGLE_SCENARIOS, run_sweep
+from kartpilot.study.sweep import SINGLE_SCENARIOS, run_sweep, sweep_cells
 from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,9 +48,11 @@ def render(results: dict[str, Any]) -> str:
     if pitch["events"]:
         lines += ["", f"The camera's pitch measured from the lanes while driving (`kartpilot.perception.horizon`), "
                   f"over the {pitch['events']} events: the mount was off by {pitch['median_off_deg']:.2f} deg at the "
-                  f"median, {pitch['max_off_deg']:.2f} at most; measured, {pitch['median_error_deg']:.2f} deg off at "
-                  f"the median, {pitch['max_error_deg']:.2f} at most (measured in "
-                  f"{100 * pitch['measured_share']:.0f} % of the events; the others kept the rig's mount)."]
+                  f"median, {pitch['max_off_deg']:.2f} at most. It was measured in "
+                  f"{100 * pitch['measured_share']:.0f} % of the events, and there left "
+                  f"{pitch['measured_median_error_deg']:.2f} deg at the median, "
+                  f"{pitch['measured_max_error_deg']:.2f} at most; the others kept the rig's mount (over all events: "
+                  f"{pitch['median_error_deg']:.2f} at the median, {pitch['max_error_deg']:.2f} at most)."]
     if failures:
         lines += ["", "| failed event | fault | cause |", "|---|---|---|"]
         for failure in failures:
@@ -67,9 +70,24 @@ def main() -> int:
     parser.add_argument("--address", help="a Ray cluster's head (default: this machine's cores)")
     parser.add_argument("--cpus", type=int, help="at most this many of this machine's cores")
     parser.add_argument("--render", help="put the tables of this JSON into docs/scenarios.md")
+    parser.add_argument("--summarise", action="store_true",
+                        help="the JSON's summary again from the rows kept in --out (after the summary's code changed)")
     args = parser.parse_args()
     if args.render:
         put_at_marker(PAGE, render(json.loads(Path(args.render).read_text(encoding="utf-8"))), "scenario-sweep")
+        return 0
+    if args.summarise:
+        results = json.loads(Path(args.json).read_text(encoding="utf-8"))
+        by_key = {row["config_hash"]: row for row in (read_json_file(path) for path in
+                                                      sorted(Path(args.out, "cells").glob("*.json")))}
+        cells = sweep_cells(results["events"], results["first_seed"], DayRanges(**results["variation"]))
+        rows = [dict(by_key[cell.key], scenario=cell.params["scenario"]) for cell in cells]
+        for row, cell in zip(rows, cells, strict=True):
+            failure = Path(args.out, "failures", f"{row['scenario']}-{cell.seed}.yaml")
+            if not row.get("passed", False) and failure.is_file():
+                row["file"] = str(failure)
+        results["summary"] = sweep_summary(rows, SINGLE_SCENARIOS)
+        write_json(args.json, results)
         return 0
     ranges = DayRanges()
     run = run_sweep(args.out, args.events, args.first_seed, ranges, address=args.address, cpus=args.cpus,

@@ -132,8 +132,8 @@ def test_a_bad_setting_names_its_key(key, value):
 
 def test_on_the_real_venue_clip_only_frames_that_agree_count():
     """The real kart's centre camera at the venue (119 frames in bends and at a junction): through the gates, the
-    frames kept read one pitch (the paint finder's curves at a junction, let through, read -0.8 to +1.5 deg over
-    the same clip); too few to correct the mount with, so the rig's stays."""
+    frames kept read one pitch near the team's mount (the paint finder's curves at a junction, let through, read
+    -0.8 to +1.5 deg over the same clip), and whatever is used stays near it."""
     lanes = LanePolicy({"center": RIG}, LANE_PRESETS["kart"]).config.lanes
     estimator = HorizonEstimator(RIG)
     paths = sorted(data_path("rdw-kart", "lelystad-2024", "frames").glob("*.jpg"))
@@ -141,9 +141,8 @@ def test_on_the_real_venue_clip_only_frames_that_agree_count():
         estimator.update(detect_lanes(cv2.imread(str(path)), lanes))
     kept = np.array(estimator.frames)
     print(f"{len(kept)} of {len(paths)} real frames kept: {np.round(kept, 2).tolist()} deg")
-    assert 1 <= len(kept) < HorizonConfig().min_frames
-    assert np.ptp(kept) < 0.2 and np.all(np.abs(kept) < 0.5)
-    assert estimator.camera is RIG
+    assert len(kept) >= 1 and np.ptp(kept) < 0.2 and np.all(np.abs(kept) < 0.5)
+    assert abs(estimator.pitch_deg) < 0.5
 
 
 def test_a_kart_standing_still_counts_one_view_once():

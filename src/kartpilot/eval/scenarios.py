@@ -116,14 +116,18 @@ def sweep_summary(rows: Iterable[Mapping[str, Any]], scenarios: Sequence[str]) -
 
 def mount_pitch_recovered(rows: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
     """How well the lanes measured the camera's pitch: over the events that carry both the mount's true pitch
-    off the rig (``mount_pitch_deg``) and the measured one (``pitch_off_deg``), the median and the largest error
-    left, against the error that was there (the mount's own)."""
+    off the rig (``mount_pitch_deg``) and the measured one (``pitch_off_deg``; exactly 0 where the drive never
+    measured it and kept the rig's mount), the median and the largest error left, against the error that was there
+    (the mount's own); over all events and over those measured."""
     pairs = [(float(row["mount_pitch_deg"]), float(row["pitch_off_deg"])) for row in rows
              if "mount_pitch_deg" in row and "pitch_off_deg" in row]
     if not pairs:
         return {"events": 0}
     true, measured = np.array(pairs).T
     left = np.abs(measured - true)
+    seen = measured != 0.0
     return {"events": len(pairs), "median_off_deg": float(np.median(np.abs(true))), "max_off_deg":
             float(np.max(np.abs(true))), "median_error_deg": float(np.median(left)), "max_error_deg":
-            float(np.max(left)), "measured_share": float(np.mean(measured != 0.0))}
+            float(np.max(left)), "measured_share": float(np.mean(seen)),
+            "measured_median_error_deg": float(np.median(left[seen])) if seen.any() else math.nan,
+            "measured_max_error_deg": float(np.max(left[seen])) if seen.any() else math.nan}

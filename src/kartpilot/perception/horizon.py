@@ -42,9 +42,10 @@ class HorizonConfig:
         window: the last this many frames with both boundaries are kept.
         spacing_m: a frame counts once the kart has moved this far since the last one that did (a kart standing at
             a start line sees one view over and over: it would agree with itself whatever it read).
-        min_frames, max_spread_deg: a correction is used once this many frames are kept and the middle half of
-            them lies within ``max_spread_deg`` (a lane that agrees with itself; until then the rig's mount, or the
-            last correction used).
+        min_frames, max_spread_deg: a correction is used once this many frames are kept (2 m of driving at
+            least) and the middle half of them lies within ``max_spread_deg`` (a lane that agrees with itself;
+            until then the rig's mount, or the last correction used). The parking bay comes 20 m after the start:
+            with 15 frames the pitch came after the kart had passed it.
         seen_to_m, max_bend_deg: a frame counts where both boundaries are seen from ``ahead_m`` to ``seen_to_m``
             ahead at least (a boundary seen over a metre or two gives no direction to trust), and neither one's
             direction in the image turns more than ``max_bend_deg`` between its nearest row and there (a
@@ -57,7 +58,7 @@ class HorizonConfig:
     ahead_m: float = 5.0
     window: int = 90
     spacing_m: float = 0.25
-    min_frames: int = 15
+    min_frames: int = 8
     max_spread_deg: float = 0.5
     seen_to_m: float = 6.0
     max_bend_deg: float = 10.0
