@@ -638,11 +638,11 @@ def find_parking_bay(barriers: list[Detection], camera: PinholeCamera | None, mi
     seemed to come 0.7 m nearer the kart's line as its outer part went out)."""
     if camera is None:
         return []
+    width_px = camera.width_px
 
-    def whole(d: Detection) -> bool:
-        return d.box_px[0] > edge_px and d.box_px[2] < camera.width_px - 1 - edge_px
+    def whole(d: Detection, edge_px: float = 1.0) -> bool:
+        return d.box_px[0] > edge_px and d.box_px[2] < width_px - 1 - edge_px
 
-    edge_px = 1.0
     placed = [b for b in barriers if math.isfinite(b.distance_m)]
     slope = math.tan(math.radians(max_bend_deg))
     out = []
