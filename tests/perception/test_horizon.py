@@ -16,12 +16,12 @@ from kartpilot.core.geometry import invert_pose, pitched_mount, transform_points
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.perception.horizon import HorizonConfig, HorizonEstimator, bend_deg, pitch_off_deg
 from kartpilot.perception.lanes import LaneLine, LaneObservation, detect_lanes
+from kartpilot.perception.obstacles import horizon_row
 from kartpilot.perception.paint import LaneCurve, fit_curve
 from kartpilot.runtime.lane_policy import LANE_PRESETS, LanePolicy
 
 RIG = get_vehicle("sdc-kart").camera("center")
-HORIZON_ROW = float(RIG.project(transform_points(invert_pose(RIG.pose_body_cam_array),
-                                                 np.array([[1.0e4, 0.0, 0.0]])))[0, 1])
+HORIZON_ROW = horizon_row(RIG)
 
 
 def _curve(points_body: np.ndarray, pitch_deg: float) -> LaneCurve | None:

@@ -74,7 +74,6 @@ __all__ = [
     "has_mount",
     "level_mount",
     "mount_normal",
-    "pitched_mount",
     "relative_pose",
     "rotation_only",
 ]

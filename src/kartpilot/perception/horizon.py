@@ -29,6 +29,7 @@ from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.config import check_values
 from kartpilot.core.geometry import invert_pose, pitched_mount, transform_points
 from kartpilot.perception.lanes import LaneObservation
+from kartpilot.perception.obstacles import ground_row
 from kartpilot.perception.paint import LaneCurve
 
 __all__ = ["HorizonConfig", "HorizonEstimator", "bend_deg", "horizon_row_at", "meeting_point", "pitch_off_deg"]
@@ -132,12 +133,7 @@ class HorizonEstimator:
         self.pitch_deg = 0.0
         self.frames: deque[float] = deque(maxlen=config.window)
         self._moved_m = 0.0  # since the last frame kept
-        to_camera = invert_pose(camera.pose_body_cam_array)
-        x = camera.pose_body_cam_array[0, 3]
-        ahead = transform_points(to_camera, np.array([[x + config.ahead_m, 0.0, 0.0], [x + config.seen_to_m, 0.0,
-                                                                                        0.0]]))
-        rows = camera.project(ahead)[:, 1] if np.all(ahead[:, 2] > 0) else (math.nan, math.nan)
-        self._row, self._far_row = float(rows[0]), float(rows[1])
+        self._row, self._far_row = ground_row(camera, config.ahead_m), ground_row(camera, config.seen_to_m)
 
     def update(self, observation: LaneObservation | None, moved_m: float = math.inf) -> PinholeCamera:
         """One frame's boundaries, and how far the kart moved since the frame before (unknown: infinite, every

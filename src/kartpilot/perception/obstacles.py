@@ -40,7 +40,7 @@ from kartpilot.perception.objects import Detection, box_iou, place_on_ground
 from kartpilot.perception.road_marks import camera_for_image, medians_u8
 
 __all__ = ["ObstacleConfig", "Upright", "a_tree_trunk", "detect_barriers", "detect_car", "detect_people",
-           "detect_standing_people", "find_parking_bay", "horizon_row", "upright_things"]
+           "detect_standing_people", "find_parking_bay", "ground_row", "horizon_row", "upright_things"]
 
 
 @dataclass(frozen=True)
@@ -667,6 +667,14 @@ def horizon_row(camera: PinholeCamera) -> float:
     """The row where the ground at a great distance ahead appears."""
     far = transform_points(invert_pose(camera.pose_body_cam_array), np.array([[1.0e4, 0.0, 0.0]]))
     return float(camera.project(far)[0, 1])
+
+
+def ground_row(camera: PinholeCamera, ahead_m: float) -> float:
+    """The image row of the ground ``ahead_m`` in front of the camera, on the kart's centre line; NaN where that
+    ground is not in front of it."""
+    x = float(camera.pose_body_cam_array[0, 3]) + ahead_m
+    point = transform_points(invert_pose(camera.pose_body_cam_array), np.array([[x, 0.0, 0.0]]))
+    return float(camera.project(point)[0, 1]) if point[0, 2] > 0 else math.nan
 
 
 def _height_on_ground(camera: PinholeCamera, top: float, bottom: float) -> float:

@@ -46,6 +46,7 @@ from kartpilot.perception.lanes import (
     lane_on_ground,
 )
 from kartpilot.perception.objects import Detection
+from kartpilot.perception.obstacles import ground_row
 from kartpilot.perception.scan import LidarAgreement, LidarView, ScanConfig, lidar_view, locate_detections
 from kartpilot.perception.signals import SignalConfig
 from kartpilot.perception.tape import TapeConfig, TapeObservation, detect_tape_track, draw_tape_track
@@ -202,11 +203,10 @@ def side_search_band(camera: PinholeCamera, side: str, near_m: float, far_m: flo
 
 def _ground_row(camera: PinholeCamera, ahead_m: float) -> float:
     """The image row of the ground ``ahead_m`` in front of the camera, on the kart's centre line."""
-    x = float(camera.pose_body_cam_array[0, 3]) + ahead_m
-    point = transform_points(invert_pose(camera.pose_body_cam_array), np.array([x, 0.0, 0.0]))
-    if point[0, 2] <= 0:
+    row = ground_row(camera, ahead_m)
+    if not math.isfinite(row):
         raise CalibrationError("the centre camera does not look ahead")
-    return float(camera.project(point)[0, 1])
+    return row
 
 
 def horizon_fraction(camera: PinholeCamera) -> float:
