@@ -291,8 +291,8 @@ class Renderer:
             for inner, outer in _chunks(right, apron_right, closed=piece.closed):
                 self._decal(_strip_mesh(core, inner, outer), 2, ground_tex)
 
-        if spec.tyre_marks:
-            self._decal(_tyre_marks(core, track, np.random.default_rng(spec.seed)), 4, None, alpha=True)
+        for mark in _tyre_marks(core, track, np.random.default_rng(spec.seed)):
+            self._decal(mark, 4, None, alpha=True)
         for inner, outer in track.curbs:
             self._decal(_curb_mesh(core, inner, outer), 5, None)
         paint = textures.surface_texture("paint", 256, seed + 3)
@@ -683,11 +683,12 @@ def _curb_mesh(core: Any, inner: Array, outer: Array) -> Any:
     return _mesh(core, np.vstack(quads_v), np.asarray(tris), colors=np.vstack(quads_c))
 
 
-def _tyre_marks(core: Any, track: Track, rng: np.random.Generator) -> Any:
-    """Dark, translucent pairs of arcs on the route: the false edges the thesis's lane finder met."""
+def _tyre_marks(core: Any, track: Track, rng: np.random.Generator) -> list[Any]:
+    """Dark, translucent pairs of arcs on the route: the false edges the thesis's lane finder met. A mesh per pair,
+    in the order they are drawn: each is culled where no camera sees it (as one mesh, all of sdc-assen's 56,000
+    triangles were transformed for every camera in every frame, a sixth of its drawing time)."""
     route = track.route
-    strips_v, strips_c, tris = [], [], []
-    base = 0
+    marks = []
     for _ in range(track.spec.tyre_marks):
         i0 = int(rng.integers(0, len(route.s_m)))
         length = int(rng.uniform(4.0, 18.0) / SAMPLE_SPACING_M)
@@ -699,6 +700,8 @@ def _tyre_marks(core: Any, track: Track, rng: np.random.Generator) -> Any:
         drift = rng.uniform(-0.6, 0.6) * np.linspace(-1, 1, len(idx)) ** 2
         offset = rng.uniform(-0.6, 0.6) * half + drift * half * 0.3
         alpha = rng.uniform(0.25, 0.55)
+        strips_v, strips_c, tris = [], [], []
+        base = 0
         for wheel in (-0.5, 0.5):
             centre = route.xy_m[idx] + (offset + wheel)[:, None] * route.normal()[idx]
             left, right = _offset_polyline(centre, 0.1), _offset_polyline(centre, -0.1)
@@ -709,9 +712,8 @@ def _tyre_marks(core: Any, track: Track, rng: np.random.Generator) -> Any:
             strips_c.append(np.c_[np.full((2 * n, 3), 0.08), a])
             tris.append(_ribbon_triangles(n, base=base))
             base += 2 * n
-    if not strips_v:
-        return _mesh(core, np.zeros((3, 3)), np.array([[0, 1, 2]]))
-    return _mesh(core, np.vstack(strips_v), np.vstack(tris), colors=np.vstack(strips_c))
+        marks.append(_mesh(core, np.vstack(strips_v), np.vstack(tris), colors=np.vstack(strips_c)))
+    return marks
 
 
 def _cone_template(base_m: float, height_m: float, segments: int = 16) -> tuple[Array, Array, Array, Array]:
