@@ -76,27 +76,31 @@ def motion_maps(camera: PinholeCamera, speed_mps: float, yaw_rate_radps: float,
     us = (np.arange(cols) + 0.5) * width / cols - 0.5
     vs = (np.arange(rows) + 0.5) * height / rows - 0.5
     k = camera.matrix
-    k_inv = np.linalg.inv(k)
     mount = camera.pose_body_cam_array
     mount_inv = np.linalg.inv(mount)
-    map_x = np.empty((rows, cols), np.float32)
-    map_y = np.empty((rows, cols), np.float32)
     row_times = np.interp(vs, np.arange(height), offsets)
-    pixels = np.stack([us, np.zeros_like(us), np.ones_like(us)])
-    for i, (v, dt) in enumerate(zip(vs, row_times, strict=True)):
-        then = body_motion(speed_mps, yaw_rate_radps, float(dt)) @ mount  # the camera then, in the body now
-        pixels[1] = v
-        rays = then[:3, :3] @ (k_inv @ pixels)  # (3, cols) in the body frame now
-        origin = then[:3, 3]
-        down = rays[2] < -1e-9
-        lam = np.where(down, -origin[2] / np.where(down, rays[2], -1.0), 0.0)
-        points = origin[:, None] + lam * rays
-        in_cam = np.where(down, mount_inv[:3, :3] @ points + mount_inv[:3, 3:4], mount_inv[:3, :3] @ rays)
-        ahead = in_cam[2] > 1e-9
-        projected = k @ np.where(ahead, in_cam, pixels)
-        depth = np.where(ahead, projected[2], 1.0)
-        map_x[i] = np.where(ahead, projected[0] / depth - us, 0.0)
-        map_y[i] = np.where(ahead, projected[1] / depth - v, 0.0)
+    # the camera at each grid row's time, in the body now (every row at once: body_motion's arc, vectorised)
+    turn = yaw_rate_radps * row_times
+    straight = np.abs(turn) < 1e-9
+    radius = speed_mps / yaw_rate_radps if yaw_rate_radps != 0 else 0.0
+    dx = np.where(straight, speed_mps * row_times, radius * np.sin(turn))
+    dy = np.where(straight, 0.0, radius * (1.0 - np.cos(turn)))
+    c, s = np.cos(turn), np.sin(turn)
+    yaw = np.zeros((rows, 3, 3))
+    yaw[:, 0, 0], yaw[:, 0, 1], yaw[:, 1, 0], yaw[:, 1, 1], yaw[:, 2, 2] = c, -s, s, c, 1.0
+    rotation = yaw @ mount[:3, :3]  # (rows, 3, 3)
+    origin = yaw @ mount[:3, 3] + np.stack([dx, dy, np.zeros(rows)], axis=1)  # (rows, 3)
+    pixels = np.stack(np.broadcast_arrays(us[None, :], vs[:, None], 1.0), axis=1)  # (rows, 3, cols)
+    rays = rotation @ (np.linalg.inv(k) @ pixels)  # (rows, 3, cols) in the body frame now
+    down = rays[:, 2] < -1e-9
+    lam = np.where(down, -origin[:, 2:3] / np.where(down, rays[:, 2], -1.0), 0.0)
+    points = origin[:, :, None] + lam[:, None] * rays
+    in_cam = np.where(down[:, None], mount_inv[:3, :3] @ points + mount_inv[:3, 3:4], mount_inv[:3, :3] @ rays)
+    ahead = in_cam[:, 2] > 1e-9
+    projected = k @ np.where(ahead[:, None], in_cam, pixels)
+    depth = np.where(ahead, projected[:, 2], 1.0)
+    map_x = np.where(ahead, projected[:, 0] / depth - us[None, :], 0.0).astype(np.float32)
+    map_y = np.where(ahead, projected[:, 1] / depth - vs[:, None], 0.0).astype(np.float32)
     # the displacement is what is smooth: interpolated, and added to each pixel's own coordinates
     size = (width, height)
     full_x = cv2.resize(map_x, size, interpolation=cv2.INTER_LINEAR)
