@@ -154,12 +154,14 @@ def _driver(sim: Simulator, driver: str, driver_config: CenterlineDriverConfig |
 
 def sim_recording(sim: Simulator, record_dir: str | Path | None, metadata: dict[str, object]
                   ) -> RecordingWriter | None:
-    """The simulated run's recording (it waits for the writer instead of dropping frames), if one was asked for."""
+    """The simulated run's recording (it waits for the writer instead of dropping frames; its rendered, noisy frames
+    as ``png-huffman``, :data:`~kartpilot.record.recording.IMAGE_FORMATS`), if one was asked for."""
     if record_dir is None:
         return None
     lidars = {"lidar": sim.vehicle.lidar} if sim.vehicle.lidar is not None else None
     return RecordingWriter(record_dir, sim.cameras, stereo_pair=_recorded_pair(sim), metadata=metadata,
-                           queue_frames=8, drop_when_full=False, lidars=lidars)
+                           queue_frames=8, drop_when_full=False, lidars=lidars,
+                           image_format="png-huffman")
 
 
 @dataclass
