@@ -292,3 +292,34 @@ def test_a_person_waiting_beside_a_crossing_in_a_bend_has_not_crossed_the_kart_s
 
     log = drive(config, scene, seconds=25)
     assert log[-1][3] == "yield" and 20 - log[-1][1] >= 0.2
+
+
+def test_a_car_found_where_the_kart_yields_to_people_is_the_car_and_is_overtaken_at_once():
+    """Sweep event 10184: a car's two sides, seen for a frame as two people in the lane, made the kart yield; the car
+    found a moment later, where they stood, is what was seen: the overtake is planned then, not after the wait for a
+    clear crossing (which left the car too near to pass, and the kart drove into it once it no longer saw it)."""
+    config = BehaviourConfig(limit_kmh=20, overtake=True)
+
+    def scene(x, t):
+        if t < 0.15:
+            return [_at("person", 13.5 - x, lateral_m=1.4), _at("person", 13.5 - x, lateral_m=0.4)]
+        return [_at("car", 13 - x, lateral_m=0.6)] if 13 - x > 7 else []
+
+    log = drive(config, scene, seconds=2.0, speed=2.7)
+    states = [s for t, x, v, s in log]
+    assert states[0] == "yield" and "overtake" in states
+    start = next(t for t, x, v, s in log if s == "overtake")
+    assert start < 0.25  # the first frame with the car, not clear_s later
+
+
+def test_a_car_far_beyond_the_people_the_kart_yields_to_waits_for_them():
+    """A real pedestrian before a car: the car stands well beyond where the kart stops for them, so it waits for the
+    crossing to clear first."""
+    config = BehaviourConfig(limit_kmh=20, overtake=True, front_m=0.0)
+
+    def scene(x, t):
+        person = [_at("person", 10 - x, lateral_m=0.0)] if t < 6 else []
+        return [*person, _at("car", 30 - x, lateral_m=0.0)]
+
+    log = drive(config, scene, seconds=7.0, speed=3.0)
+    assert [s for t, x, v, s in log if 2 < t < 6.5] == ["yield"] * len([t for t, *_ in log if 2 < t < 6.5])

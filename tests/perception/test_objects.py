@@ -800,3 +800,32 @@ def test_a_bay_s_line_leaves_out_a_barrier_the_image_s_side_cuts():
     whole = replace(near, box_px=(600.0, 300.0, 700.0, 380.0))
     (bay,) = find_parking_bay([whole, far], CAMERA)
     assert bay.lateral_m == pytest.approx((-1.9 - 2.6) / 2)
+
+
+def test_a_person_s_shape_at_a_car_s_side_on_its_bottom_row_is_the_car_s_edge():
+    """Sweep event 10214: a car whose back was not found upright was a car and, beside it, a person (its right side)
+    with the foot on the car's row. A person before the car stands lower in the image; one a car's width away is
+    not the car's."""
+    from kartpilot.perception.detect import part_of_car
+
+    car = (384.0, 106.0, 460.0, 183.0)
+    assert part_of_car((460.0, 132.0, 470.0, 185.0), car)  # its right side
+    assert part_of_car((372.0, 132.0, 384.0, 185.0), (384.0, 102.0, 478.0, 187.0))  # and its left
+    assert not part_of_car((410.0, 120.0, 424.0, 200.0), car)  # before it: the foot 17 px lower
+    assert not part_of_car((560.0, 130.0, 572.0, 183.0), car)  # a car's width to its right
+
+
+def test_a_car_seen_before_holds_the_shapes_in_its_width_and_depth_where_it_stands_now():
+    from kartpilot.core.vehicle import get_vehicle
+    from kartpilot.perception.detect import GroundCar
+
+    camera = get_vehicle("sdc-kart").camera("center")
+    car = Detection("car", (356.0, 114.0, 428.0, 179.0), 0.9, distance_m=16.0, lateral_m=0.7)
+    ground = GroundCar.of(car, camera)
+    assert ground is not None and 0.6 < 2 * ground.half_width_m < 2.4  # a car's width from its box
+    assert GroundCar.of(Detection("car", (0, 0, 1, 1), 0.9), camera) is None  # not placed: not remembered
+    nearer = replace(ground, distance_m=ground.distance_m - 4.0)  # the kart drove 4 m
+    side = Detection("person", (0, 0, 1, 1), 0.5, distance_m=12.2, lateral_m=0.7 - ground.half_width_m)
+    assert nearer.holds(side)
+    assert not nearer.holds(replace(side, distance_m=9.0))  # 3 m before the car: a person
+    assert not nearer.holds(replace(side, lateral_m=0.7 + ground.half_width_m + 1.0))  # beside it

@@ -20,7 +20,9 @@ States:
   once stopped; back to ``drive`` on green.
 - ``yield``: a person on or beside a zebra crossing ahead, or on the road in the kart's corridor: braking to stop
   ``crossing_margin_m`` before the crossing (``person_clearance_m`` before the person where no crossing is seen yet);
-  waiting until no such person has been seen for ``clear_s``.
+  waiting until no such person has been seen for ``clear_s``. A car found in the lane while no such person is seen,
+  standing where the kart was to stop (within a car's length beyond), is what was taken for people (a car's two
+  sides, where its back was not found upright, are each as tall and thin as a person): the car's rule at once.
 - ``overtake``: a car in the kart's lane within ``car_range_m`` (with ``overtake`` on): the path around it is
   planned once, from the car's measured distance, and followed until its end; then ``drive``.
 - ``wait_car``: the same car with ``overtake`` off, or too near to pass: stopping ``car_gap_m`` behind it and
@@ -529,6 +531,9 @@ def _rules_step(config: BehaviourConfig, state: BehaviourState, detections: list
         if s.state == "drive" or stop_at < s.stop_at_m:  # a crossing seen nearer than the person: stop there
             s = replace(s, state="yield", stop_at_m=stop_at)
         s = replace(s, clear_for_s=0.0)
+    elif s.state == "yield" and car is not None and car.distance_m <= s.stop_at_m - odometer + config.front_m + \
+            config.person_clearance_m + config.passing.car_length_m:
+        s = replace(s, state="drive", stop_at_m=math.nan, clear_for_s=0.0)  # the people were the car: its rule now
     elif s.state == "yield":
         s = replace(s, clear_for_s=s.clear_for_s + dt_s)
         if s.clear_for_s >= config.clear_s:

@@ -16,6 +16,8 @@ searches the whole image at every scale and is most of the cost, which is why ``
 from __future__ import annotations
 
 import math
+from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -48,7 +50,8 @@ from kartpilot.perception.road_marks import RoadMarkConfig, camera_for_image, de
 from kartpilot.perception.signals import SignalConfig, detect_signals, place_by_size
 from kartpilot.sensors.base import MIN_IMAGE_PX
 
-__all__ = ["DetectorConfig", "ObjectDetector", "crossing_states", "detect_classical", "merge_people"]
+__all__ = ["DetectorConfig", "GroundCar", "ObjectDetector", "crossing_states", "detect_classical", "merge_people",
+           "part_of_car"]
 
 
 @dataclass(frozen=True)
@@ -58,12 +61,16 @@ class DetectorConfig:
         classes: the YAML file mapping the ONNX model's class ids to kartpilot's classes.
         people: run the HOG people detector (the classical detectors' slowest part).
         beside_crossing_m: a person this close to a zebra's ends or sides (on the ground) is beside it.
+        car_memory_frames: a car found in one of this many frames before is still where it was on the ground
+            (moved back by the kart's travel, where the caller says it): a person's shape standing in its width and
+            depth there is the car's edge (:func:`part_of_car`, :class:`GroundCar`; 0: this frame's cars only).
     """
 
     detector: str = "classical"
     classes: str = ""
     people: bool = True
     beside_crossing_m: float = 2.5
+    car_memory_frames: int = 30
     signals: SignalConfig = field(default_factory=SignalConfig)
     road_marks: RoadMarkConfig = field(default_factory=RoadMarkConfig)
     obstacles: ObstacleConfig = field(default_factory=ObstacleConfig)
@@ -74,6 +81,8 @@ class DetectorConfig:
         if not classical and not model:
             raise ConfigError(f"detector {self.detector!r}: use classical, onnx:MODEL.onnx or "
                               "classical+onnx:MODEL.onnx")
+        if self.car_memory_frames < 0:
+            raise ConfigError(f"detector: car_memory_frames must not be negative, got {self.car_memory_frames}")
         if model and not self.classes:
             raise ConfigError(f"detector {self.detector!r} needs the classes YAML that maps the model's class ids "
                               "(--classes)")
@@ -92,9 +101,35 @@ class DetectorConfig:
         return classical, model
 
 
-def detect_classical(image: Image, camera: PinholeCamera | None, config: DetectorConfig = DetectorConfig()
-                     ) -> list[Detection]:
-    """Every classical detector on one image, placed on the ground where the camera's mount is known."""
+@dataclass(frozen=True)
+class GroundCar:
+    """Where a car found in an earlier frame stands on the ground, in the body frame now: its back's distance
+    ahead, its middle's offset to the left and half its width (metres)."""
+
+    distance_m: float
+    lateral_m: float
+    half_width_m: float
+
+    @classmethod
+    def of(cls, car: Detection, camera: PinholeCamera) -> GroundCar | None:
+        """A car detection on the ground (None where it is not placed); its width from its box at its distance."""
+        if not (math.isfinite(car.distance_m) and math.isfinite(car.lateral_m)):
+            return None
+        depth = car.distance_m - float(camera.pose_body_cam_array[0, 3])  # from the camera, along its axis
+        return cls(car.distance_m, car.lateral_m, 0.5 * car.width_px * max(depth, 0.0) / camera.fx_px)
+
+    def holds(self, person: Detection) -> bool:
+        """Whether a person's shape stands in the car: within its width (and a quarter metre) across, and from
+        its back to 2.5 m beyond it along (a tenth of the distance nearer at most: a foot row's placement)."""
+        along = person.distance_m - self.distance_m
+        return (abs(person.lateral_m - self.lateral_m) <= self.half_width_m + 0.25
+                and -max(0.5, 0.1 * self.distance_m) <= along <= 2.5)
+
+
+def detect_classical(image: Image, camera: PinholeCamera | None, config: DetectorConfig = DetectorConfig(),
+                     recent_cars: Sequence[GroundCar] = ()) -> list[Detection]:
+    """Every classical detector on one image, placed on the ground where the camera's mount is known.
+    ``recent_cars``: the cars found in the frames just before, where they stand now (:func:`part_of_car`)."""
     if image.ndim not in (2, 3) or min(image.shape[:2]) < MIN_IMAGE_PX:
         raise PerceptionError(f"an image of {image.shape} is too small to look for objects in (at least "
                               f"{MIN_IMAGE_PX} px a side)")
@@ -110,15 +145,17 @@ def detect_classical(image: Image, camera: PinholeCamera | None, config: Detecto
     out = detect_signals(image, signals, camera, planes)
     things = upright_things(image, camera, config.obstacles) if camera is not None and image.ndim == 3 else []
     barriers = detect_barriers(image, camera, config.obstacles, planes)
-    people = detect_standing_people(image, camera, config.obstacles, things)
+    # a barrier in the corridor stands upright too: it is not a car
+    cars = [c for c in detect_car(image, camera, config.obstacles, things)
+            if not any(_covered(c.box_px, b.box_px) for b in barriers)]
+    people = [p for p in detect_standing_people(image, camera, config.obstacles, things)
+              if not any(part_of_car(p.box_px, car.box_px) for car in cars)
+              and not any(car.holds(p) for car in recent_cars if math.isfinite(p.distance_m))]
     if config.people:  # HOG's people, and the upright shapes it did not find
         hog = detect_people(image, camera, config.obstacles, things)
         if camera is not None and image.ndim == 3:
             hog = [p for p in hog if _stands_under(p.box_px, things)]
         people = merge_people(hog, people)
-    # a barrier in the corridor stands upright too: it is not a car
-    cars = [c for c in detect_car(image, camera, config.obstacles, things)
-            if not any(_covered(c.box_px, b.box_px) for b in barriers)]
     # red on a car (its plate, its lights) is not a barrier
     barriers = [b for b in barriers if not any(_inside(b.box_px, c.box_px) for c in cars)]
     people = [p for p in people if not any(_covered(p.box_px, b.box_px) for b in barriers)]
@@ -143,6 +180,19 @@ def merge_people(hog: list[Detection], shaped: list[Detection]) -> list[Detectio
     shape the two overlap by less than a third: a rendered person, its frame compressed, was two people)."""
     return hog + [p for p in shaped if not any(box_iou(p.box_px, q.box_px) > 0.3 or _covered(p.box_px, q.box_px)
                                                for q in hog)]
+
+
+def part_of_car(box: tuple[float, float, float, float], car: tuple[float, float, float, float]) -> bool:
+    """Whether an upright shape's ``box`` is a car's edge: its foot on the car's bottom row (within 8 % of the
+    car's height, 3 px at least) and within a quarter of the car's width of its sides. Where the middle of a car's
+    back is not found upright (in the sun, a plain back), its two sides are each as tall and thin as a person:
+    the kart yielded to two people at a car it was to overtake, and stood behind it for good (sweep events 10190,
+    10214). A person before the car stands nearer, their foot lower in the image, and stays a person; so does one
+    HOG finds (only the shapes it did not find are checked). In the frames after, where the car itself may not be
+    found, the car as it stood on the ground says the same (:meth:`GroundCar.holds`)."""
+    width, height = car[2] - car[0], car[3] - car[1]
+    return (car[0] - width / 4 <= (box[0] + box[2]) / 2 <= car[2] + width / 4
+            and abs(box[3] - car[3]) <= max(3.0, 0.08 * height))
 
 
 def _stands_under(box: tuple[float, float, float, float], things: list[Upright]) -> bool:
@@ -207,15 +257,28 @@ class ObjectDetector:
         self.classical = classical
         self.model = OnnxDetector(Path(model), load_class_map(config.classes)) if model else None
         self.tracker = ObjectTracker(config.tracker)
+        self._cars: deque[list[GroundCar]] = deque(maxlen=config.car_memory_frames)
 
     def reset(self) -> None:
         """A new scene: tracks do not carry over."""
         self.tracker.reset()
+        self._cars.clear()
 
-    def __call__(self, image: Image) -> list[Detection]:
+    def __call__(self, image: Image, moved_m: float = math.inf) -> list[Detection]:
+        """The objects in the next frame; ``moved_m``: how far the kart went straight ahead since the frame before
+        (unknown: infinite, and the cars of earlier frames are forgotten)."""
         if image is None or image.size == 0:
             raise ConfigError("the object detector was given an empty image")
-        found = detect_classical(image, self.camera, self.config) if self.classical else []
+        if not math.isfinite(moved_m):
+            self._cars.clear()
+        else:  # the cars seen before, where they stand now
+            for cars in self._cars:
+                cars[:] = [replace(c, distance_m=c.distance_m - moved_m) for c in cars]
+        recent = [car for cars in self._cars for car in cars]
+        found = detect_classical(image, self.camera, self.config, recent) if self.classical else []
+        if self._cars.maxlen and self.camera is not None:
+            camera = camera_for_image(self.camera, image.shape[1], image.shape[0])
+            self._cars.append([g for d in found if d.label == "car" and (g := GroundCar.of(d, camera)) is not None])
         if self.model is not None:
             found += self._place(self.model(image), image)
         found = crossing_states(found, self.config.beside_crossing_m)

@@ -308,7 +308,7 @@ class LanePolicy:
             lane = lane_on_ground(observation, camera)
             if lane is not None:  # where the lane runs, for a manoeuvre that starts in a frame that lacks it
                 self.lane_ground = (frames.stamp_ns, lane)
-            found = self.objects(centre_image) if centre_image is not None else []
+            found = self.objects(centre_image, abs(moved)) if centre_image is not None else []
             view, self.last_objects = self._with_lidar(frames, found)
             self.last_behaviour, self.behaviour = behaviour_step(
                 self.config.behaviour, self.behaviour, self.last_objects, self.measured_speed_mps or 0.0, self.dt_s,
