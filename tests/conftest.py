@@ -38,6 +38,38 @@ def road_view(texture: np.ndarray, body_pose: np.ndarray, metres_per_px: float) 
     return cv2.warpPerspective(texture, ground_to_image @ texture_to_ground, (640, 480), flags=cv2.INTER_LINEAR)
 
 
+class GreyFrames:
+    """A sink that keeps one camera's frames, grey, as a simulated drive draws them: a test that builds places from
+    a drive, or queries them, needs its frames, not a recording of them (writing each as PNG to disk and reading it
+    back was a fifth of such a test's time). :meth:`posed` gives them with the drive's true camera poses, as a
+    recording's ``posed_frames`` does, the same grey images."""
+
+    def __init__(self, camera: str) -> None:
+        self.camera = camera
+        self.frames: list[tuple[int, np.ndarray]] = []
+
+    def write_frames(self, frames) -> None:
+        image = frames.images.get(self.camera)
+        if image is not None:  # grey as a recording's PNG reads back (libpng's grey is not cv2.cvtColor's, by a level)
+            ok, png = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 0])
+            assert ok
+            self.frames.append((frames.stamp_ns, cv2.imdecode(png, cv2.IMREAD_GRAYSCALE)))
+
+    def send(self, command) -> None:
+        pass
+
+    def write_outputs(self, stamp_ns, outputs) -> None:
+        pass
+
+    def posed(self, truth):
+        """(stamp_ns, grey image, pose_world_cam) of each frame kept, its pose the truth's at its stamp."""
+        stamps_ns = np.round(np.asarray(truth.stamps_s) * 1e9)
+        for stamp_ns, image in self.frames:
+            index = int(np.argmin(np.abs(stamps_ns - stamp_ns)))
+            assert abs(stamps_ns[index] - stamp_ns) < 1e6, "a frame without its true pose"
+            yield stamp_ns, image, truth.poses[index]
+
+
 class SteppedClock:
     """A monotonic clock in nanoseconds that moves only when a test advances it."""
 

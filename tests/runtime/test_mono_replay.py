@@ -27,13 +27,13 @@ SIM = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), came
 @pytest.fixture(scope="module")
 def drives(tmp_path_factory):
     """Taught over 20 s at 5 m/s on the centre line (95 m); a second drive (another seed, 4 m/s, weaving 0.3 m about
-    the centre line) over 15 s: 55 m, five of the weave's periods, all of it on the taught stretch with 40 m to
-    spare."""
+    the centre line) over 10 s: 35 m, three of the weave's periods, all of it on the taught stretch with 60 m to
+    spare (15 s and five periods proved no more, for half as much again of the module's time: two replays of it)."""
     folder = tmp_path_factory.mktemp("mono-replay")
     run_simulation(replace(SIM, max_time_s=20.0, seed=1), "centerline",
                    driver_config=CenterlineDriverConfig(speed_mps=5.0),
                    outputs=SessionOutputs(record_dir=folder / "teach"))
-    run_simulation(replace(SIM, max_time_s=15.0, seed=2), "centerline",
+    run_simulation(replace(SIM, max_time_s=10.0, seed=2), "centerline",
                    driver_config=CenterlineDriverConfig(speed_mps=4.0, weave_amplitude_m=0.3),
                    outputs=SessionOutputs(record_dir=folder / "second"))
     return folder
