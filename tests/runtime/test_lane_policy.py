@@ -1,5 +1,7 @@
 """The lane policy's speed: open-loop throttle as the thesis had it, or closed on the kart's measured speed."""
 
+from dataclasses import replace
+
 import pytest
 
 from kartpilot.core.errors import ConfigError
@@ -65,3 +67,24 @@ def test_on_a_taped_track_the_policy_steers_toward_the_track_and_records_its_tar
     for k in range(1, 12):  # a black camera: hold, then halt
         halted = policy(FrameSet(k, k, {"center": np.zeros((120, 160, 3), np.uint8)}))
     assert halted.brake == 1.0 and policy.fault()
+
+
+def test_on_the_way_back_the_lane_in_view_corrects_the_dead_reckoned_pose():
+    """Sweep event 10190: dead reckoned from a first view of the lane 4 deg off, the kart thought itself 2.9 m left of
+    its lane's centre where it was 1.5 m, and returned onto the right line. The lane seen on the way back (its
+    centre 1.63 m to the right, at 11 deg) pulls the pose halfway there each frame; a reading off the road, too far
+    from the pose, or as near as the other lane's, is left."""
+    import math
+
+    from kartpilot.core.types import VehiclePose
+    from kartpilot.runtime.lane_policy import lane_fix
+
+    pose = VehiclePose(0, 18.5, 2.90, math.radians(-7.8), 3.7, 0.0, "bridged", "dead reckoning")
+    fixed = lane_fix(pose, (-1.63, math.radians(11.4)), 3.0)
+    assert fixed.y_m == pytest.approx((2.90 + 1.63) / 2) and fixed.x_m == pose.x_m
+    assert math.degrees(fixed.yaw_rad) == pytest.approx((-7.8 - 11.4) / 2)
+    assert lane_fix(fixed, (-1.63, math.radians(11.4)), 3.0).y_m == pytest.approx(1.63 + (2.90 - 1.63) / 4)
+    assert lane_fix(pose, (1.7, math.radians(11.4)), 3.0) == pose  # the kart 1.7 m right of its lane: 4.6 m off
+    assert lane_fix(pose, (-1.63, math.radians(25.0)), 3.0) == pose  # a heading 17 deg from the pose's
+    middle = replace(pose, y_m=1.5)
+    assert lane_fix(middle, (0.0, 0.0), 3.0) == middle  # 0 or 3 m: as near, either lane

@@ -110,7 +110,8 @@ class LanePolicyConfig:
             on either side there are twice the faces.
         manoeuvre: the path follower that steers a manoeuvre the rules plan (an overtake, parking), on the pose dead
             reckoned from the measured speed and the steering; ``wheelbase_m`` is the kart's (the sdc-kart's);
-            the lanes steer again once the path is back within ``handover_m`` of the lane's centre.
+            the lanes steer again once the path is back within ``handover_m`` of the lane's centre. On the way back
+            the dead-reckoned pose is corrected by the lane in view (:func:`lane_fix`).
         scan, lidar_health: on a kart with a LiDAR (the vehicle's or the rig's mount), its sweeps' objects and its
             watchdog: while it gives good sweeps the rules use them (the camera's detections placed by the scan,
             the bay measured, the return held, a stop before what is in the way); once it has given none for
@@ -155,6 +156,29 @@ class LanePolicyConfig:
         if self.events and self.speed_mps <= 0:
             raise ConfigError("lane_policy.events needs lane_policy.speed_mps: the event's rules hold the speed on "
                               "the kart's measured speed")
+
+
+def lane_fix(pose: VehiclePose, lane: tuple[float, float], lane_width_m: float, gate_m: float = 1.5,
+             gate_rad: float = 0.15, gain: float = 0.5) -> VehiclePose:
+    """A manoeuvre's dead-reckoned ``pose`` (in the frame of the lane where it began: x along it, y left of its
+    centre) moved toward where the lane seen now puts the kart: ``lane`` (its centre's offset at the body's origin,
+    left positive, and its heading) is the lane the kart began in or the one beside it to the left, ``lane_width_m``
+    on; of the two readings on the road, the one nearer the pose is taken where it lies within ``gate_m`` and
+    ``gate_rad`` of it and the other is farther by 0.4 m. Dead reckoning from a first view of the lane off by 4 to 6
+    deg in heading put the kart's return onto the right line 20 m on (sweep events 10190, 10232); the lane in view
+    on the way back says where the kart is."""
+    offset, heading = lane
+    on_road = [y for y in (-offset, lane_width_m - offset) if -lane_width_m / 2 <= y <= 1.5 * lane_width_m]
+    readings = sorted((abs(y - pose.y_m), y) for y in on_road)
+    if not readings:
+        return pose
+    miss, y = readings[0]
+    yaw = -heading
+    if miss > gate_m or (len(readings) > 1 and readings[1][0] - miss < 0.4) or abs(
+            math.remainder(yaw - pose.yaw_rad, math.tau)) > gate_rad:
+        return pose
+    return replace(pose, y_m=pose.y_m + gain * (y - pose.y_m),
+                   yaw_rad=pose.yaw_rad + gain * math.remainder(yaw - pose.yaw_rad, math.tau))
 
 
 LANE_PRESETS: dict[str, LanePolicyConfig] = {
@@ -342,6 +366,9 @@ class LanePolicy:
             steer = self.measured_steer_rad if self.measured_steer_rad is not None else (
                 self.last_command.steer_rad if self.last_command is not None else 0.0)
             pose = dead_reckon(pose, speed, steer, self.config.wheelbase_m, self.dt_s, stamp_ns)
+        if b.state == "overtake" and follow.index > int(np.argmax(np.abs(path.y_m))) and self.lane_ground is not None \
+                and self.lane_ground[0] == stamp_ns:
+            pose = lane_fix(pose, self.lane_ground[1], self.config.behaviour.passing.lane_offset_m)
         out, follow = path_follow_step(self.config.manoeuvre, follow, path, pose, self.dt_s, self.config.wheelbase_m,
                                        self.config.follow.max_steer_rad)
         self.manoeuvre = (path, follow, pose)
