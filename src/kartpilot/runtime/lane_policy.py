@@ -366,7 +366,8 @@ class LanePolicy:
             steer = self.measured_steer_rad if self.measured_steer_rad is not None else (
                 self.last_command.steer_rad if self.last_command is not None else 0.0)
             pose = dead_reckon(pose, speed, steer, self.config.wheelbase_m, self.dt_s, stamp_ns)
-        if b.state == "overtake" and follow.index > int(np.argmax(np.abs(path.y_m))) and self.lane_ground is not None \
+        peak = int(np.argmax(np.abs(path.y_m)))  # an overtake's return begins past its widest point
+        if b.state == "overtake" and follow.index > peak and self.lane_ground is not None \
                 and self.lane_ground[0] == stamp_ns:
             pose = lane_fix(pose, self.lane_ground[1], self.config.behaviour.passing.lane_offset_m)
         out, follow = path_follow_step(self.config.manoeuvre, follow, path, pose, self.dt_s, self.config.wheelbase_m,
@@ -374,7 +375,7 @@ class LanePolicy:
         self.manoeuvre = (path, follow, pose)
         self.state = replace(self.state, steer_rad=out.steer_rad)
         if b.state == "overtake":
-            returning = out.index > int(np.argmax(np.abs(path.y_m)))
+            returning = out.index > peak
             if out.done or (returning and abs(float(path.y_m[out.index])) < self.config.handover_m):
                 self.manoeuvre = None  # back in the lane: the lanes steer the rest
                 return decision
