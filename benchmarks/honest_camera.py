@@ -1,6 +1,6 @@
 """The simulated camera held to real ones: the same measurements on real clips and on simulated drives through a
-perfect camera (``sim.effects`` as they were) and through the vehicle's real camera (``--real-camera``,
-:func:`kartpilot.sim.simulator.real_camera`), and what each does to VO.
+perfect camera (``--perfect-camera``, :func:`kartpilot.sim.simulator.perfect_camera`) and through the vehicle's
+real camera (the kart presets' default, :func:`kartpilot.sim.simulator.real_camera`), and what each does to VO.
 
 Measured on the real clips (none of them tuned anything here): a rectified pair's vertical offset and the frame to
 frame brightness steps, and stereo VO's drift. Simulated: the rc-kart's stereo on utrack (seed 1 tuned the
@@ -38,7 +38,7 @@ from kartpilot.record.replay import RecordingFrameSource
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
-from kartpilot.sim.simulator import SimConfig, real_camera
+from kartpilot.sim.simulator import SimConfig, perfect_camera, real_camera
 from vo_accuracy import record_once
 from vo_table import put_at_marker
 
@@ -82,8 +82,7 @@ def simulated_rows(cache: Path) -> list[dict[str, Any]]:
         for seed in (1, 2, 3):
             config = SimConfig(track="utrack", vehicle="rc-kart", cameras=("left", "right"), camera_rate_hz=10.0,
                                max_time_s=80.0, seed=seed)
-            if camera == "real":
-                config = replace(config, effects=real_camera("rc-kart"))
+            config = replace(config, effects=real_camera("rc-kart") if camera == "real" else perfect_camera())
             folder = record_once(cache / f"utrack-rc-stereo-80s-{seed}{'-real' if camera == 'real' else ''}",
                                config, 2.0)
             source = RecordingStereoSource(folder)
@@ -94,8 +93,7 @@ def simulated_rows(cache: Path) -> list[dict[str, Any]]:
             rows.append(row)
         config = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0,
                            max_time_s=70.0, seed=3)
-        if camera == "real":
-            config = replace(config, effects=real_camera("sdc-kart"))
+        config = replace(config, effects=real_camera("sdc-kart") if camera == "real" else perfect_camera())
         folder = record_once(cache / f"assen-sdc-centre-70s-3{'-real' if camera == 'real' else ''}", config, 4.0)
         reader = RecordingReader(folder)
         lens = reader.cameras["center"]

@@ -202,7 +202,7 @@ def test_a_scenario_on_a_kart_that_is_not_the_sdc_kart_is_a_one_line_error(capsy
 
 
 @pytest.mark.parametrize("given", [["--track", "utrack"], ["--rate", "30"], ["--no-render"], ["--driver", "lanes"],
-                                   ["--real-camera"]])
+                                   ["--perfect-camera"]])
 def test_a_sim_option_a_scenario_would_ignore_is_refused_by_name(given, capsys):
     """Issue 56's options accepted and ignored: with --scenario, the course, the driver and the camera are the
     scenario's; each of these was taken and silently dropped."""

@@ -34,7 +34,7 @@ from kartpilot.runtime.session import SessionOutputs, SessionResult
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sensors.health import HealthConfig
 from kartpilot.sim.can_ecu import KartpilotEcus, RdwEcuConfig, RdwEcus
-from kartpilot.sim.simulator import SimConfig
+from kartpilot.sim.simulator import SimConfig, perfect_camera
 
 
 def _free_port() -> int:
@@ -62,7 +62,7 @@ def _camera_video(tmp_path):
     the video decoder and the ECUs' thread, the real 848x480 camera's larger frames once starved the sender past
     the motor ECU's 200 ms idle (a machine's speed, not the stack's behaviour, which the simulated clock tests)."""
     sim_config = SimConfig(track="sdc-assen", vehicle="sdc-kart-steep", cameras=("center",), camera_rate_hz=15.0,
-                           max_time_s=4.0, seed=1)
+                           max_time_s=4.0, seed=1, effects=perfect_camera())
     run_simulation(sim_config, "centerline", outputs=SessionOutputs(record_dir=tmp_path / "teach"))
     frames = RecordingReader(tmp_path / "teach").frames("center")
     first = cv2.imread(str(frames[0][1]))

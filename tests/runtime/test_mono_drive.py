@@ -17,10 +17,11 @@ from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation, run_supervised_drive
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.render import RenderConfig
-from kartpilot.sim.simulator import SimConfig
+from kartpilot.sim.simulator import SimConfig, perfect_camera
 
+# the perfect camera: the place fixes' geometry is this test's (the real camera's VO: benchmarks/honest_camera.py)
 SIM = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0,
-                render=RenderConfig(scenery_spacing_m=15.0))
+                render=RenderConfig(scenery_spacing_m=15.0), effects=perfect_camera())
 
 
 @pytest.mark.slow

@@ -2,6 +2,7 @@
 camera's motion, light and lens predict, and the simulator delivering them."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -17,7 +18,7 @@ from kartpilot.sim.camera_effects import (
     moving_exposure,
     shift_rows,
 )
-from kartpilot.sim.simulator import CameraEffectsConfig, SimConfig, Simulator, real_camera
+from kartpilot.sim.simulator import CameraEffectsConfig, SimConfig, Simulator, perfect_camera, real_camera
 
 CAMERA = get_vehicle("sdc-kart").camera("center")  # 848x480, f 640 px, 0.56 m up, 6.8 deg down, 1.2 m ahead
 ROWS = np.arange(CAMERA.height_px)
@@ -110,12 +111,16 @@ def test_a_rectification_residual_moves_the_rows_by_a_fraction_of_a_pixel() -> N
 
 
 def test_the_simulator_delivers_its_frames_through_the_sensor_and_the_mjpg_stream() -> None:
-    """Off by default (every simulated result so far is without them); on, the frames the stack reads are the
-    compressed, noisier ones, of the camera's own size."""
-    assert CameraEffectsConfig().jpeg_quality == 0 and CameraEffectsConfig().shot_noise == 0.0
-    base = SimConfig(track="utrack", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0)
+    """On by default (the kart presets' real camera), off in the perfect camera; on, the frames the stack reads are
+    the compressed, noisier ones, of the camera's own size."""
+    assert CameraEffectsConfig() == real_camera("sdc-kart") == real_camera("rc-kart")
+    assert CameraEffectsConfig().jpeg_quality > 0 and CameraEffectsConfig().rolling_shutter_s > 0
+    perfect = perfect_camera()
+    assert (perfect.jpeg_quality, perfect.shot_noise, perfect.rolling_shutter_s, perfect.exposure_blur_samples,
+            perfect.auto_exposure_s, perfect.rectification_residual_px) == (0, 0.0, 0.0, 0, 0.0, 0.0)
+    base = SimConfig(track="utrack", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0, effects=perfect)
     honest = SimConfig(track="utrack", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0,
-                       effects=CameraEffectsConfig(jpeg_quality=80, shot_noise=0.5))
+                       effects=replace(perfect, jpeg_quality=80, shot_noise=0.5))
     with Simulator(base) as plain, Simulator(honest) as camera:
         a, b = plain.read(), camera.read()
     assert a is not None and b is not None
@@ -127,7 +132,8 @@ def test_the_simulator_delivers_its_frames_through_the_sensor_and_the_mjpg_strea
 def test_the_real_camera_of_a_stereo_kart_differs_from_the_ideal_one_as_measured() -> None:
     """The small kart's pair through its real cameras: a vertical offset between the two of about the residual
     (measured by matching the pair as on KITTI), the brightness held near the auto-exposure's level."""
-    config = SimConfig(track="utrack", vehicle="rc-kart", cameras=("left", "right"), camera_rate_hz=10.0, seed=3)
+    config = SimConfig(track="utrack", vehicle="rc-kart", cameras=("left", "right"), camera_rate_hz=10.0, seed=3,
+                       effects=perfect_camera())
     real = real_camera("rc-kart")
     with Simulator(config) as ideal_sim, Simulator(SimConfig(**{**config.__dict__, "effects": real})) as real_sim:
         ideal, honest = ideal_sim.read(), real_sim.read()

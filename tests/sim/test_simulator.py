@@ -2,6 +2,7 @@
 
 import hashlib
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from kartpilot.record.recording import RecordingReader, RecordingStereoSource
 from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
-from kartpilot.sim.simulator import CameraEffectsConfig, SimConfig, Simulator
+from kartpilot.sim.simulator import CameraEffectsConfig, SimConfig, Simulator, perfect_camera
 
 SHORT = SimConfig(track="straight20", vehicle="rc-kart", cameras=("left", "right"), camera_rate_hz=10.0,
                   max_time_s=1.0)
@@ -63,7 +64,7 @@ def test_a_recorded_run_holds_frames_commands_ground_truth_and_the_result(tmp_pa
 
 
 def test_dropped_frames_vibration_and_exposure_are_applied():
-    effects = CameraEffectsConfig(drop_probability=0.5, vibration_m=0.005, exposure_gain=0.5, noise_sigma=0.0)
+    effects = replace(perfect_camera(), drop_probability=0.5, vibration_m=0.005, exposure_gain=0.5, noise_sigma=0.0)
     config = SimConfig(track="straight20", cameras=("left",), camera_rate_hz=10.0, effects=effects, max_time_s=2.0)
     with Simulator(config) as sim:
         images = []
@@ -78,7 +79,7 @@ def test_dropped_frames_vibration_and_exposure_are_applied():
 
 
 def test_the_light_changes_at_the_given_time():
-    effects = CameraEffectsConfig(noise_sigma=0.0, light_change_at_s=0.2, light_change_gain=0.3)
+    effects = replace(perfect_camera(), noise_sigma=0.0, light_change_at_s=0.2, light_change_gain=0.3)
     config = SimConfig(track="straight20", cameras=("left",), camera_rate_hz=10.0, effects=effects, max_time_s=0.4)
     with Simulator(config) as sim:
         means = []

@@ -39,9 +39,9 @@ SCENARIOS = ("start-on-green", "speed-limit", "red-light", "pedestrian", "overta
 """The event's scenarios: ``kartpilot.sim.scenarios.SCENARIOS``."""
 VEHICLES = ("rc-kart", "sdc-kart", "sdc-kart-2026", "sdc-kart-steep")
 """The vehicles, in sorted order: ``kartpilot.core.vehicle.VEHICLES``."""
-REAL_CAMERA_HELP = ("the vehicle's real cameras, not a perfect pinhole: rolling shutter, motion blur, auto-exposure, "
-                    "shot noise, MJPG, the stereo pair's rectification residual (replaces sim.effects; "
-                    "docs/simulator.md)")
+PERFECT_CAMERA_HELP = ("a perfect pinhole rather than the vehicle's real cameras (the default: rolling shutter, "
+                       "motion blur, auto-exposure, shot noise, MJPG, the stereo pair's rectification residual); "
+                       "replaces sim.effects (docs/simulator.md)")
 
 STUDIES = ("features", "filters", "detectors", "robustness", "lanes", "controllers")
 """The built-in studies: ``kartpilot.study.spec.BUILT_IN``."""
@@ -189,7 +189,7 @@ def _general(sub: argparse._SubParsersAction) -> None:
     sim.add_argument("--seed", type=number(int, minimum=0))
     sim.add_argument("--rate", type=number(above=0, maximum=1000), help="camera and control rate, Hz")
     sim.add_argument("--cameras", help="comma-separated cameras to render (default: all of the vehicle's)")
-    sim.add_argument("--real-camera", action="store_true", help=REAL_CAMERA_HELP)
+    sim.add_argument("--perfect-camera", action="store_true", help=PERFECT_CAMERA_HELP)
     sim.add_argument("--no-cones", action="store_true", help="remove the cones (scene and referee)")
     sim.add_argument("--no-render", action="store_true", help="physics and referee only (no images)")
     sim.add_argument("--record", type=new_folder,
@@ -514,7 +514,7 @@ def _drive(sub: argparse._SubParsersAction) -> None:
     drive_parser.add_argument("--rate", type=number(above=0, maximum=1000),
                               help="camera and control rate, Hz (--sim; a replay keeps its own)")
     drive_parser.add_argument("--steer-bias", type=number(), help="the simulated kart's drag to one side, rad (+ left)")
-    drive_parser.add_argument("--real-camera", action="store_true", help="--sim: " + REAL_CAMERA_HELP)
+    drive_parser.add_argument("--perfect-camera", action="store_true", help="--sim: " + PERFECT_CAMERA_HELP)
     drive_parser.add_argument("--record", type=new_folder,
                               help="record the drive here (frames, commands, outputs, CAN)")
     drive_parser.add_argument("--video", type=output_file,

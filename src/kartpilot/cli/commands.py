@@ -52,7 +52,7 @@ from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
 from kartpilot.sim.referee import RunResult
 from kartpilot.sim.scenarios import scenario_or_file, write_scenario_file
-from kartpilot.sim.simulator import real_camera
+from kartpilot.sim.simulator import perfect_camera
 from kartpilot.sim.synthetic_stereo import SyntheticStereoConfig, SyntheticStereoSource
 
 if TYPE_CHECKING:
@@ -238,7 +238,7 @@ def _print_result(result: RunResult, run: SimRun) -> None:
 # --scenario they would be taken and ignored
 _SCENARIO_SETS = {"track": None, "driver": "centerline", "speed_mode": None, "commands": None, "laps": None,
                   "speed": None, "weave": None, "edge_offset": None, "rate": None, "cameras": None,
-                  "real_camera": False, "no_cones": False, "no_render": False}
+                  "perfect_camera": False, "no_cones": False, "no_render": False}
 
 
 def _scenario(args: argparse.Namespace) -> int:
@@ -291,8 +291,8 @@ def simulate(args: argparse.Namespace) -> int:
         stack = load_stack_config(args.config, sim_lane_preset(args.preset, config.track))
     if args.cameras:
         config = replace(config, cameras=tuple(c.strip() for c in args.cameras.split(",") if c.strip()))
-    if args.real_camera:
-        config = replace(config, effects=real_camera(config.vehicle))
+    if args.perfect_camera:
+        config = replace(config, effects=perfect_camera())
     if args.laps is not None:
         config = replace(config, referee=replace(config.referee, laps=args.laps))
     if args.no_cones:

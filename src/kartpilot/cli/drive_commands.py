@@ -36,7 +36,7 @@ from kartpilot.runtime.pipelines import Route
 from kartpilot.runtime.replay import replay_recording
 from kartpilot.runtime.session import SessionOutputs, SessionResult
 from kartpilot.runtime.simulate import run_supervised_drive
-from kartpilot.sim.simulator import SimConfig, real_camera
+from kartpilot.sim.simulator import SimConfig, perfect_camera
 
 __all__ = ["drive", "experiment", "reference", "replay"]
 
@@ -144,8 +144,8 @@ def drive(args: argparse.Namespace) -> int:
         sim: SimConfig = replace(stack.sim, cameras=cameras,
                                  **{k: v for k, v in overrides.items() if v is not None})
         sim = with_default_speed_mode(sim, args.pipeline)
-        if args.real_camera:
-            sim = replace(sim, effects=real_camera(sim.vehicle))
+        if args.perfect_camera:
+            sim = replace(sim, effects=perfect_camera())
         if args.steer_bias is not None:
             sim = replace(sim, disturbances=replace(sim.disturbances, steer_bias_rad=args.steer_bias))
         if args.bus == "socketcan":

@@ -48,7 +48,7 @@ from kartpilot.runtime.pipelines import Route
 from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import SimRun, run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
-from kartpilot.sim.simulator import DisturbanceConfig, SimConfig
+from kartpilot.sim.simulator import CameraEffectsConfig, DisturbanceConfig, SimConfig
 
 __all__ = ["TeachRepeatConfig", "end_errors", "path_distance", "plain_stanley_drive_config", "run_teach_repeat",
            "summary_line"]
@@ -71,6 +71,7 @@ class TeachRepeatConfig:
             VO alone).
         drive: the pipeline's settings; its path's cruise speed is set to ``speed_mps``.
         vo: the stereo VO's settings, for the reference and the repeat drive alike.
+        effects: the simulated cameras (the small kart's real ones by default; ``perfect_camera()`` the pinhole).
     """
 
     track: str = "straight20"
@@ -82,6 +83,7 @@ class TeachRepeatConfig:
     controller: Literal["tuned", "plain_stanley"] = "tuned"
     drive: DriveConfig = field(default_factory=DriveConfig)
     vo: StereoVOConfig = field(default_factory=StereoVOConfig)
+    effects: CameraEffectsConfig = field(default_factory=CameraEffectsConfig)
 
     def __post_init__(self) -> None:
         if self.speed_mps <= 0 or self.camera_rate_hz <= 0:
@@ -133,7 +135,7 @@ def run_teach_repeat(config: TeachRepeatConfig, out: str | Path, progress: bool 
     pair = vehicle.stereo_pair
     assert pair is not None
     sim = SimConfig(track=config.track, vehicle=vehicle.name, seed=config.seed, camera_rate_hz=config.camera_rate_hz,
-                    cameras=pair,
+                    cameras=pair, effects=config.effects,
                     disturbances=DisturbanceConfig(steer_bias_rad=config.steer_bias_rad, cross_slope=True))
     body_cam = vehicle.camera(pair[0]).pose_body_cam_array
 

@@ -30,19 +30,26 @@ from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array, arc_2d, planar_pose
 from kartpilot.core.types import Image
 
-__all__ = ["add_shot_noise", "auto_exposure_gain", "body_motion", "jpeg_roundtrip", "mean_level", "motion_maps",
-           "moving_exposure", "shift_rows"]
+__all__ = ["add_shot_noise", "apply_gain", "auto_exposure_gain", "body_motion", "jpeg_roundtrip", "mean_level",
+           "motion_maps", "moving_exposure", "shift_rows"]
 
 # the coarse grid the motion maps are computed on (pixels); the maps are smooth, and bilinear between grid points
 _GRID_PX = 8
 
 
-def add_shot_noise(image: Image, strength: float, unit_noise: np.ndarray) -> Image:
-    """``image`` with noise whose variance is ``strength`` times each pixel's level (grey levels; photon shot
-    noise: a sunlit road is noisier in absolute terms than its shade), drawn from ``unit_noise`` (unit normal, of
-    the image's shape)."""
-    level = image.astype(np.float32)
-    return np.clip(level + np.sqrt(strength * level) * unit_noise, 0, 255).round().astype(np.uint8)
+def add_shot_noise(image: Image, strength: float, unit_noise: np.ndarray, read_sigma: float = 0.0) -> Image:
+    """``image`` with noise whose variance is ``strength`` times each pixel's level plus ``read_sigma`` squared
+    (grey levels; photon shot noise on top of the read noise: a sunlit road is noisier in absolute terms than its
+    shade), drawn from ``unit_noise`` (unit normal float32, of the image's shape). Rounded to the nearest level."""
+    sigma = np.sqrt(read_sigma ** 2 + strength * np.arange(256, dtype=np.float32)).astype(np.float32)
+    spread = cv2.multiply(cv2.LUT(image, sigma), unit_noise, dtype=cv2.CV_32F)
+    return cv2.add(image, spread, dtype=cv2.CV_8U)
+
+
+def apply_gain(image: Image, gain: float) -> Image:
+    """``image`` times ``gain``, cut at 255 and truncated: an exposure's gain (a table of the 256 levels)."""
+    table = np.clip(np.arange(256, dtype=np.float32) * np.float32(gain), 0, 255).astype(np.uint8)
+    return cv2.LUT(image, table)
 
 
 def jpeg_roundtrip(image: Image, quality: int) -> Image:
@@ -123,14 +130,14 @@ def moving_exposure(image: Image, camera: PinholeCamera, speed_mps: float, yaw_r
     height = camera.height_px
     rows = (np.arange(height) / max(height - 1, 1) - 0.5) * readout_s
     instants = [0.0] if exposure_s == 0 or samples < 2 else list(np.linspace(-0.5, 0.5, samples) * exposure_s)
-    total = np.zeros(image.shape, np.uint16)
+    total = None
     for instant in instants:
         map_x, map_y = motion_maps(camera, speed_mps, yaw_rate_radps, rows + instant)
         warped = cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         if len(instants) == 1:
             return warped
-        np.add(total, warped, out=total)
-    return ((total + len(instants) // 2) // len(instants)).astype(np.uint8)
+        total = warped.astype(np.uint16) if total is None else cv2.add(total, warped, dtype=cv2.CV_16U)
+    return cv2.convertScaleAbs(total, alpha=1.0 / len(instants))  # the mean, rounded to the nearest level
 
 
 def mean_level(image: Image) -> float:

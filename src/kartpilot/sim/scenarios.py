@@ -342,8 +342,9 @@ def scenario_text(plan: Scenario) -> str:
     for key, default in defaults.items():  # each object with what is its own (a light's phases, a person's walk)
         full[key] = [{k: v for k, v in item.items() if v != default[k] or k in _ALWAYS.get(item.get("kind", key), ())}
                      for item in full[key]]
-    for key, world in (("render", config_to_dict(RenderConfig())), ("effects", config_to_dict(CameraEffectsConfig()))):
-        full[key] = {k: v for k, v in full[key].items() if v != world[k]}
+    # the world as far as it is not the default; the camera whole, so that a file reproduces its event whatever the
+    # camera's defaults become (they changed once: the perfect pinhole until the kart's real camera)
+    full["render"] = {k: v for k, v in full["render"].items() if v != config_to_dict(RenderConfig())[k]}
     data = {"name": plan.name, "seed": plan.seed, "track": plan.track,
             **{k: v for k, v in full.items() if k not in ("name", "seed", "track", "marks") and v != {}},
             "marks": {k: float(v) for k, v in plan.marks.items()}}

@@ -24,6 +24,7 @@ from kartpilot.core.vehicle import GRAVITY_MPS2, VehicleParams, get_vehicle
 from kartpilot.perception.objects import Detection
 from kartpilot.sim.camera_effects import (
     add_shot_noise,
+    apply_gain,
     auto_exposure_gain,
     jpeg_roundtrip,
     mean_level,
@@ -37,12 +38,13 @@ from kartpilot.sim.render import RenderConfig, Renderer
 from kartpilot.sim.track import Prop, Track, load_track, project_onto
 
 __all__ = ["CameraEffectsConfig", "DisturbanceConfig", "SimConfig", "Simulator", "body_pose", "mount_off",
-           "real_camera"]
+           "perfect_camera", "real_camera"]
 
 
 @dataclass(frozen=True)
 class CameraEffectsConfig:
-    """What a real camera adds to a perfect rendering.
+    """What a real camera adds to a perfect rendering. The defaults are the kart presets' real cameras
+    (:func:`real_camera`); :func:`perfect_camera` is the renderer's pinhole with its read noise alone.
 
     Attributes:
         exposure_gain: brightness factor after rendering (above 1 over-exposes, below 1 under-exposes).
@@ -81,7 +83,7 @@ class CameraEffectsConfig:
     exposure_gain: float = 1.0
     noise_sigma: float = 2.0
     motion_blur_subframes: int = 1
-    exposure_time_s: float = 0.01
+    exposure_time_s: float = 0.008
     drop_probability: float = 0.0
     vibration_m: float = 0.0
     vibration_pitch_deg: float = 0.0
@@ -89,13 +91,13 @@ class CameraEffectsConfig:
     lens_distortion: tuple[float, ...] = ()
     light_change_at_s: float = 0.0
     light_change_gain: float = 1.0
-    shot_noise: float = 0.0
-    jpeg_quality: int = 0
-    rolling_shutter_s: float = 0.0
-    exposure_blur_samples: int = 0
-    auto_exposure_s: float = 0.0
+    shot_noise: float = 0.3
+    jpeg_quality: int = 85
+    rolling_shutter_s: float = 0.02
+    exposure_blur_samples: int = 3
+    auto_exposure_s: float = 0.3
     auto_exposure_level: float = 110.0
-    rectification_residual_px: float = 0.0
+    rectification_residual_px: float = 0.2
     mount_pitch_deg: float = 0.0
     mount_roll_deg: float = 0.0
     mount_height_m: float = 0.0
@@ -166,16 +168,22 @@ class SimConfig:
 
 def real_camera(vehicle: str) -> CameraEffectsConfig:
     """What the named vehicle's real cameras add to a rendering, as far as we know them: the effects a simulated
-    result must survive before it says anything about the kart (``--real-camera``).
+    result must survive before it says anything about the kart (the default of every kart preset).
 
     Measured: the stereo pair's rectification residual (0.21 px on KITTI 06, 0.16 px on EuRoC MH_01, by
     ``benchmarks/honest_camera.py``). Typical of the cameras' kind, not measured on them: a USB camera's MJPG
     quality, a rolling shutter read over two thirds of a 30 Hz frame, 8 ms exposures outdoors, an auto-exposure
     that settles in about a second, photon shot noise."""
     get_vehicle(vehicle)  # an unknown name is the usual error
-    return CameraEffectsConfig(noise_sigma=2.0, shot_noise=0.3, jpeg_quality=85, rolling_shutter_s=0.02,
-                               exposure_time_s=0.008, exposure_blur_samples=3, auto_exposure_s=0.3,
-                               rectification_residual_px=0.2)
+    return CameraEffectsConfig()
+
+
+def perfect_camera() -> CameraEffectsConfig:
+    """The renderer's perfect pinhole with only its read noise (2 grey levels): every row at one instant, no blur,
+    a fixed exposure, no compression, a perfectly rectified pair (``--perfect-camera``; what the simulator's
+    figures were measured through before the real camera became the default)."""
+    return CameraEffectsConfig(exposure_time_s=0.01, shot_noise=0.0, jpeg_quality=0, rolling_shutter_s=0.0,
+                               exposure_blur_samples=0, auto_exposure_s=0.0, rectification_residual_px=0.0)
 
 
 def mount_off(pose_body_cam: Array, effects: CameraEffectsConfig) -> Array:
@@ -241,7 +249,9 @@ class Simulator:
         self.referee = Referee(self.track, self.vehicle, config.referee, cones=config.show_cones)
         self._rng = np.random.default_rng(config.seed)
         self._vibration_phase = self._rng.uniform(0, 2 * np.pi, 2)
-        self._noise_bank = self._make_noise_bank() if config.effects.noise_sigma > 0 and config.render_images else []
+        # the read noise alone from a bank of its own; with shot noise, both from one unit normal draw
+        self._noise_bank = self._make_noise_bank() if (config.effects.noise_sigma > 0 and not config.effects.shot_noise
+                                                       and config.render_images) else []
         self._unit_bank = self._make_unit_bank() if config.effects.shot_noise > 0 and config.render_images else []
         self._exposure_gains: dict[str, float] = {}  # each camera's auto-exposure, from the frames before
         self._renderer: Renderer | None = None
@@ -467,7 +477,7 @@ class Simulator:
                                                             effects.auto_exposure_s)
             gain *= current
         if gain != 1.0:
-            out = np.clip(out.astype(np.float32) * gain, 0, 255).astype(np.uint8)
+            out = apply_gain(out, gain)
         if self._noise_bank:
             bank = self._noise_bank[int(self._rng.integers(len(self._noise_bank)))]
             h, w = out.shape[:2]
@@ -477,7 +487,7 @@ class Simulator:
             bank = self._unit_bank[int(self._rng.integers(len(self._unit_bank)))]
             h, w = out.shape[:2]
             dy, dx = (int(v) for v in self._rng.integers(0, 32, 2))
-            out = add_shot_noise(out, effects.shot_noise, bank[dy:dy + h, dx:dx + w])
+            out = add_shot_noise(out, effects.shot_noise, bank[dy:dy + h, dx:dx + w], effects.noise_sigma)
         if effects.jpeg_quality:
             out = jpeg_roundtrip(out, effects.jpeg_quality)
         return out
