@@ -21,12 +21,19 @@ from common import write_json
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.files import read_json_file
 from kartpilot.eval.scenarios import CAUSES, sweep_summary
+from kartpilot.sim.simulator import CameraEffectsConfig
 from kartpilot.sim.variation import DayRanges
 from kartpilot.study.sweep import SINGLE_SCENARIOS, run_sweep, sweep_cells
 from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "scenarios.md"
+
+
+def camera_name(results: dict[str, Any]) -> str:
+    """``real`` or ``perfect``: the camera the sweep's events were varied from (a sweep before the field: perfect)."""
+    camera = results.get("camera")
+    return "real" if camera and camera.get("jpeg_quality", 0) > 0 else "perfect"
 
 
 def render(results: dict[str, Any]) -> str:
@@ -43,7 +50,7 @@ def render(results: dict[str, Any]) -> str:
                  f"{results['first_seed'] + results['events'] - 1}, {results['date']}; "
                  f"{results['wall_s'] / 60:.0f} min "
                  f"on {results['cpus']:g} cores ({results['per_event_s']:.0f} s of a core per event); "
-                 f"`benchmarks/scenario_sweep.py`*")
+                 f"through the {camera_name(results)} camera; `benchmarks/scenario_sweep.py`*")
     pitch = results["summary"].get("pitch", {"events": 0})
     if pitch["events"]:
         lines += ["", f"The camera's pitch measured from the lanes while driving (`kartpilot.perception.horizon`), "
@@ -96,6 +103,7 @@ def main() -> int:
     write_json(args.json, {
         "date": datetime.date.today().isoformat(), "events": args.events, "first_seed": args.first_seed,
         "scenarios": list(SINGLE_SCENARIOS), "variation": config_to_dict(ranges), "computed": run.computed,
+        "camera": config_to_dict(CameraEffectsConfig()),  # the defaults each event's camera is varied from
         "cached": run.cached, "wall_s": run.wall_s, "cpus": run.cpus,
         "per_event_s": sum(seconds) / max(len(seconds), 1),
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),

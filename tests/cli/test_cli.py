@@ -110,7 +110,8 @@ def test_teach_reference_and_drive_it_in_the_simulator_and_on_the_replay(tmp_pat
     config.write_text("sim:\n  max_time_s: 4.0\n")
     record = tmp_path / "teach"
     assert main(["sim", "--track", "straight20", "--vehicle", "rc-kart", "--cameras", "left,right", "--rate", "10",
-                 "--speed", "0.8", "--record", str(record), "--config", str(config), "--no-progress"]) == 0
+                 "--speed", "0.8", "--record", str(record), "--config", str(config), "--no-progress",
+                 "--perfect-camera"]) == 0
     reference = tmp_path / "ref.csv"
     assert main(["reference", str(record), "--out", str(reference), "--speed", "0.8"]) == 0
     out = capsys.readouterr().out
