@@ -2,9 +2,10 @@
 typed ``values.input_path`` or ``values.config_path``), so a new command's inputs are tried without a line here.
 Each is given a path that does not exist, a folder, a file of random bytes, an empty file (not for a YAML config,
 where empty means the defaults), a name that is not UTF-8, a named pipe (a reader that opens it waits for good), a
-loop of symbolic links, UTF-16 text, text with a byte-order mark and Windows line ends whose keys nothing knows, and
-brackets nested 100,000 deep; every required argument beside it gets the same,
-and the outputs a scratch folder. Each case must end at once with exit 1 (or 2, a usage error), a last line of
+loop of symbolic links, UTF-16 text, text with a byte-order mark and Windows line ends whose keys nothing knows,
+brackets nested 100,000 deep, a YAML cut off mid-line, a PNG cut off in its data and one whose header claims 3.6
+gigapixels, and (where the tests do not run as root) a file nobody may read; every required argument beside it gets
+the same, and the outputs a scratch folder. Each case must end at once with exit 1 (or 2, a usage error), a last line of
 ``kartpilot: ...`` or a usage error, and no traceback. A 60 s alarm catches a command that goes on with a bad input
 instead (one did: the teach-and-repeat experiment waited for good on a track that did not exist)."""
 
@@ -13,8 +14,12 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import struct
+import zlib
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 from tests.conftest import subcommands
 
@@ -22,7 +27,17 @@ from kartpilot.cli import values
 from kartpilot.cli.main import build_parser, main
 
 KINDS = ("missing", "folder", "garbage", "empty", "not utf-8", "fifo", "symlink loop", "utf-16", "bom crlf",
-         "nested bomb")
+         "nested bomb", "cut text", "cut png", "huge header") + (("unreadable",) if os.geteuid() != 0 else ())
+"""The kinds of bad file; ``unreadable`` only where the tests do not run as root (root reads every file)."""
+
+
+def _png(width: int = 64, height: int = 48) -> bytes:
+    """A small PNG of noise, its header then saying ``width`` x ``height`` (the header's CRC made right again)."""
+    image = np.random.default_rng(0).integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    data = bytearray(cv2.imencode(".png", image)[1].tobytes())
+    data[16:24] = struct.pack(">II", width, height)  # IHDR's width and height
+    data[29:33] = struct.pack(">I", zlib.crc32(bytes(data[12:29])))
+    return bytes(data)
 
 
 COMMANDS = subcommands(build_parser())
@@ -56,9 +71,16 @@ def _bad(tmp: Path, kind: str) -> str:
     contents = {"garbage": os.urandom(512), "empty": b"", "not utf-8": b": [\n",
                 "utf-16": "speed_mps: 1.0\nname: x\n".encode("utf-16"),
                 "bom crlf": b"\xef\xbb\xbfno_such_key: 1\r\nnor_this: [1, 2]\r\n",
-                "nested bomb": b"[" * 100_000 + b"]" * 100_000}
-    name = os.fsdecode(b"input-\xff.yaml") if kind == "not utf-8" else f"{kind.replace(' ', '-')}.yaml"
+                "nested bomb": b"[" * 100_000 + b"]" * 100_000,
+                "cut text": b"name: x\nitems: [1, 2\nspeed_m",  # a YAML, JSON or CSV cut off mid-line
+                "cut png": _png()[:300],  # an image cut off in its data
+                "huge header": _png(60_000, 60_000),  # 3.6 gigapixels by its header
+                "unreadable": b"name: x\n"}
+    suffix = ".png" if kind in ("cut png", "huge header") else ".yaml"
+    name = os.fsdecode(b"input-\xff.yaml") if kind == "not utf-8" else f"{kind.replace(' ', '-')}{suffix}"
     (tmp / name).write_bytes(contents[kind])
+    if kind == "unreadable":
+        (tmp / name).chmod(0)
     return str(tmp / name)
 
 
@@ -123,3 +145,29 @@ def test_the_matrix_covers_the_commands_that_read_files():
     for command in ("odometry kitti", "eval trajectory", "lanes", "detect", "calibrate ground", "replay",
                     "recordings info", "places query", "drive", "sim", "study run"):
         assert command in commands, command
+
+
+def _onto_input(command: str, target: str, kept: Path, tmp: Path) -> list[str]:
+    """The command with ``kept`` as the input ``target`` and as every output it names (its folder-typed ones too)."""
+    argv = _argv(command, target, str(kept), tmp)
+    for action in COMMANDS[command]._actions:
+        if action.type in values.OUTPUT_TYPES and action.option_strings and not action.required:
+            argv += [action.option_strings[0], str(kept)]
+    return [str(kept) if word == str(tmp / "out" / "result.txt") else word for word in argv]
+
+
+OUTPUT_COMMANDS = [(c, t) for c, t in INPUTS if any(a.type in values.OUTPUT_TYPES for a in COMMANDS[c]._actions)]
+
+
+@pytest.mark.parametrize(("command", "target"), OUTPUT_COMMANDS, ids=[f"{c} {t}" for c, t in OUTPUT_COMMANDS])
+def test_an_output_onto_an_input_is_refused_and_the_input_kept(tmp_path, capsys, command, target):
+    """The matrix's last kind: a path that is an input and the command's outputs at once. The command ends with one
+    line and the file is as it was (the guard of ``values.check_paths``, or the output's own type)."""
+    kept = tmp_path / "input.yaml"
+    kept.write_bytes(b"name: kept\n")
+    argv = _onto_input(command, target, kept, tmp_path)
+    code = main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code in (1, 2), f"{argv} exited {code}"
+    assert err and err[-1].startswith("kartpilot") and not any("Traceback" in line for line in err), argv
+    assert kept.read_bytes() == b"name: kept\n", f"{argv} changed its input"
