@@ -5,6 +5,7 @@ crash or a damaged line is left out or named."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -216,3 +217,31 @@ def test_the_rerun_view_of_a_recording_shows_every_sweep(drive, tmp_path) -> Non
     rows = sum(chunk.num_rows for chunk in RrdReader(str(tmp_path / "drive.rrd")).store().stream()
                if str(chunk.entity_path) == "/lidar/lidar" and not chunk.is_static)
     assert rows == len(RecordingReader(drive).scans("lidar")) == 20
+
+
+def test_the_rerun_view_lays_the_sweeps_on_the_bird_s_eye_view(drive, tmp_path) -> None:
+    """Issue 58: the scan over what the camera sees. Each frame's centre image on the ground, and each sweep's
+    returns on it through the LiDAR's mount: a return 10 m ahead of the sensor and 1 m to its left is drawn 11.45 m
+    ahead of the rear axle (the mount 1.45 m ahead), 1 m left of the view's middle column."""
+    from rerun.chunk import RrdReader
+
+    from kartpilot.record.rerun_view import ViewConfig, birdseye_view_grid, scan_on_birdseye, view_recording
+
+    reader = RecordingReader(drive)
+    config = ViewConfig()
+    grid = birdseye_view_grid(reader.cameras["center"], config)
+    assert grid is not None
+    pixel = scan_on_birdseye(np.array([[10.0, 1.0]]), reader.lidars["lidar"], grid)[0]
+    resolution = config.birdseye_resolution_m
+    assert pixel == pytest.approx([(config.birdseye_side_m - 1.0) / resolution,
+                                   (config.birdseye_ahead_m - 11.45) / resolution])
+    unmounted = replace(reader.cameras["center"], pose_body_cam=tuple(map(tuple, np.eye(4))))
+    assert birdseye_view_grid(unmounted, config) is None  # a camera with no mount lays nothing on the ground
+
+    view_recording(drive, tmp_path / "drive.rrd")
+    rows: dict[str, int] = {}
+    for chunk in RrdReader(str(tmp_path / "drive.rrd")).store().stream():
+        if not chunk.is_static:
+            rows[str(chunk.entity_path)] = rows.get(str(chunk.entity_path), 0) + chunk.num_rows
+    assert rows["/birdseye/lidar"] == len(reader.scans("lidar")) == 20
+    assert rows["/birdseye"] == len(reader.frames("center"))

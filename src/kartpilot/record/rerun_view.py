@@ -20,7 +20,11 @@ sets' time stamps, nanoseconds):
   (the supervisor's state and reason, the lane rule);
 * ``can/<message>/<signal>``: each CAN frame decoded with the bus's DBC (``can/raw/<id>``: a frame it lacks);
 * ``lidar/<name>``: each LiDAR sweep's returns as a top view in the sensor's frame (the sensor at the origin, its
-  front up, its left to the left; metres).
+  front up, its left to the left; metres);
+* ``birdseye``: the road around the kart from above, the centre camera's image laid on the ground
+  (:func:`kartpilot.perception.birdseye.birdseye`; the kart's front up, its rear axle ``birdseye_behind_m`` above
+  the bottom edge), and ``birdseye/<lidar>``: each sweep's returns on it, where they are on the kart (through the
+  LiDAR's mount): what the scan measures over what the camera sees.
 """
 
 from __future__ import annotations
@@ -45,10 +49,11 @@ from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import DataError
 from kartpilot.core.images import read_image
 from kartpilot.core.trajectory import Trajectory
-from kartpilot.core.types import ActuatorCommand, FrameSet, Image
+from kartpilot.core.types import ActuatorCommand, FrameSet, Image, LidarMount
+from kartpilot.perception.birdseye import BirdseyeGrid, birdseye, birdseye_grid
 from kartpilot.record.recording import RecordingReader
 
-__all__ = ["LIVE", "RerunView", "ViewConfig", "view_recording"]
+__all__ = ["LIVE", "RerunView", "ViewConfig", "birdseye_view_grid", "scan_on_birdseye", "view_recording"]
 
 log = logging.getLogger(__name__)
 
@@ -62,16 +67,28 @@ class ViewConfig:
         image_every: the images of every n-th set are logged (the numbers of every set are).
         jpeg_quality: 1 to 100.
         queue_steps: steps waiting for the logging thread; beyond them a step's images are dropped and counted.
+        birdseye_camera: the camera laid on the ground for the ``birdseye`` view (one with a mount; none: no view).
+        birdseye_ahead_m, birdseye_behind_m, birdseye_side_m, birdseye_resolution_m: its extent from the rear
+            axle (ahead, behind, to each side) and its metres a pixel.
     """
 
     image_scale: float = 0.5
     image_every: int = 1
     jpeg_quality: int = 80
     queue_steps: int = 16
+    birdseye_camera: str = "center"
+    birdseye_ahead_m: float = 20.0
+    birdseye_behind_m: float = 4.0
+    birdseye_side_m: float = 8.0
+    birdseye_resolution_m: float = 0.05
 
     def __post_init__(self) -> None:
         checks = {"image_scale": 0 < self.image_scale <= 1, "image_every": self.image_every >= 1,
-                  "jpeg_quality": 1 <= self.jpeg_quality <= 100, "queue_steps": self.queue_steps >= 1}
+                  "jpeg_quality": 1 <= self.jpeg_quality <= 100, "queue_steps": self.queue_steps >= 1,
+                  "birdseye_ahead_m": 0 < self.birdseye_ahead_m <= 100,
+                  "birdseye_behind_m": 0 <= self.birdseye_behind_m <= 50,
+                  "birdseye_side_m": 0 < self.birdseye_side_m <= 50,
+                  "birdseye_resolution_m": 0.01 <= self.birdseye_resolution_m <= 1}
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
             raise ValueError(f"{bad[0]} is out of range ({getattr(self, bad[0])!r})")
@@ -88,12 +105,15 @@ class RerunView:
 
     def __init__(self, target: str | Path, cameras: Mapping[str, PinholeCamera], config: ViewConfig = ViewConfig(),
                  database: cantools.database.can.Database | None = None, name: str = "kartpilot",
-                 drop_when_full: bool = True) -> None:
+                 drop_when_full: bool = True, lidars: Mapping[str, LidarMount] | None = None) -> None:
         """``database``: the bus's messages, to decode the CAN frames with. ``drop_when_full``: a live loop drops
-        a step's images when the logging thread lags; a recording's view (False) waits for it instead."""
+        a step's images when the logging thread lags; a recording's view (False) waits for it instead.
+        ``lidars``: the LiDARs' mounts, to put their sweeps on the ``birdseye`` view."""
         self.config = config
         self._drop_when_full = drop_when_full
         self.cameras = dict(cameras)
+        self.lidars = dict(lidars or {})
+        self._grid = birdseye_view_grid(self.cameras.get(config.birdseye_camera), config)
         self.stream = rr.RecordingStream("kartpilot", recording_id=f"{name}-{time.time_ns()}")
         if str(target) == LIVE:
             self.stream.spawn()
@@ -213,6 +233,12 @@ class RerunView:
             ok, jpeg = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, self.config.jpeg_quality])
             if ok:
                 self.stream.log(f"cameras/{name}", rr.EncodedImage(contents=jpeg.tobytes(), media_type="image/jpeg"))
+        under = images.get(self.config.birdseye_camera)
+        if self._grid is not None and under is not None:
+            ok, jpeg = cv2.imencode(".jpg", birdseye(under, self._grid), [cv2.IMWRITE_JPEG_QUALITY,
+                                                                          self.config.jpeg_quality])
+            if ok:
+                self.stream.log("birdseye", rr.EncodedImage(contents=jpeg.tobytes(), media_type="image/jpeg"))
 
     def _log_scalars(self) -> None:
         while self._scalars:
@@ -240,6 +266,10 @@ class RerunView:
                 points = scan.points_m()
                 self.stream.log(f"lidar/{name}", rr.Points2D(np.column_stack([-points[:, 1], -points[:, 0]]),
                                                              colors=[(255, 80, 80)], radii=0.03))
+                mount = self.lidars.get(name)
+                if self._grid is not None and mount is not None:
+                    self.stream.log(f"birdseye/{name}", rr.Points2D(
+                        scan_on_birdseye(points, mount, self._grid), colors=[(255, 80, 80)], radii=2.0))
 
     def _scalar(self, entity: str, stamp_ns: int, value: float) -> None:
         """A number of a time series, sent with the others of its entity in one column every
@@ -309,6 +339,20 @@ class RerunView:
                 self._scalar(f"can/{message.name}/{signal}", stamp_ns, float(value))
 
 
+def birdseye_view_grid(camera: PinholeCamera | None, config: ViewConfig) -> BirdseyeGrid | None:
+    """The ``birdseye`` view's grid through ``camera`` (None where there is no such camera, or it has no mount)."""
+    if camera is None or camera.pose_body_cam_array[2, 3] <= 0:
+        return None
+    return birdseye_grid(camera, -config.birdseye_behind_m, config.birdseye_ahead_m, config.birdseye_side_m,
+                         config.birdseye_resolution_m)
+
+
+def scan_on_birdseye(points_m: np.ndarray, mount: LidarMount, grid: BirdseyeGrid) -> np.ndarray:
+    """(M, 2) pixels of the bird's-eye view where a sweep's returns (``points_m``, in the sensor's frame) lie."""
+    body = mount.to_body(points_m)
+    return (np.column_stack([body, np.ones(len(body))]) @ grid.pixel_from_body.T)[:, :2]
+
+
 def view_recording(folder: str | Path, target: str | Path, config: ViewConfig = ViewConfig(),
                    database: cantools.database.can.Database | None = None) -> int:
     """Feed the recording at ``folder`` (its frames, commands, outputs, CAN traffic and ground truth) to a
@@ -318,7 +362,7 @@ def view_recording(folder: str | Path, target: str | Path, config: ViewConfig = 
     live = str(target) == LIVE
     partial = Path(target).with_name(f".{Path(target).name}.partial") if not live else Path(target)
     view = RerunView(partial if not live else LIVE, reader.cameras, config, database, name=Path(folder).name,
-                     drop_when_full=False)
+                     drop_when_full=False, lidars=reader.lidars)
     sets: dict[int, dict[str, Path]] = {}
     done = False
     try:

@@ -108,7 +108,8 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
                                      lidars={"lidar": rig.lidar} if scanner is not None and rig.lidar else None)
             closing.callback(writer.close)
         view = setup.outputs.open_view({n: rig.cameras[n] for n in source.threads},
-                                       protocol_database(stack.can, vehicle))
+                                       protocol_database(stack.can, vehicle),
+                                       lidars={"lidar": rig.lidar} if scanner is not None and rig.lidar else None)
         if view is not None:
             closing.callback(view.close)
         protocol = make_protocol(stack.can, vehicle, rig.steering, time.monotonic_ns())

@@ -150,7 +150,7 @@ def replay_recording(folder: str | Path, pipeline: str, stack: StackConfig, rout
         policy = ToldPipeline(policy, lambda frames: _told_at(recorded, frames.stamp_ns))
     writer = _replay_writer(reader, pipeline, params.name, stack, outputs.record_dir)
     recorders: list[Recorder] = [] if writer is None else [writer if with_frames else _WithoutFrames(writer)]
-    view = outputs.open_view(reader.cameras)
+    view = outputs.open_view(reader.cameras, lidars=reader.lidars)
     if view is not None:
         recorders.append(view)
     sink = _CommandLog()

@@ -69,7 +69,7 @@ def run_scenario(name: str | Scenario, seed: int | None = None, stack: StackConf
         writer = sim_recording(sim, outputs.record_dir, {
             "source": "kartpilot sim --scenario", "scenario": name, "seed": seed, "vehicle": sim.vehicle.name,
             "pipeline": "lanes", "config": {"lane_policy": config_to_dict(policy_config)}})
-        view = outputs.open_view(sim.cameras)
+        view = outputs.open_view(sim.cameras, lidars=sim.lidar_mounts)
         video = DriveVideo(outputs.video_path, sim, policy.overlay, more_lines=lambda: _verdict_line(name, referee)) \
             if outputs.video_path is not None else None
         bar = tqdm(total=round(config.max_time_s), unit="s", disable=(not outputs.progress) or None, leave=False)

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError, DataError
 from kartpilot.core.files import write_json_atomic, write_text_atomic
+from kartpilot.core.types import LidarMount
 from kartpilot.runtime.loop import STAGE_STATS
 
 if TYPE_CHECKING:  # rerun takes half a second to import: only a drive with a view loads it
@@ -74,13 +75,15 @@ class SessionOutputs:
                 raise ConfigError(f"{what} would go to {path}, but {parent} cannot be written")
 
     def open_view(self, cameras: Mapping[str, PinholeCamera],
-                  database: cantools.database.can.Database | None = None) -> RerunView | None:
-        """The Rerun view asked for (None: none), a sink beside the recorder."""
+                  database: cantools.database.can.Database | None = None,
+                  lidars: Mapping[str, LidarMount] | None = None) -> RerunView | None:
+        """The Rerun view asked for (None: none), a sink beside the recorder; ``lidars``: the LiDARs' mounts,
+        for their sweeps on its bird's-eye view."""
         if self.view is None:
             return None
         from kartpilot.record.rerun_view import RerunView
 
-        return RerunView(self.view, cameras, database=database)
+        return RerunView(self.view, cameras, database=database, lidars=lidars)
 
     def write_result(self, result: SessionResult, name: str = "result.json", error_text: str = "") -> dict[str, Any]:
         """The result where it was asked for and beside the recording (as ``name``), with the pipeline's

@@ -115,7 +115,7 @@ def run_simulation(config: SimConfig, driver: str = "centerline",
             "source": "kartpilot sim", "driver": driver, "sim": config_to_dict(config),
             "groundtruth_camera": _gt_camera(sim)})
         source = _UntilStopped(sim, path_policy) if path_policy is not None else sim
-        view = outputs.open_view(sim.cameras if config.render_images else {})
+        view = outputs.open_view(sim.cameras if config.render_images else {}, lidars=sim.lidar_mounts)
         stats, wall_s = _run(sim, source, policy, sim, _Recorders(writer, view, tuple(taps)), outputs, path_policy)
         result = sim.result(wall_s)
         pipeline_ms, summary = path_policy.summary(stats.steps) if path_policy is not None else ({}, {})
@@ -158,9 +158,8 @@ def sim_recording(sim: Simulator, record_dir: str | Path | None, metadata: dict[
     as ``png-huffman``, :data:`~kartpilot.record.recording.IMAGE_FORMATS`), if one was asked for."""
     if record_dir is None:
         return None
-    lidars = {"lidar": sim.vehicle.lidar} if sim.vehicle.lidar is not None else None
     return RecordingWriter(record_dir, sim.cameras, stereo_pair=_recorded_pair(sim), metadata=metadata,
-                           queue_frames=8, drop_when_full=False, lidars=lidars,
+                           queue_frames=8, drop_when_full=False, lidars=sim.lidar_mounts or None,
                            image_format="png-huffman")
 
 
@@ -523,7 +522,8 @@ def run_supervised_drive(config: SimConfig, pipeline: str, stack: StackConfig | 
             "source": "kartpilot drive --sim", "pipeline": pipeline, "bus": bus, "vehicle": sim.vehicle.name,
             "sim": config_to_dict(config), "injections": [f"{i.kind}@{i.at_s:g}" for i in injections]})
         view = outputs.open_view(sim.cameras if config.render_images else {},
-                                 protocol_database(stack.can, sim.vehicle) if bus == "virtual" else None)
+                                 protocol_database(stack.can, sim.vehicle) if bus == "virtual" else None,
+                                 lidars=sim.lidar_mounts)
         log_frame = fan_out_frames([s.write_can for s in (writer, view) if s is not None])
         sink = _CanSink.open(sim, stack, at, log_frame) if bus == "virtual" else _DirectSink(sim)
         actuator = sink.actuator if isinstance(sink, _CanSink) else None

@@ -19,7 +19,7 @@ from kartpilot.core.camera import DISTORTION_COUNTS
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array, arc_2d, compose_2d
 from kartpilot.core.trajectory import Trajectory
-from kartpilot.core.types import ActuatorCommand, FrameSet, Image, LaserScan
+from kartpilot.core.types import ActuatorCommand, FrameSet, Image, LaserScan, LidarMount
 from kartpilot.core.vehicle import GRAVITY_MPS2, VehicleParams, get_vehicle
 from kartpilot.perception.objects import Detection
 from kartpilot.sim.camera_effects import (
@@ -299,6 +299,11 @@ class Simulator:
                     del images[name]
                     self.dropped_frames += 1
         return FrameSet(self.step_index, self.time_ns, images, scans=self._scans())
+
+    @property
+    def lidar_mounts(self) -> dict[str, LidarMount]:
+        """The vehicle's LiDARs by the name their sweeps ride under (``lidar``; none where it has none)."""
+        return {"lidar": self.vehicle.lidar} if self.vehicle.lidar is not None else {}
 
     def _scans(self) -> dict[str, LaserScan]:
         """The LiDAR's sweep that began since the set before (none where no sweep began: the sensor keeps its own
