@@ -98,6 +98,7 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
         period_s = 1.0 / rig.capture[source.reference].fps
         pipeline = _live_pipeline(replace(setup, vehicle=vehicle), stack, rig, list(source.threads), period_s)
         operator, web = _people(setup, stack, closing)
+        lidars = {"lidar": rig.lidar} if scanner is not None and rig.lidar else None
         writer = None
         if record_dir is not None:
             writer = RecordingWriter(record_dir, {n: rig.cameras[n] for n in source.threads},
@@ -105,11 +106,10 @@ def run_live_drive(setup: LiveDriveSetup, stack: StackConfig) -> dict[str, Any]:
                                      drop_when_full=True, image_format="jpg",
                                      metadata={"source": "kartpilot drive --live", "pipeline": setup.pipeline,
                                                "vehicle": vehicle.name, "can": config_to_dict(stack.can)},
-                                     lidars={"lidar": rig.lidar} if scanner is not None and rig.lidar else None)
+                                     lidars=lidars)
             closing.callback(writer.close)
         view = setup.outputs.open_view({n: rig.cameras[n] for n in source.threads},
-                                       protocol_database(stack.can, vehicle),
-                                       lidars={"lidar": rig.lidar} if scanner is not None and rig.lidar else None)
+                                       protocol_database(stack.can, vehicle), lidars=lidars)
         if view is not None:
             closing.callback(view.close)
         protocol = make_protocol(stack.can, vehicle, rig.steering, time.monotonic_ns())
