@@ -19,7 +19,6 @@ import json
 import os
 import platform
 from collections.abc import Iterator
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -38,8 +37,8 @@ from kartpilot.record.replay import RecordingFrameSource
 from kartpilot.sensors.base import StereoSource
 from kartpilot.sensors.euroc import EurocSource
 from kartpilot.sensors.kitti import KittiOdometrySource
-from kartpilot.sim.simulator import SimConfig, perfect_camera, real_camera
-from vo_accuracy import record_once
+from kartpilot.sim.simulator import SimConfig, real_camera
+from vo_accuracy import record_once, simulated_camera
 from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -79,12 +78,11 @@ def real_rows(data: Path) -> list[dict[str, Any]]:
 def simulated_rows(cache: Path) -> list[dict[str, Any]]:
     rows = []
     for camera in ("perfect", "real"):
+        effects, suffix = simulated_camera(camera)
         for seed in (1, 2, 3):
             config = SimConfig(track="utrack", vehicle="rc-kart", cameras=("left", "right"), camera_rate_hz=10.0,
-                               max_time_s=80.0, seed=seed)
-            config = replace(config, effects=real_camera("rc-kart") if camera == "real" else perfect_camera())
-            folder = record_once(cache / f"utrack-rc-stereo-80s-{seed}{'-real' if camera == 'real' else ''}",
-                               config, 2.0)
+                               max_time_s=80.0, seed=seed, effects=effects)
+            folder = record_once(cache / f"utrack-rc-stereo-80s-{seed}{suffix}", config, 2.0)
             source = RecordingStereoSource(folder)
             row = {"kind": "simulated", "camera": camera, "clip": f"utrack seed {seed}" + (" (tuned)" if seed == 1
                                                                                           else ""),
@@ -92,9 +90,8 @@ def simulated_rows(cache: Path) -> list[dict[str, Any]]:
             print(row)
             rows.append(row)
         config = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=10.0,
-                           max_time_s=70.0, seed=3)
-        config = replace(config, effects=real_camera("sdc-kart") if camera == "real" else perfect_camera())
-        folder = record_once(cache / f"assen-sdc-centre-70s-3{'-real' if camera == 'real' else ''}", config, 4.0)
+                           max_time_s=70.0, seed=3, effects=effects)
+        folder = record_once(cache / f"assen-sdc-centre-70s-3{suffix}", config, 4.0)
         reader = RecordingReader(folder)
         lens = reader.cameras["center"]
         height = float(lens.pose_body_cam_array[2, 3])

@@ -17,7 +17,7 @@ import platform
 from pathlib import Path
 from typing import Any
 
-from common import write_json
+from common import camera_name, write_json
 from kartpilot.core.config import config_to_dict
 from kartpilot.core.files import read_json_file
 from kartpilot.eval.scenarios import CAUSES, sweep_summary
@@ -28,12 +28,6 @@ from vo_table import put_at_marker
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "scenarios.md"
-
-
-def camera_name(results: dict[str, Any]) -> str:
-    """``real`` or ``perfect``: the camera the sweep's events were varied from (a sweep before the field: perfect)."""
-    camera = results.get("camera")
-    return "real" if camera and camera.get("jpeg_quality", 0) > 0 else "perfect"
 
 
 def render(results: dict[str, Any]) -> str:

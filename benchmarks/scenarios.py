@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from common import write_json
+from common import camera_name, write_json
 from kartpilot.core.config import config_to_dict
 from kartpilot.runtime.scenarios import run_scenario
 from kartpilot.sim.scenarios import SCENARIOS
@@ -69,10 +69,8 @@ def decision_cost_us(steps: int = 20000) -> dict[str, float]:
 def render(results: dict[str, Any]) -> str:
     seeds = sorted({r["seed"] for r in results["drives"]})
     development = "; ".join(f"{name}: seeds {', '.join(map(str, seeds))}" for name, seeds in DEVELOPMENT_SEEDS.items())
-    camera = results.get("camera")  # a table before the field was through the perfect camera
-    through = "the real camera" if camera and camera.get("jpeg_quality", 0) > 0 else "the perfect camera"
     lines = ["Measured by `benchmarks/scenarios.py` (15 km/h mode, 15 Hz; seed 1 development, the others held out; "
-             f"{development} development; through {through}"
+             f"{development} development; through the {camera_name(results)} camera"
              + (f", {results['date']}" if "date" in results else "")
              + "). A cell is the referee's verdict; a fault is written out.", "",
              "| scenario | " + " | ".join(f"seed {s}" for s in seeds) + " |", "|---|" + "---|" * len(seeds)]

@@ -151,12 +151,17 @@ def real_rows(data: Path) -> list[dict[str, Any]]:
     return rows
 
 
+def simulated_camera(kind: str) -> tuple[CameraEffectsConfig, str]:
+    """The ``real`` camera (the kart presets' default) or the ``perfect`` one, and the suffix of its recordings'
+    names in the cache (the perfect camera's were the cache's first, and have none)."""
+    return (CameraEffectsConfig(), "-real") if kind == "real" else (perfect_camera(), "")
+
+
 def simulated_rows(cache: Path, seeds: list[int], quick: bool, kind: str = "real") -> list[dict[str, Any]]:
     """The simulated drives through the kart presets' ``real`` camera (the default) or the ``perfect`` one."""
     rows = []
     utrack_s = 40.0 if quick else 80.0
-    effects = CameraEffectsConfig() if kind == "real" else perfect_camera()
-    suffix = "-real" if kind == "real" else ""  # the perfect camera's recordings were the cache's first
+    effects, suffix = simulated_camera(kind)
     for seed in seeds:
         folder = record_once(cache / f"utrack-rc-stereo-{utrack_s:g}s-{seed}{suffix}",
                            SimConfig(track="utrack", vehicle="rc-kart", cameras=("left", "right"), camera_rate_hz=10.0,

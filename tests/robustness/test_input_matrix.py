@@ -84,8 +84,9 @@ def _bad(tmp: Path, kind: str) -> str:
     return str(tmp / name)
 
 
-def _argv(command: str, target: str, bad: str, tmp: Path) -> list[str]:
-    """The command with ``bad`` in ``target`` and in every required input, scratch outputs, a choice's first."""
+def _argv(command: str, target: str, bad: str, tmp: Path, output: str | None = None) -> list[str]:
+    """The command with ``bad`` in ``target`` and in every required input, ``output`` (default: a scratch file) in
+    every required output, a choice's first."""
     parser = COMMANDS[command]
     argv = command.split()
     for action in parser._actions:
@@ -100,9 +101,17 @@ def _argv(command: str, target: str, bad: str, tmp: Path) -> list[str]:
         elif action.choices is not None:
             value = sorted(action.choices)[0]
         else:
-            value = str(tmp / "out" / "result.txt")
+            value = output or str(tmp / "out" / "result.txt")
         argv += [action.option_strings[0], value] if action.option_strings else [value]
     return argv
+
+
+def _ends_in_one_line(code: int, capsys: pytest.CaptureFixture[str], case: str) -> None:
+    """The command ended with exit 1 or 2 and a last line ``kartpilot: ... error ...``, no traceback."""
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code in (1, 2), f"{case} exited {code}"
+    assert err and not any("Traceback" in line for line in err), f"{case}: {err}"
+    assert err[-1].startswith("kartpilot") and "error" in err[-1], f"{case}: {err[-1]}"
 
 
 class _HangError(Exception):
@@ -131,10 +140,7 @@ def test_every_bad_file_on_every_input_is_one_line(tmp_path, capsys, command, ta
                 pytest.fail(f"{' '.join(argv)}: still running after 60 s with a bad input")
             finally:
                 signal.alarm(0)
-            err = capsys.readouterr().err.strip().splitlines()
-            assert code in (1, 2), f"{kind}: {argv} exited {code}"
-            assert err and not any("Traceback" in line for line in err), f"{kind}: {argv}: {err}"
-            assert err[-1].startswith("kartpilot") and "error" in err[-1], f"{kind}: {argv}: {err[-1]}"
+            _ends_in_one_line(code, capsys, f"{kind}: {argv}")
     finally:
         signal.signal(signal.SIGALRM, previous)
 
@@ -149,11 +155,11 @@ def test_the_matrix_covers_the_commands_that_read_files():
 
 def _onto_input(command: str, target: str, kept: Path, tmp: Path) -> list[str]:
     """The command with ``kept`` as the input ``target`` and as every output it names (its folder-typed ones too)."""
-    argv = _argv(command, target, str(kept), tmp)
+    argv = _argv(command, target, str(kept), tmp, output=str(kept))
     for action in COMMANDS[command]._actions:
         if action.type in values.OUTPUT_TYPES and action.option_strings and not action.required:
             argv += [action.option_strings[0], str(kept)]
-    return [str(kept) if word == str(tmp / "out" / "result.txt") else word for word in argv]
+    return argv
 
 
 OUTPUT_COMMANDS = [(c, t) for c, t in INPUTS if any(a.type in values.OUTPUT_TYPES for a in COMMANDS[c]._actions)]
@@ -166,8 +172,5 @@ def test_an_output_onto_an_input_is_refused_and_the_input_kept(tmp_path, capsys,
     kept = tmp_path / "input.yaml"
     kept.write_bytes(b"name: kept\n")
     argv = _onto_input(command, target, kept, tmp_path)
-    code = main(argv)
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code in (1, 2), f"{argv} exited {code}"
-    assert err and err[-1].startswith("kartpilot") and not any("Traceback" in line for line in err), argv
+    _ends_in_one_line(main(argv), capsys, str(argv))
     assert kept.read_bytes() == b"name: kept\n", f"{argv} changed its input"

@@ -344,7 +344,8 @@ def scenario_text(plan: Scenario) -> str:
                      for item in full[key]]
     # the world as far as it is not the default; the camera whole, so that a file reproduces its event whatever the
     # camera's defaults become (they changed once: the perfect pinhole until the kart's real camera)
-    full["render"] = {k: v for k, v in full["render"].items() if v != config_to_dict(RenderConfig())[k]}
+    world = config_to_dict(RenderConfig())
+    full["render"] = {k: v for k, v in full["render"].items() if v != world[k]}
     data = {"name": plan.name, "seed": plan.seed, "track": plan.track,
             **{k: v for k, v in full.items() if k not in ("name", "seed", "track", "marks") and v != {}},
             "marks": {k: float(v) for k, v in plan.marks.items()}}

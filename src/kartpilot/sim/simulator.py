@@ -308,8 +308,8 @@ class Simulator:
     def _scans(self) -> dict[str, LaserScan]:
         """The LiDAR's sweep that began since the set before (none where no sweep began: the sensor keeps its own
         rate), taken from where the kart was when it began: the body's pose now, moved back along its arc."""
-        mount = self.vehicle.lidar
-        if mount is None or self.time_s + 1e-9 < self._next_scan_s:
+        mounts = self.lidar_mounts
+        if not mounts or self.time_s + 1e-9 < self._next_scan_s:
             return {}
         start_s = self._next_scan_s
         while self._next_scan_s <= self.time_s + 1e-9:
@@ -318,8 +318,8 @@ class Simulator:
         back = arc_2d(state.vx_mps, state.yaw_rate_radps, -(self.time_s - start_s))
         body = compose_2d((state.x_m, state.y_m, state.yaw_rad), back)
         self.scans += 1
-        return {"lidar": simulate_scan(self.track, body, state.vx_mps, state.yaw_rate_radps, start_s,
-                                       self.config.lidar, mount, self._lidar_rng)}
+        return {name: simulate_scan(self.track, body, state.vx_mps, state.yaw_rate_radps, start_s, self.config.lidar,
+                                    mount, self._lidar_rng) for name, mount in mounts.items()}
 
     def send(self, command: ActuatorCommand) -> None:
         """Command sink: apply ``command`` for one camera period, then let the referee judge."""
