@@ -217,3 +217,23 @@ def test_a_scenario_takes_the_faults_of_what_the_kart_sees_and_refuses_the_other
     assert "--inject can-bus-off: a scenario takes the faults of what the kart sees" in capsys.readouterr().err
     assert main(["sim", "--track", "straight20", "--inject", "lidar-loss@1"]) == 1
     assert "works with --scenario" in capsys.readouterr().err
+
+
+def test_the_experiment_drives_through_the_config_s_camera(tmp_path, monkeypatch, capsys) -> None:
+    """`kartpilot experiment --config` with `sim.effects`: the teach-and-repeat takes the file's camera (it was
+    accepted and ignored); without a file, the kart's real camera, the simulator's default."""
+    import kartpilot.cli.drive_commands as commands
+    from kartpilot.sim.simulator import CameraEffectsConfig
+
+    taken = []
+    monkeypatch.setattr(commands, "run_teach_repeat", lambda config, *a, **k: taken.append(config.effects) or {})
+    monkeypatch.setattr(commands, "summary_line", lambda result: "")
+    config = tmp_path / "perfect.yaml"
+    config.write_text("sim:\n  effects:\n    jpeg_quality: 0\n    rolling_shutter_s: 0.0\n")
+    for extra in ([], ["--config", str(config)]):
+        assert main(["experiment", "teach-repeat", "--out", str(tmp_path / "exp"), *extra]) == 0
+    assert taken[0] == CameraEffectsConfig()
+    assert (taken[1].jpeg_quality, taken[1].rolling_shutter_s) == (0, 0.0)
+    config.write_text("sim:\n  effects:\n    jpeg_qualty: 0\n")
+    assert main(["experiment", "teach-repeat", "--out", str(tmp_path / "exp"), "--config", str(config)]) == 1
+    assert "jpeg_qualty" in capsys.readouterr().err

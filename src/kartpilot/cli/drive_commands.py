@@ -270,7 +270,7 @@ def experiment(args: argparse.Namespace) -> int:
     config = TeachRepeatConfig(track=args.track, speed_mps=args.speed, seed=args.seed, camera_rate_hz=args.rate,
                             steer_bias_rad=args.steer_bias, use_map=not args.no_map, controller=args.controller,
                             drive=stack.drive,
-                            vo=stack.stereo_vo)
+                            vo=stack.stereo_vo, effects=stack.sim.effects)
     result = run_teach_repeat(config, args.out, progress=not args.no_progress, video=not args.no_video)
     print(summary_line(result))
     print(f"wrote {Path(args.out) / 'result.json'}, path.png, steering.png")
