@@ -246,6 +246,32 @@ def test_a_person_who_crossed_and_stops_at_the_far_end_does_not_hold_the_kart():
     assert log[-1][1] > 21 and log[-1][3] == "drive"
 
 
+def test_a_person_past_the_crossing_s_end_has_crossed_whatever_the_camera_s_pitch():
+    """Sweep event 10387: the camera looks a degree higher than its mount says (the lanes' boundaries hidden by
+    barriers, so the pitch is not measured): everything on the ground 9 m ahead is placed a quarter short, the person
+    who walked across to 2.6 m beside the lane's middle at 1.95 m, inside the 2 m corridor. The crossing's ends are
+    placed short by the same share (its 3 m at 2.25 m): the person stands past its end, and the kart goes on. One
+    who stops on the crossing's end holds it; without the crossing's width the corridor's metres are all the rules
+    have (and the kart waits)."""
+    config = BehaviourConfig(limit_kmh=15, front_m=0.0)
+    short = 0.75  # what the pitched camera makes of the ground at the crossing
+
+    def scene(x, t, stop_at=2.6, width=3.0):
+        lateral = short * min(-2.6 + 0.8 * max(t - 2.0, 0.0), stop_at)
+        person = Detection("person", (0, 0, 1, 1), 0.9, "on_crossing", distance_m=short * (21 - x),
+                           lateral_m=lateral, track_id=5)
+        zebra = Detection("crosswalk", (0, 0, 1, 1), 0.9, distance_m=short * (20 - x), lateral_m=0.0,
+                          width_m=short * width)
+        return [person, *([zebra] if 20 - x < 12 else [])]
+
+    log = drive(config, scene, seconds=30)
+    assert log[-1][1] > 21 and log[-1][3] == "drive"
+    on_the_end = drive(config, lambda x, t: scene(x, t, stop_at=1.5), seconds=30)
+    assert on_the_end[-1][3] == "yield" and on_the_end[-1][1] < 20
+    unmeasured = drive(config, lambda x, t: scene(x, t, width=math.nan), seconds=30)
+    assert unmeasured[-1][3] == "yield" and unmeasured[-1][1] < 20
+
+
 def test_the_one_who_crossed_holds_the_kart_only_by_coming_back_onto_its_road():
     """Having walked across, the person stands at the road's far edge, placed nearer (1.85 m) as the kart comes on,
     and is lost at the image's edge and seen again as another track: that is the one who crossed, and the kart goes

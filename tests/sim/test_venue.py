@@ -119,19 +119,26 @@ def test_rendered_stop_lines_and_zebras_are_found_at_their_near_edge(label, befo
 
     with Simulator(SimConfig(track="lelystad", vehicle="sdc-kart", seed=1, cameras=("center",))) as sim:
         kind = "zebra" if label == "crosswalk" else label  # the track's paint, the detectors' class
-        mark = next(m.s_m for m in sim.track.spec.road_marks if m.kind == kind)
+        mark = next(m for m in sim.track.spec.road_marks if m.kind == kind)
         route = sim.track.route
-        i = route.index_at(mark - before_m)
+        i = route.index_at(mark.s_m - before_m)
         sim.state = VehicleState(x_m=float(route.xy_m[i, 0]), y_m=float(route.xy_m[i, 1]),
                                  yaw_rad=float(route.heading_rad[i]))
         truth = next(d for d in sim.object_truth("center") if d.label == label)
         frame = sim.read()
         found = [d for d in detect_classical(frame.images["center"], sim.cameras["center"],
                                              DetectorConfig(people=False)) if d.label in ("stop_line", "crosswalk")]
+        lane_m = sim.track.spec.width_m
+    # the paint reaches across the lane: a stop line from one side to the other, a zebra's stripes (a stripe and a
+    # gap each) to its outer stripes' outer edges
+    pitch = 2 * mark.stripe_m
+    paint_m = lane_m if label == "stop_line" else (lane_m // pitch - 1) * pitch + mark.stripe_m
     print(label, "truth", round(truth.distance_m, 2), round(truth.lateral_m, 2),
-          "found", [(d.label, round(d.distance_m, 2), round(d.lateral_m, 2)) for d in found])
+          "found", [(d.label, round(d.distance_m, 2), round(d.lateral_m, 2), round(d.width_m, 2)) for d in found])
     assert [d.label for d in found] == [label]
     assert found[0].distance_m == pytest.approx(truth.distance_m, abs=0.05 * truth.distance_m)
+    if before_m < 10:
+        assert found[0].width_m == pytest.approx(paint_m, rel=0.1)
     if label == "crosswalk" and before_m > 10:
         assert truth.lateral_m > 2.0 and found[0].lateral_m > 1.0
 

@@ -93,6 +93,11 @@ class BehaviourConfig:
             people hold the kart only within ``corridor_m - crossed_m`` (come back onto its road) until the kart
             has driven ``crossing_range_m`` on (the one who crossed, stopped at the road's edge and placed nearer
             as the kart comes, or lost at the image's edge and seen again as another track, held it for good).
+        past_end_share: a person beside a crossing has also left the kart's corridor (for ``crossed_m`` above) where
+            they stand beyond the crossing's end by this share of its half-width, both measured together (a camera
+            pitched off its mount places a person and the crossing's ends short, or long, by the same share: the
+            corridor's metres it misjudges, the crossing's end it does not; the event's teams go on when the
+            person has reached the crossing's far edge, moving away).
         clear_s: the crossing counts as clear after this long with no person seen on or beside it.
         stopped_mps: the kart counts as stopped below this speed.
         overtake: pass a stationary car in the lane (where the road allows it: the scenario, a team's
@@ -130,6 +135,7 @@ class BehaviourConfig:
     corridor_m: float = 2.0
     person_clearance_m: float = 2.0
     crossed_m: float = 1.0
+    past_end_share: float = 0.2
     clear_s: float = 1.5
     stopped_mps: float = 0.15
     overtake: bool = False
@@ -157,6 +163,8 @@ class BehaviourConfig:
                                                  self.brake_delay_s) < 0:
             raise ConfigError("behaviour: limit_margin must be in [0, 1), stop_margin_m, crossing_margin_m, "
                               "line_refine_m and brake_delay_s not negative")
+        if not 0 <= self.past_end_share <= 1:
+            raise ConfigError("behaviour: past_end_share must be between 0 and 1")
         if self.bay_gate_m <= 0 or not 0 <= self.bay_gate_share <= 1:
             raise ConfigError("behaviour: bay_gate_m must be positive, bay_gate_share between 0 and 1")
         if self.stop_margin_max_m < self.stop_margin_m:
@@ -424,7 +432,12 @@ def _rules_step(config: BehaviourConfig, state: BehaviourState, detections: list
     # a person on the road in the kart's way (whether a crossing is seen yet or not: the camera finds a zebra on
     # the ground nearer than it finds a person), or on or beside a crossing unless they have crossed the kart's
     # line and walk away from it (one who stops at the crossing's far end is seen on it or beside it by turns)
-    crossed = [p for p in people if nearest.get(p.track_id, math.inf) <= config.corridor_m < abs(across(p))
+    half_width = crossing.width_m / 2.0 if crossing is not None else math.nan
+
+    def left_corridor(p: Detection) -> bool:  # out of the kart's corridor, or past the crossing's end
+        return abs(across(p)) > config.corridor_m or abs(across(p)) > half_width * (1.0 + config.past_end_share)
+
+    crossed = [p for p in people if nearest.get(p.track_id, math.inf) <= config.corridor_m and left_corridor(p)
                and abs(across(p)) - nearest[p.track_id] >= config.crossed_m]
     if crossed:  # one who came into the kart's way and walked on across it
         s = replace(s, crossed_to=1 if across(crossed[0]) > 0 else -1, crossed_at_m=s.odometer_m)

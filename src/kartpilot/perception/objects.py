@@ -20,7 +20,8 @@ from kartpilot.calibration.ground import ground_points
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
 
-__all__ = ["CLASSES", "CROSSING_DEPTH_M", "Detection", "ObjectTracker", "TrackerConfig", "box_iou", "place_on_ground"]
+__all__ = ["ACROSS_ROAD", "CLASSES", "CROSSING_DEPTH_M", "Detection", "ObjectTracker", "TrackerConfig", "box_iou",
+           "place_on_ground"]
 
 CLASSES = ("traffic_light", "speed_sign", "stop_line", "crosswalk", "person", "car", "barrier", "parking_bay")
 """kartpilot's object classes; a team's model maps its own class ids onto these (``--classes``)."""
@@ -28,6 +29,8 @@ CLASSES = ("traffic_light", "speed_sign", "stop_line", "crosswalk", "person", "c
 
 CROSSING_DEPTH_M = 3.0
 """A zebra crossing's length along the road: not reported by its detector, the usual crossing's."""
+ACROSS_ROAD = ("crosswalk", "stop_line")
+"""The classes of paint lying across the road, whose detections report how wide they reach (``width_m``)."""
 
 
 @dataclass(frozen=True)
@@ -48,6 +51,9 @@ class Detection:
         view_to_m: for a thing placed by its size (a signal head, a sign), the least distance ahead (body x) it can
             come to, the kart driving straight at it, with its top still in the camera's view; NaN where not
             measured.
+        width_m: for paint across the road (a stop line, a zebra crossing), how far it reaches across on the ground
+            from one end to the other, placed through the same mount as ``lateral_m`` (a camera pitched off its
+            mount places both short or long by the same share); NaN where not measured.
         track_id: the same object's id over frames (0: not tracked).
         source: which detector found it (``classical`` or the ONNX model's file name).
     """
@@ -60,6 +66,7 @@ class Detection:
     lateral_m: float = math.nan
     far_m: float = math.nan
     view_to_m: float = math.nan
+    width_m: float = math.nan
     track_id: int = 0
     source: str = "classical"
 
@@ -84,14 +91,18 @@ class Detection:
 def place_on_ground(detections: list[Detection], camera: PinholeCamera | None, image_size_wh: tuple[int, int]
                     ) -> list[Detection]:
     """Each detection with ``distance_m`` and ``lateral_m`` from the camera's mount (the ground point under
-    its box's bottom centre); unchanged where there is no camera. An image of another size than the
-    calibration's is scaled to it (the same field of view)."""
+    its box's bottom centre), and for paint across the road its ``width_m`` (between its box's bottom corners);
+    unchanged where there is no camera. An image of another size than the calibration's is scaled to it (the same
+    field of view)."""
     if camera is None or not detections:
         return detections
     sx, sy = camera.width_px / image_size_wh[0], camera.height_px / image_size_wh[1]
-    pixels = np.array([[d.bottom_centre_px[0] * sx, d.bottom_centre_px[1] * sy] for d in detections])
-    ground = ground_points(camera, pixels)
-    return [replace(d, distance_m=float(g[0]), lateral_m=float(g[1])) for d, g in zip(detections, ground, strict=True)]
+    pixels = np.array([[x * sx, d.box_px[3] * sy] for d in detections
+                       for x in (d.bottom_centre_px[0], d.box_px[0], d.box_px[2])])
+    ground = ground_points(camera, pixels).reshape(len(detections), 3, -1)
+    return [replace(d, distance_m=float(g[0, 0]), lateral_m=float(g[0, 1]),
+                    width_m=float(abs(g[2, 1] - g[1, 1])) if d.label in ACROSS_ROAD else d.width_m)
+            for d, g in zip(detections, ground, strict=True)]
 
 
 def box_iou(a: tuple[float, float, float, float], b: tuple[float, float, float, float]) -> float:

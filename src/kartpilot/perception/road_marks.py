@@ -393,7 +393,7 @@ def _bands(flags: np.ndarray) -> list[tuple[int, int]]:
 def _detection(label: str, view: BirdseyeView, camera: PinholeCamera, corners: np.ndarray, confidence: float,
                w: int, h: int) -> Detection:
     """The mark's box in the image (its ground rectangle's corners, the view's pixels, projected), its near
-    edge's distance and its middle's lateral offset."""
+    edge's distance, its middle's lateral offset and its width across."""
     ground = np.column_stack([corners, np.ones(4)]) @ view.ground_from_pixels().T
     cam_body = np.linalg.inv(camera.pose_body_cam_array)
     pts = np.column_stack([ground[:, :2], np.zeros(4)]) @ cam_body[:3, :3].T + cam_body[:3, 3]
@@ -401,4 +401,4 @@ def _detection(label: str, view: BirdseyeView, camera: PinholeCamera, corners: n
     box = (float(np.clip(px[:, 0].min(), 0, w - 1)), float(np.clip(px[:, 1].min(), 0, h - 1)),
            float(np.clip(px[:, 0].max(), 0, w - 1)), float(np.clip(px[:, 1].max(), 0, h - 1)))
     return Detection(label, box, float(min(max(confidence, 0.0), 1.0)), distance_m=float(ground[:, 0].min()),
-                     lateral_m=float(ground[:, 1].mean()))
+                     lateral_m=float(ground[:, 1].mean()), width_m=float(np.ptp(ground[:, 1])))
