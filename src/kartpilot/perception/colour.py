@@ -32,9 +32,10 @@ class ColourPlanes(NamedTuple):
         return cls(cv2.cvtColor(image, cv2.COLOR_BGR2HSV), cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
 
 
-def red_mask(hsv: Image, s_min: int, v_min: int) -> Image:
-    """255 where an HSV pixel is red (hue up to 10 or from 165) and at least this saturated and bright, else 0."""
-    return cv2.bitwise_or(cv2.inRange(hsv, (0, s_min, v_min), (10, 255, 255)),
+def red_mask(hsv: Image, s_min: int, v_min: int, hue_max: int = 10) -> Image:
+    """255 where an HSV pixel is red (OpenCV's hue, 0 to 180: up to ``hue_max``, 20 degrees by default, or from
+    165) and at least this saturated and bright, else 0."""
+    return cv2.bitwise_or(cv2.inRange(hsv, (0, s_min, v_min), (hue_max, 255, 255)),
                           cv2.inRange(hsv, (165, s_min, v_min), (255, 255, 255)))
 
 

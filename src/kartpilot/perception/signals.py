@@ -80,6 +80,12 @@ class SignalConfig:
             that never came): 0.46 to 0.60 of it had red's hue, the rest closed in. The real lamps (the Hanze red,
             the venue's green) at every size and alteration of ``signals_altered`` in ``benchmarks/detect.py``:
             0.94 or more.
+        red_lamp_hue_max: a lit red lamp's hue reaches this far toward orange at most (OpenCV's hue, 0 to 180: 5 is
+            10 degrees). A red signal lamp photographs at 340 to 360 degrees (the Hanze red, -8 to -2 in OpenCV's
+            units under every alteration of ``signals_altered``; the simulator's lamp +1); skin in warm light
+            begins about where red's wider window (up to 10, for a sign's ring, faded or overexposed) ends: the
+            pedestrian's face before a dark tree over a dark jacket, through the real camera's compression and
+            noise, was 96 % of one hue of 8 to 10 and a red lamp again (sweep events 10387, 10447).
         lamp_diameter_m, sign_diameter_m: real sizes, for the distance.
         min_lamp_height_m, camera_height_m: a lit lamp is at least this high above the ground, seen from a
             camera this high (the real kart's centre camera: 0.56 m).
@@ -122,6 +128,7 @@ class SignalConfig:
     lamp_contrast: float = 1.3
     lamp_extent: float = 0.65
     lamp_colour_share: float = 0.8
+    red_lamp_hue_max: int = 5
     lamp_diameter_m: float = 0.2
     min_lamp_height_m: float = 1.2
     camera_height_m: float = 0.56
@@ -146,6 +153,8 @@ class SignalConfig:
             raise ConfigError("signals: lamp_extent must be in (0, 1] (a share of the lamp's brightest value)")
         if not 0.0 <= self.lamp_colour_share <= 1.0:
             raise ConfigError("signals: lamp_colour_share must be in [0, 1] (a share of the lamp's pixels)")
+        if not 0 <= self.red_lamp_hue_max <= 10:
+            raise ConfigError("signals: red_lamp_hue_max must be in [0, 10] (OpenCV's hue: 10 is 20 degrees, orange)")
         if self.lamp_contrast < 1.0:
             raise ConfigError("signals: lamp_contrast must be at least 1 (a lamp is brighter than its housing)")
         if not 0.0 < self.min_exposure <= 1.0 or not 0 < self.sky_level <= 255:
@@ -283,7 +292,10 @@ def _lights(image: Image, planes: _Planes, config: SignalConfig, camera: Pinhole
     lit = round(config.lamp_value * planes.exposure)
     lamps: list[tuple[float, float, float, Detection]] = []  # (lamp's brightness, centre column, row, light)
     above = hsv[: int(config.horizon * h)]  # a lit lamp is above the horizon
-    for state, colour in (("red", red_mask), ("green", green_mask)):
+    def red_lamp(hsv: Image, s_min: int, v_min: int) -> Image:
+        return red_mask(hsv, s_min, v_min, config.red_lamp_hue_max)
+
+    for state, colour in (("red", red_lamp), ("green", green_mask)):
         hued = colour(above, config.lamp_saturation, 0)
         coloured = cv2.bitwise_and(hued, cv2.inRange(above[..., 2], round(config.lamp_extent * lit), 255))
         count, labels, stats, (x0, y0) = mask_components(cv2.morphologyEx(coloured, cv2.MORPH_CLOSE, _SQUARE))
