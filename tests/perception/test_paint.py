@@ -88,6 +88,25 @@ def test_upright_white_stripes_and_paint_across_the_lane_are_not_boundaries():
             assert abs(float(curve.x_at(row)) - _column_at(truth[side], row)) < 6.0, (side, row)
 
 
+def test_a_zebra_s_bars_along_the_road_are_not_boundaries():
+    """A zebra's bars run along the road as a boundary does, 0.5 m wide: the ridge kernel of a band of rows, sized
+    at its nearest row, let them through whole at its far rows, and a kart moving off just before a crossing (sweep
+    event 10369) took two bars for the lane's boundaries and touched its line. What passes wider than its own row's
+    kernel is not paint of a line."""
+    image, truth = ground_view(seed=2)
+    for middle in (-1.0, 0.0, 1.0):  # three bars, 0.5 m wide and 3 m long, from 2.5 m ahead
+        bar = np.array([[2.5, middle - 0.25, 0], [5.5, middle - 0.25, 0], [5.5, middle + 0.25, 0],
+                        [2.5, middle + 0.25, 0]])
+        cv2.fillPoly(image, [np.round(_to_image(bar)).astype(np.int32)], (245, 245, 245))
+    observation = detect_lanes(image, CONFIG)
+    assert observation.both_detected
+    for side in ("left", "right"):
+        curve = getattr(observation, f"{side}_curve")
+        rows = [row for row in (300.0, 360.0, 420.0) if 0 <= _column_at(truth[side], row) < 848]
+        for row in rows:
+            assert abs(float(curve.x_at(row)) - _column_at(truth[side], row)) < 6.0, (side, row)
+
+
 def test_a_short_stretch_of_rows_gives_a_straight_line_not_a_curve():
     ys = np.linspace(300, 320, 10)
     coef = fit_curve(100 + 2.0 * (ys - 163), ys, 163.0)

@@ -11,7 +11,10 @@ finder looks for *paint*, not edges, and fits *curves*, not lines:
    top-hat along the rows keeps structures narrower than its kernel; the kernel grows with the distance below
    the horizon, as a stripe of fixed width on the ground does (its width in pixels is proportional to the row's
    distance from the horizon). Wide bright things (a stop line across the lane, a car, a crosswalk bar) are
-   wider than the kernel and drop out.
+   wider than the kernel and drop out. The top-hat runs in a few bands of rows, each with the kernel of its
+   nearest row, which at the band's far rows is wider than those rows' own: what passed there wider than its
+   own row's kernel is dropped too (a zebra's bars, 0.5 m wide and running along the road as a boundary does,
+   passed whole and were taken for the lane's boundaries by a kart moving off just before the crossing).
 3. **Threshold from the image itself.** A pixel is paint when its ridge response stands out from the asphalt's
    texture: more than ``noise_sigmas`` robust standard deviations (from the median absolute deviation) above the
    region's median, and at least ``min_contrast`` grey levels. Nothing is fitted to one image's brightness.
@@ -144,12 +147,29 @@ def paint_mask(image: Image, top: int, horizon_y: float, scale: float, config: P
     mad = float(np.median(np.abs(sample.astype(np.float32) - median)))
     threshold = max(median + config.noise_sigmas * 1.4826 * max(mad, 1.0), config.min_contrast)
     out = np.where(ridge > threshold, np.uint8(255), np.uint8(0))
+    below = (top_small + np.arange(out.shape[0]) + 0.5) / scale - horizon_y  # each row's, in input pixels
+    _drop_wide_runs(out, config.kernel_factor * config.paint_width_ratio * below * scale)
     if mask is not None:
         body = mask[top:]
         if scale != 1.0:
             body = cv2.resize(body, (out.shape[1], out.shape[0]), interpolation=cv2.INTER_NEAREST)
         out[body > 0] = 0
     return out
+
+
+def _drop_wide_runs(mask: Image, widths: NDArray[np.float64]) -> None:
+    """Clear, in place, each run of set pixels along a row of ``mask`` longer than that row's ``widths``."""
+    h, w = mask.shape
+    padded = np.zeros((h, w + 2), np.int8)
+    padded[:, 1:-1] = mask > 0
+    steps = np.diff(padded, axis=1).ravel()  # h rows of w + 1: +1 where a run starts, -1 just past its end
+    starts, ends = np.flatnonzero(steps == 1), np.flatnonzero(steps == -1)
+    wide = ends - starts > widths[starts // (w + 1)]
+    if wide.any():
+        delta = np.zeros(steps.size + 1, np.int32)
+        np.add.at(delta, starts[wide], 1)
+        np.add.at(delta, ends[wide], -1)
+        mask[np.cumsum(delta[:-1]).reshape(h, w + 1)[:, :w] > 0] = 0
 
 
 def fit_curve(xs: NDArray[np.float64], ys: NDArray[np.float64], horizon_y: float) -> NDArray[np.float64] | None:
