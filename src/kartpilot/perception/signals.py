@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from functools import lru_cache
+from functools import lru_cache, partial
 from typing import Literal, NamedTuple
 
 import cv2
@@ -292,9 +292,7 @@ def _lights(image: Image, planes: _Planes, config: SignalConfig, camera: Pinhole
     lit = round(config.lamp_value * planes.exposure)
     lamps: list[tuple[float, float, float, Detection]] = []  # (lamp's brightness, centre column, row, light)
     above = hsv[: int(config.horizon * h)]  # a lit lamp is above the horizon
-    def red_lamp(hsv: Image, s_min: int, v_min: int) -> Image:
-        return red_mask(hsv, s_min, v_min, config.red_lamp_hue_max)
-
+    red_lamp = partial(red_mask, hue_max=config.red_lamp_hue_max)
     for state, colour in (("red", red_lamp), ("green", green_mask)):
         hued = colour(above, config.lamp_saturation, 0)
         coloured = cv2.bitwise_and(hued, cv2.inRange(above[..., 2], round(config.lamp_extent * lit), 255))
