@@ -131,8 +131,8 @@ def test_rendered_stop_lines_and_zebras_are_found_at_their_near_edge(label, befo
         lane_m = sim.track.spec.width_m
     # the paint reaches across the lane: a stop line from one side to the other, a zebra's stripes (a stripe and a
     # gap each) to its outer stripes' outer edges
-    pitch = 2 * mark.stripe_m
-    paint_m = lane_m if label == "stop_line" else (lane_m // pitch - 1) * pitch + mark.stripe_m
+    spacing = 2 * mark.stripe_m
+    paint_m = lane_m if label == "stop_line" else (lane_m // spacing - 1) * spacing + mark.stripe_m
     print(label, "truth", round(truth.distance_m, 2), round(truth.lateral_m, 2),
           "found", [(d.label, round(d.distance_m, 2), round(d.lateral_m, 2), round(d.width_m, 2)) for d in found])
     assert [d.label for d in found] == [label]

@@ -113,14 +113,21 @@ class PaintStrokes:
     scale: float = 1.0
 
 
+def _kernel_px(rows: NDArray[np.float64] | float, top: int, horizon: float, scale: float, config: PaintConfig
+               ) -> NDArray[np.float64] | float:
+    """The ridge kernel's width (processing pixels) at processing ``rows`` of the region starting at ``top``: a
+    line's width there, with ``kernel_factor`` of slack."""
+    below = (top + rows) / scale - horizon  # in input pixels below the horizon
+    return config.kernel_factor * config.paint_width_ratio * below * scale
+
+
 def _kernel_widths(rows: int, top: int, horizon: float, scale: float, config: PaintConfig
                    ) -> list[tuple[int, int, int]]:
-    """(first row, last row, kernel) of each band, in processing pixels."""
+    """(first row, last row, kernel) of each band, in processing pixels: each band's kernel its nearest row's."""
     edges = np.linspace(0, rows, config.bands + 1).astype(int)
     out = []
     for r0, r1 in itertools.pairwise(edges):
-        below = (top + r1) / scale - horizon  # the band's nearest row, in input pixels below the horizon
-        k = round(config.kernel_factor * config.paint_width_ratio * below * scale) | 1
+        k = round(float(_kernel_px(float(r1), top, horizon, scale, config))) | 1
         out.append((int(r0), int(r1), max(k, 3)))
     return out
 
@@ -147,8 +154,7 @@ def paint_mask(image: Image, top: int, horizon_y: float, scale: float, config: P
     mad = float(np.median(np.abs(sample.astype(np.float32) - median)))
     threshold = max(median + config.noise_sigmas * 1.4826 * max(mad, 1.0), config.min_contrast)
     out = np.where(ridge > threshold, np.uint8(255), np.uint8(0))
-    below = (top_small + np.arange(out.shape[0]) + 0.5) / scale - horizon_y  # each row's, in input pixels
-    _drop_wide_runs(out, config.kernel_factor * config.paint_width_ratio * below * scale)
+    _drop_wide_runs(out, np.asarray(_kernel_px(np.arange(out.shape[0]) + 0.5, top_small, horizon_y, scale, config)))
     if mask is not None:
         body = mask[top:]
         if scale != 1.0:
@@ -165,11 +171,10 @@ def _drop_wide_runs(mask: Image, widths: NDArray[np.float64]) -> None:
     steps = np.diff(padded, axis=1).ravel()  # h rows of w + 1: +1 where a run starts, -1 just past its end
     starts, ends = np.flatnonzero(steps == 1), np.flatnonzero(steps == -1)
     wide = ends - starts > widths[starts // (w + 1)]
-    if wide.any():
-        delta = np.zeros(steps.size + 1, np.int32)
-        np.add.at(delta, starts[wide], 1)
-        np.add.at(delta, ends[wide], -1)
-        mask[np.cumsum(delta[:-1]).reshape(h, w + 1)[:, :w] > 0] = 0
+    if wide.any():  # a step is one run's start or another's end, never both: plain indexing marks them
+        delta = np.zeros(steps.size, np.int32)
+        delta[starts[wide]], delta[ends[wide]] = 1, -1
+        mask[np.cumsum(delta).reshape(h, w + 1)[:, :w] > 0] = 0
 
 
 def fit_curve(xs: NDArray[np.float64], ys: NDArray[np.float64], horizon_y: float) -> NDArray[np.float64] | None:
