@@ -1,10 +1,14 @@
 """Rendering the simulated cameras with Panda3D, offscreen, on the CPU.
 
 Panda3D's software rasteriser (``p3tinydisplay``) needs nothing but the pip
-package, renders the same image for the same pose every time, and does
-trilinear mipmapping with ``texture-quality-level best`` (see
+package, renders the same image for the same pose every time, and filters
+textures as each texture asks with ``texture-quality-level best`` (see
 ``docs/simulator.md`` in the shared folder for the measurements behind the
-choice). All cameras of a kart are display regions of one offscreen buffer,
+choice). Textures are mipmapped and sampled bilinearly in the nearest mipmap
+level: p3tinydisplay's trilinear filter (between two levels) drew bands of
+unfiltered texture across the road at some distances, aliasing no lens makes
+(noise that flickers as the kart moves, on which a feature tracker finds
+corners that are not there), and took twice the time. All cameras of a kart are display regions of one offscreen buffer,
 read back with one copy per frame.
 
 The world is flat (z = 0). Ground layers (grass, road surface, tyre marks,
@@ -597,7 +601,7 @@ def _texture(core: Any, image: Image, wrap: bool = True) -> Any:
     tex = c.Texture("procedural")
     tex.setup_2d_texture(w, h, c.Texture.T_unsigned_byte, c.Texture.F_rgb)
     tex.set_ram_image(np.ascontiguousarray(image[::-1]).tobytes())  # Panda3D stores BGR, bottom row first
-    tex.set_minfilter(c.SamplerState.FT_linear_mipmap_linear)
+    tex.set_minfilter(c.SamplerState.FT_linear_mipmap_nearest)  # not trilinear: see the module's docstring
     tex.set_magfilter(c.SamplerState.FT_linear)
     mode = c.SamplerState.WM_repeat if wrap else c.SamplerState.WM_clamp
     tex.set_wrap_u(c.SamplerState.WM_repeat)
