@@ -175,6 +175,9 @@ def test_vo_uses_the_arc_for_a_mounted_camera_and_the_general_motion_without_a_m
     assert not MonoVO(KART, MonoVOConfig(motion="general", ground=GroundConfig(camera_height_m=0.6))).arc
     with pytest.raises(ConfigError, match=r"mono_vo\.motion"):
         MonoVOConfig(motion="holonomic")  # type: ignore[arg-type]
+    for bad in ({"iterations": 0}, {"inlier_px": 0.0}):
+        with pytest.raises(ConfigError, match=r"mono_vo\.ground\." + next(iter(bad))):
+            GroundConfig(camera_height_m=0.6, **bad)  # type: ignore[arg-type]
 
 
 def test_the_ground_mask_leaves_out_the_near_ground_only():

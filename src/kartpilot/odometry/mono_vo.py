@@ -121,6 +121,8 @@ class GroundConfig:
             raise ConfigError("mono_vo.ground.camera_height_m must be positive (the camera's height above the road)")
         if not 0 < self.near_heights < self.far_heights or self.half_width_heights <= 0:
             raise ConfigError("mono_vo.ground: 0 < near_heights < far_heights and half_width_heights > 0")
+        if self.iterations < 1 or self.inlier_px <= 0:
+            raise ConfigError("mono_vo.ground.iterations must be at least 1 and mono_vo.ground.inlier_px positive")
 
 
 FIRST_STEP_HEIGHTS = tuple(float(v) for v in np.geomspace(0.1, 4.0, 20))
@@ -457,26 +459,23 @@ def fit_ground_homography(p0: F32, p1: F32, rotation: Array, t: Array, camera_ma
     min_down = math.cos(math.radians(config.max_tilt_deg))
     prior = np.array([0.0, 1.0, 0.0]) if prior_normal is None else prior_normal
 
-    def errors(m: Array) -> Array:
-        s = x0 @ m
-        z = rx0[:, 2] + t[2] * s
-        with np.errstate(divide="ignore", invalid="ignore"):
-            px, py = (rx0[:, 0] + t[0] * s) / z, (rx0[:, 1] + t[1] * s) / z
-        return np.nan_to_num(focal * np.hypot(px - u, py - v), nan=np.inf)
-
-    best: NDArray[np.bool_] | None = None
-    best_count = 0
-    for _ in range(config.iterations):
-        pick = rng.choice(count, 3, replace=False)
-        m = np.linalg.lstsq(a[np.r_[pick, pick + count]], b[np.r_[pick, pick + count]], rcond=None)[0]
-        norm = float(np.linalg.norm(m))
-        if norm <= 0 or float(m @ prior) / norm < min_down:
-            continue
-        inliers = errors(m) < config.inlier_px
-        if inliers.sum() > best_count:
-            best, best_count = inliers, int(inliers.sum())
-    if best is None or best_count < config.min_points:
+    # the hypotheses all at once (the same draws, in the same order, as one at a time): each from three points
+    picks = np.array([rng.choice(count, 3, replace=False) for _ in range(config.iterations)])
+    equations = np.concatenate([picks, picks + count], axis=1)  # a point's two rows of a and b
+    hypotheses = np.einsum("hij,hj->hi", np.linalg.pinv(a[equations]), b[equations])  # each one's least squares
+    norms = np.linalg.norm(hypotheses, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        plausible = (norms > 0) & (hypotheses @ prior / norms >= min_down)
+        s = x0 @ hypotheses.T  # (points, hypotheses)
+        z = rx0[:, 2:3] + t[2] * s
+        error = focal * np.hypot((rx0[:, 0:1] + t[0] * s) / z - u[:, None], (rx0[:, 1:2] + t[1] * s) / z - v[:, None])
+    inliers = error < config.inlier_px  # NaN (a point at the camera's plane) is no inlier
+    counts = np.where(plausible, inliers.sum(axis=0), 0)
+    first_best = int(np.argmax(counts))  # the first of the most supported, as a loop keeping the better finds it
+    best_count = int(counts[first_best])
+    if best_count == 0 or best_count < config.min_points:
         return None
+    best = inliers[:, first_best]
     rows = np.r_[np.flatnonzero(best), np.flatnonzero(best) + count]
     m = np.linalg.lstsq(a[rows], b[rows], rcond=None)[0]
     if float(m @ prior) <= 0 or float(m @ prior) / np.linalg.norm(m) < min_down:
