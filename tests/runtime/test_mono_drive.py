@@ -4,16 +4,15 @@ with place fixes from a taught drive, through the supervisor and the CAN layer."
 from dataclasses import replace
 
 import pytest
-from tests.conftest import track_starting_at
+from tests.conftest import GreyFrames, track_starting_at
 
 from kartpilot.cli.main import main
+from kartpilot.core.vehicle import get_vehicle
 from kartpilot.odometry.places import build_places
 from kartpilot.planning.reference_path import PathConfig
-from kartpilot.record.recording import RecordingReader
 from kartpilot.runtime.config import StackConfig
 from kartpilot.runtime.path_policy import DriveConfig
 from kartpilot.runtime.pipelines import Route
-from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation, run_supervised_drive
 from kartpilot.sim.drivers import CenterlineDriverConfig
 from kartpilot.sim.render import RenderConfig
@@ -32,12 +31,10 @@ def test_one_camera_follows_the_taught_drive_through_the_bends_on_place_fixes(tm
     nothing the straight after the bend does not. The simulated clock waits for the pipeline, so a busy machine
     changes nothing here. The whole lap is measured by benchmarks/mono_drive.py."""
     sim = replace(SIM, track=track_starting_at(tmp_path, "sdc-assen", 80.0))
-    run_simulation(replace(sim, max_time_s=32.0, seed=1), "centerline",
-                   driver_config=CenterlineDriverConfig(speed_mps=5.0),
-                   outputs=SessionOutputs(record_dir=tmp_path / "teach"))
-    teach = RecordingReader(tmp_path / "teach")
-    places = build_places(teach.posed_frames("center", teach.camera_poses("center")), teach.cameras["center"],
-                          "center")
+    frames = GreyFrames("center")  # the teach drive's frames as it draws them (a recording's: the CLI's teach test)
+    teach = run_simulation(replace(sim, max_time_s=32.0, seed=1), "centerline",
+                           driver_config=CenterlineDriverConfig(speed_mps=5.0), taps=(frames,))
+    places = build_places(frames.posed(teach.ground_truth), get_vehicle("sdc-kart").camera("center"), "center")
     drive = DriveConfig(path=PathConfig(cruise_speed_mps=5.0, max_lateral_accel_mps2=2.0))
     stack = StackConfig(drive=drive)
     run = run_supervised_drive(replace(sim, seed=2), "mono-vo", stack, bus="virtual", duration_s=28.0,
