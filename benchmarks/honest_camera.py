@@ -9,6 +9,7 @@ each drive recorded once per camera into ``--cache``.
 
     python benchmarks/honest_camera.py --data ../shared/data --out docs/results/honest_camera.json
     python benchmarks/honest_camera.py --render docs/results/honest_camera.json   # into docs/simulator.md
+    python benchmarks/honest_camera.py --render docs/results/honest_camera_20261127.json --marker honest-camera-trilinear
 """
 
 from __future__ import annotations
@@ -131,9 +132,10 @@ def main() -> int:
     parser.add_argument("--cache", default="benchmarks/results/recordings", help="simulated recordings, kept")
     parser.add_argument("--out", default="docs/results/honest_camera.json")
     parser.add_argument("--render", help="put the table of this JSON into docs/simulator.md")
+    parser.add_argument("--marker", default="honest-camera", help="where in docs/simulator.md (with --render)")
     args = parser.parse_args()
     if args.render:
-        put_at_marker(PAGE, render(json.loads(Path(args.render).read_text(encoding="utf-8"))), "honest-camera")
+        put_at_marker(PAGE, render(json.loads(Path(args.render).read_text(encoding="utf-8"))), args.marker)
         return 0
     rows = real_rows(Path(args.data)) + simulated_rows(Path(args.cache))
     write_json(args.out, {"date": datetime.date.today().isoformat(),
