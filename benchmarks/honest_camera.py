@@ -9,7 +9,8 @@ each drive recorded once per camera into ``--cache``.
 
     python benchmarks/honest_camera.py --data ../shared/data --out docs/results/honest_camera.json
     python benchmarks/honest_camera.py --render docs/results/honest_camera.json   # into docs/simulator.md
-    python benchmarks/honest_camera.py --render docs/results/honest_camera_20261127.json --marker honest-camera-trilinear
+    python benchmarks/honest_camera.py --render docs/results/honest_camera_20261127.json \
+        --marker honest-camera-trilinear   # the table before the texture filter changed
 """
 
 from __future__ import annotations

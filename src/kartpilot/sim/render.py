@@ -8,8 +8,9 @@ choice). Textures are mipmapped and sampled bilinearly in the nearest mipmap
 level: p3tinydisplay's trilinear filter (between two levels) drew bands of
 unfiltered texture across the road at some distances, aliasing no lens makes
 (noise that flickers as the kart moves, on which a feature tracker finds
-corners that are not there), and took twice the time. All cameras of a kart are display regions of one offscreen buffer,
-read back with one copy per frame.
+corners that are not there), and took twice the time. All cameras of a kart
+are display regions of one offscreen buffer, read back with one copy per
+frame.
 
 The world is flat (z = 0). Ground layers (grass, road surface, tyre marks,
 curbs, painted lines) are drawn first, in order and without depth, so decals
