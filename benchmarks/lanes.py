@@ -31,9 +31,8 @@ from kartpilot.perception import lanes as lanes_module
 from kartpilot.perception.lanes import LaneConfig, detect_lanes
 from kartpilot.perception.tape import detect_tape_track
 from kartpilot.runtime.lane_policy import LanePolicy
-from kartpilot.sim.dynamics import VehicleState
 from kartpilot.sim.render import Renderer
-from kartpilot.sim.simulator import body_pose
+from kartpilot.sim.simulator import camera_poses_on_route
 from kartpilot.sim.track import load_track
 
 W, H = 960, 540
@@ -50,14 +49,10 @@ def kart_cameras_960() -> dict[str, PinholeCamera]:
 
 def simulated_frames(cameras: dict[str, PinholeCamera], count: int) -> list[FrameSet]:
     track = load_track("sdc-assen")
-    route = track.route
     frames = []
     with Renderer(track, cameras) as renderer:
         for k in range(count):
-            i = (track.start_index + 40 * k) % len(route.s_m)
-            body = body_pose(VehicleState(x_m=float(route.xy_m[i, 0]), y_m=float(route.xy_m[i, 1]),
-                                          yaw_rad=float(route.heading_rad[i])))
-            images = renderer.render({n: body @ c.pose_body_cam_array for n, c in cameras.items()})
+            images = renderer.render(camera_poses_on_route(track, cameras, 40 * k))
             frames.append(FrameSet(k, k, images))
     return frames
 

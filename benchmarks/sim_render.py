@@ -19,9 +19,8 @@ from common import write_json
 from kartpilot.core.vehicle import get_vehicle
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
-from kartpilot.sim.dynamics import VehicleState
 from kartpilot.sim.render import Renderer
-from kartpilot.sim.simulator import SimConfig, Simulator, body_pose
+from kartpilot.sim.simulator import SimConfig, Simulator, camera_poses_on_route
 from kartpilot.sim.track import bundled_tracks, load_track
 
 
@@ -29,14 +28,8 @@ def render_rate(track_name: str, pairs: int) -> dict[str, float]:
     track = load_track(track_name)
     vehicle = get_vehicle("rc-kart")
     cams = {name: vehicle.camera(name) for name in ("left", "right")}
-    route = track.route
     # one pose per 5 cm route sample, as at 1.5 m/s and 30 Hz
-    indices = [(track.start_index + k) % len(route.s_m) for k in range(pairs)]
-    poses = []
-    for i in indices:
-        body = body_pose(VehicleState(x_m=float(route.xy_m[i, 0]), y_m=float(route.xy_m[i, 1]),
-                                      yaw_rad=float(route.heading_rad[i])))
-        poses.append({name: body @ cam.pose_body_cam_array for name, cam in cams.items()})
+    poses = [camera_poses_on_route(track, cams, k) for k in range(pairs)]
     build_start = time.perf_counter()
     with Renderer(track, cams) as renderer:
         build_s = time.perf_counter() - build_start

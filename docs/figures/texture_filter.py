@@ -16,9 +16,8 @@ import cv2
 import numpy as np
 
 from kartpilot.core.vehicle import get_vehicle
-from kartpilot.sim.dynamics import VehicleState
 from kartpilot.sim.render import Renderer
-from kartpilot.sim.simulator import body_pose
+from kartpilot.sim.simulator import camera_poses_on_route
 from kartpilot.sim.track import load_track
 
 
@@ -27,13 +26,7 @@ def _draw(minfilter: str) -> tuple[np.ndarray, float]:
     track = load_track("sdc-assen")
     vehicle = get_vehicle("sdc-kart")
     cams = {name: vehicle.camera(name) for name in ("center", "left", "right")}
-    route = track.route
-    poses = []
-    for k in range(240, 840, 20):
-        i = (track.start_index + k) % len(route.s_m)
-        body = body_pose(VehicleState(x_m=float(route.xy_m[i, 0]), y_m=float(route.xy_m[i, 1]),
-                                      yaw_rad=float(route.heading_rad[i])))
-        poses.append({name: body @ cam.pose_body_cam_array for name, cam in cams.items()})
+    poses = [camera_poses_on_route(track, cams, sample) for sample in range(240, 840, 20)]
     with Renderer(track, cams) as renderer:
         sampler = getattr(renderer._core.SamplerState, minfilter)
         for texture in renderer.root.find_all_textures():

@@ -9,11 +9,13 @@ import pytest
 
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.types import ActuatorCommand
+from kartpilot.core.vehicle import get_vehicle
 from kartpilot.record.recording import RecordingReader, RecordingStereoSource
 from kartpilot.runtime.session import SessionOutputs
 from kartpilot.runtime.simulate import run_simulation
 from kartpilot.sim.drivers import CenterlineDriverConfig
-from kartpilot.sim.simulator import CameraEffectsConfig, SimConfig, Simulator, perfect_camera
+from kartpilot.sim.simulator import CameraEffectsConfig, SimConfig, Simulator, camera_poses_on_route, perfect_camera
+from kartpilot.sim.track import load_track
 
 SHORT = SimConfig(track="straight20", vehicle="rc-kart", cameras=("left", "right"), camera_rate_hz=10.0,
                   max_time_s=1.0)
@@ -153,3 +155,15 @@ def test_the_camera_effects_refuse_what_no_camera_does(key: str, value: float) -
 
     with pytest.raises(ConfigError, match=f"sim.effects.{key}"):
         CameraEffectsConfig(**{key: value})
+
+
+def test_camera_poses_on_route_put_the_rear_axle_on_the_centre_line_and_wrap_round_the_lap():
+    track = load_track("straight20")
+    camera = get_vehicle("rc-kart").camera("left")
+    route = track.route
+    first = camera_poses_on_route(track, {"left": camera}, 0)["left"]
+    body = first @ np.linalg.inv(camera.pose_body_cam_array)  # the rear axle's pose
+    i = track.start_index
+    assert np.allclose(body[:2, 3], route.xy_m[i])
+    assert np.isclose(np.arctan2(body[1, 0], body[0, 0]), route.heading_rad[i])
+    assert np.array_equal(camera_poses_on_route(track, {"left": camera}, len(route.s_m))["left"], first)

@@ -10,12 +10,13 @@ vibration, dropped frames) comes from the run's seed.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from kartpilot.calibration.lens import lens_distortion
-from kartpilot.core.camera import DISTORTION_COUNTS
+from kartpilot.core.camera import DISTORTION_COUNTS, PinholeCamera
 from kartpilot.core.errors import ConfigError
 from kartpilot.core.geometry import Array, arc_2d, compose_2d
 from kartpilot.core.trajectory import Trajectory
@@ -37,8 +38,8 @@ from kartpilot.sim.referee import Referee, RefereeConfig, RunResult
 from kartpilot.sim.render import RenderConfig, Renderer
 from kartpilot.sim.track import Prop, Track, load_track, project_onto
 
-__all__ = ["CameraEffectsConfig", "DisturbanceConfig", "SimConfig", "Simulator", "body_pose", "mount_off",
-           "perfect_camera", "real_camera"]
+__all__ = ["CameraEffectsConfig", "DisturbanceConfig", "SimConfig", "Simulator", "body_pose", "camera_poses_on_route",
+           "mount_off", "perfect_camera", "real_camera"]
 
 
 @dataclass(frozen=True)
@@ -206,6 +207,16 @@ def body_pose(state: VehicleState) -> Array:
     pose[:2, :2] = [[c, -s], [s, c]]
     pose[:2, 3] = state.x_m, state.y_m
     return pose
+
+
+def camera_poses_on_route(track: Track, cameras: Mapping[str, PinholeCamera], sample: int) -> dict[str, Array]:
+    """Each camera's 4x4 world pose with the kart's rear axle on the route's centre line ``sample`` route samples
+    after the start (wrapping round the lap), heading along it: a rendering's poses without a drive."""
+    route = track.route
+    i = (track.start_index + sample) % len(route.s_m)
+    body = body_pose(VehicleState(x_m=float(route.xy_m[i, 0]), y_m=float(route.xy_m[i, 1]),
+                                  yaw_rad=float(route.heading_rad[i])))
+    return {name: body @ cam.pose_body_cam_array for name, cam in cameras.items()}
 
 
 def check_drivable(track: Track, vehicle: VehicleParams) -> None:
