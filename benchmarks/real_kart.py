@@ -234,7 +234,8 @@ def _against_hanze(npz: Path, views: dict, mounts: dict) -> dict[str, Any]:
 
 def render(results: dict[str, Any]) -> str:
     lines = [f"Measured by `benchmarks/real_kart.py` on {results['data']}, and on {results['sim_data']} "
-             "(rows marked sim; the preset was not tuned on them); one core.", "",
+             "(rows marked sim; the preset was not tuned on them); one core"
+             + (f", {results['date']} (frames/s move with the machine's day)." if "date" in results else "."), "",
              "| lane finder | both boundaries | truth points within 25 px | median error | frames/s |",
              "|---|---|---|---|---|"]
     rows = {**results["rows"], **{f"{k} (sim)": v for k, v in results.get("sim_rows", {}).items()}}
@@ -293,7 +294,7 @@ def main() -> int:
     if args.render:
         put_at_marker(PAGE, render(json.loads(args.render.read_text())), "real-kart-lanes")
         return 0
-    write_json(args.out, measure(args.data))
+    write_json(args.out, {"date": time.strftime("%Y-%m-%d"), **measure(args.data)})
     return 0
 
 
