@@ -101,6 +101,20 @@ def test_track_file_from_a_path(tmp_path):
     assert track.route.curvature_1pm.mean() == pytest.approx(0.1, abs=1e-3)
 
 
+def test_a_track_is_built_once_and_no_user_can_change_it_for_the_next(tmp_path):
+    first = load_track("sdc-assen")
+    assert load_track("sdc-assen") is first  # the same description: the track built before
+    for array in (first.route.xy_m, first.route.half_width_m, first.lines[0], first.route_marked_left,
+                  first.curbs[0][0], first.barriers[0] if first.barriers else first.lines[-1]):
+        with pytest.raises(ValueError, match="read-only"):
+            array[0] = 0
+    path = tmp_path / "short.yaml"
+    path.write_text("name: short\ncenterline: {closed: false, segments: [{straight_m: 30}]}\n")
+    short = load_track(path)
+    path.write_text("name: short\ncenterline: {closed: false, segments: [{straight_m: 40}]}\n")
+    assert load_track(path).route.length_m > short.route.length_m + 9  # a file changed: built again
+
+
 def test_scenery_stands_beside_the_road_never_on_it():
     track = load_track("sdc-assen")
     boxes = scenery_boxes(track, 15.0, seed=3)

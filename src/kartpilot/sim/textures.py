@@ -44,7 +44,7 @@ def _wrap_blur(image: np.ndarray, sigma_x: float, sigma_y: float) -> np.ndarray:
     return out / max(float(out.std()), 1e-6)
 
 
-@lru_cache(maxsize=8)
+@lru_cache(maxsize=24)  # a renderer asks for three (road, ground, paint); a worker draws several tracks
 def surface_texture(kind: str, size_px: int = 2048, seed: int = 0) -> Image:
     """A seamless BGR texture for ``asphalt``, ``worn_asphalt``, ``tartan``, ``grass`` or ``paint``."""
     if kind not in _BASE_BGR:

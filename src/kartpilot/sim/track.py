@@ -29,10 +29,11 @@ Example (``straight20``)::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, is_dataclass
+from functools import lru_cache
 from importlib import resources
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -436,8 +437,28 @@ def load_track_spec(name_or_path: str | Path) -> TrackSpec:
     return merge_config(TrackSpec(), mapping, "track")
 
 
+@lru_cache(maxsize=16)
 def build_track(spec: TrackSpec) -> Track:
-    """Sample the route and its branches and lay out the markings."""
+    """Sample the route and its branches and lay out the markings. Built once per description in a process (a
+    simulator, its referee, a scenario's checks and the CLI each asked for the same track: sdc-assen took a second
+    each time) and shared: every array of the track is read-only, so no user can change it for the next."""
+    return _read_only(_build_track(spec))
+
+
+def _read_only(value: Any) -> Any:
+    """``value`` with every NumPy array in it (through dataclasses and tuples) made read-only; the same object."""
+    if isinstance(value, np.ndarray):
+        value.flags.writeable = False
+    elif isinstance(value, tuple):
+        for item in value:
+            _read_only(item)
+    elif is_dataclass(value) and not isinstance(value, type):
+        for f in fields(value):
+            _read_only(getattr(value, f.name))
+    return value
+
+
+def _build_track(spec: TrackSpec) -> Track:
     xy = _centerline_points(spec.centerline)
     route = _piece("route", _resample(xy, spec.centerline.closed), spec, spec.centerline.closed)
     if not spec.centerline.closed and not 0.0 <= spec.start_s_m < route.length_m:
