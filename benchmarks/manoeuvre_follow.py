@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import math
+from typing import Any
 
 from common import write_json
 from kartpilot.behaviour.manoeuvres import ParkConfig, plan_overtake, plan_park
@@ -36,7 +37,7 @@ def main() -> int:
     parser.add_argument("--json", default="docs/results/manoeuvre_follow.json")
     args = parser.parse_args()
     kart = get_vehicle("sdc-kart")
-    rows = []
+    rows: list[dict[str, Any]] = []
     for name, config in FOLLOWERS.items():
         for k, (start, free, lateral) in enumerate(BAYS):
             path = plan_park(start, free, lateral, ParkConfig())
