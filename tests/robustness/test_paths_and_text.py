@@ -14,7 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from kartpilot.cli.main import main
-from kartpilot.core.files import read_text_file
+from kartpilot.core.errors import DataError
+from kartpilot.core.files import parse_yaml, read_text_file
 from kartpilot.runtime.config import load_stack_config
 from kartpilot.sensors.base import read_image
 
@@ -148,3 +149,14 @@ def test_a_yaml_cut_off_is_one_line_saying_where_and_a_folder_given_for_a_file_i
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and said in err, err
     assert not (tmp_path / "out.yaml").exists()
+
+
+def test_brackets_in_yaml_strings_and_comments_do_not_count_as_nesting_but_deep_flow_does():
+    """The nesting bound counts flow brackets only: 300 of them inside quoted scalars and comments read as they
+    are; 300 nested flow collections are refused by the count, before PyYAML's scanner (quadratic in the nesting)
+    sees them, and a nesting within the bound reads."""
+    text = ("a: \"" + "[" * 300 + "\"\nb: '" + "{" * 300 + "'\n# " + "[" * 300 + "\nc: [[1]] # " + "{" * 300 + "\n")
+    assert parse_yaml(text, "quoted.yaml") == {"a": "[" * 300, "b": "{" * 300, "c": [[1]]}
+    assert parse_yaml("x: " + "[" * 90 + "]" * 90 + "\n", "deep.yaml")["x"] is not None
+    with pytest.raises(DataError, match=r"deep\.yaml: nested too deeply"):
+        parse_yaml("x: " + "[" * 300 + "]" * 300 + "\n", "deep.yaml")

@@ -77,7 +77,7 @@ def parse_json(text: str, source: str | Path, allow_nan: bool = True) -> Any:
     """JSON text as Python values; invalid JSON (with its line and column) and nesting deeper than
     :data:`MAX_JSON_DEPTH` raise DataError naming ``source``. NaN and Infinity, which Python's JSON writes for
     a figure that has none (kartpilot's results do), are read unless ``allow_nan`` is False."""
-    if _json_depth(text) > MAX_JSON_DEPTH:
+    if _bracket_depth(text) > MAX_JSON_DEPTH:
         raise DataError(f"{source}: nested more than {MAX_JSON_DEPTH} deep")
 
     def no_constant(name: str) -> Any:
@@ -92,14 +92,17 @@ def parse_json(text: str, source: str | Path, allow_nan: bool = True) -> Any:
 
 
 _JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
+_YAML_NOT_FLOW = re.compile(r'"(?:[^"\\]|\\.)*"|\'(?:[^\']|\'\')*\'|(?:^|(?<=\s))#[^\n]*', re.MULTILINE)
+"""What in YAML text is no flow bracket, whatever brackets it holds: quoted scalars and comments."""
 
 
-def _json_depth(text: str) -> int:
+def _bracket_depth(text: str, strings: re.Pattern[str] = _JSON_STRING) -> int:
     """The deepest nesting of brackets outside strings: the strings taken out by one regular expression, then the
-    brackets' running count (no recursion, and C speed on a label file of megabytes)."""
+    brackets' running count (no recursion, and C speed on a label file of megabytes). YAML's flow collections are
+    counted the same way, ``strings`` then matching its quoted scalars and comments."""
     if text.count("[") + text.count("{") <= MAX_JSON_DEPTH:
         return 0  # too few brackets to nest too deep: most files stop here
-    brackets = np.frombuffer(_JSON_STRING.sub('""', text).encode("utf-8", "replace"), np.uint8)
+    brackets = np.frombuffer(strings.sub('""', text).encode("utf-8", "replace"), np.uint8)
     steps = np.zeros(len(brackets), np.int64)
     steps[(brackets == ord("[")) | (brackets == ord("{"))] = 1
     steps[(brackets == ord("]")) | (brackets == ord("}"))] = -1
@@ -182,6 +185,10 @@ def parse_yaml(text: str, source: str | Path) -> Any:
     more than :data:`YAML_MAX_VALUES` values, or that nests too deeply to read, raises DataError naming
     ``source``; a syntax error raises ``yaml.YAMLError`` as before, its message one line (what is wrong, and
     where: a person's terminal and a command's one-line error, not PyYAML's excerpt of the file)."""
+    if _bracket_depth(text, _YAML_NOT_FLOW) > MAX_JSON_DEPTH:
+        # PyYAML's scanner takes time quadratic in the nesting before its composer runs out of stack (3 s for a
+        # 200 kB file of brackets); no kartpilot file nests flow collections more than a few deep
+        raise DataError(f"{source}: nested too deeply to read")
     loader = yaml.SafeLoader(text)
     try:
         try:
