@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from tests.conftest import KART, road_texture, road_view
+from tests.conftest import KART, GreyFrames, road_texture, road_view
 
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.errors import ConfigError
@@ -28,7 +28,6 @@ from kartpilot.odometry.mono_vo import (
     relative_pose,
     rotation_only,
 )
-from kartpilot.runtime.session import SessionOutputs
 
 CAMERA = PinholeCamera(700.0, 700.0, 480.0, 270.0, 960, 540)
 LEVEL = PinholeCamera(300.0, 300.0, 159.5, 119.5, 320, 240)  # no mount: level, the ground starts below row 120
@@ -204,7 +203,7 @@ def test_the_road_region_follows_the_camera_s_height_and_mount():
 
 
 @pytest.mark.slow
-def test_on_a_simulated_kart_drive_the_ground_plane_gives_metres(tmp_path):
+def test_on_a_simulated_kart_drive_the_ground_plane_gives_metres():
     """The SDC kart's centre camera: 0.56 m above the road, pitched down 6.8 degrees, 15 Hz, 5 m/s, 60 m and the
     first bend, with the arc's rear axle slipping as the kart's tyres do and without (the turn is then short).
 
@@ -212,23 +211,21 @@ def test_on_a_simulated_kart_drive_the_ground_plane_gives_metres(tmp_path):
     asphalt texture the end drift varied with the seed (2.9 to 16 % over seeds 1 to 3 on the earlier 0.6 m
     mount), so the bound only catches a broken scale; benchmarks/vo_accuracy.py measures whole drives.
     Through the perfect camera: through the real one the slip's gain in the bend is within the noise (0.48 deg at the
-    end with it, 0.24 without, on 2026-11-28)."""
+    end with it, 0.24 without, on 2026-11-28). The frames as the drive draws them (the grey images a recording reads
+    back, `tests.conftest.GreyFrames`), not written to disk and read again."""
     from kartpilot.core.trajectory import Trajectory
     from kartpilot.eval.trajectory_metrics import evaluate_trajectory
-    from kartpilot.record.recording import RecordingReader
     from kartpilot.runtime.simulate import run_simulation
     from kartpilot.sim.drivers import CenterlineDriverConfig
     from kartpilot.sim.simulator import SimConfig, perfect_camera
 
     config = SimConfig(track="sdc-assen", vehicle="sdc-kart", cameras=("center",), camera_rate_hz=15.0,
                        max_time_s=12.0, seed=1, effects=perfect_camera())
-    run_simulation(config, "centerline", driver_config=CenterlineDriverConfig(speed_mps=5.0),
-                   outputs=SessionOutputs(record_dir=tmp_path / "drive"))
-    reader = RecordingReader(tmp_path / "drive")
-    camera = reader.cameras["center"]
-    images = [(stamp, cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)) for stamp, path in reader.frames("center")]
-    truth = reader.groundtruth()
-    assert truth is not None
+    frames = GreyFrames("center")
+    run = run_simulation(config, "centerline", driver_config=CenterlineDriverConfig(speed_mps=5.0), taps=(frames,))
+    camera = get_vehicle("sdc-kart").camera("center")
+    images = frames.frames
+    truth = run.ground_truth
     config = MonoVOConfig(ground=GroundConfig(camera_height_m=float(camera.pose_body_cam_array[2, 3])))
     results = {}
     for slip in (True, False):
