@@ -54,3 +54,30 @@ def test_the_window_settings_are_checked():
         WindowBAConfig(frames=1)
     with pytest.raises(Exception, match="loss_scale_px"):
         WindowBAConfig(loss_scale_px=float("nan"))
+
+
+def test_the_closed_form_jacobian_is_the_residuals_derivative():
+    """:func:`window_jacobian` against central differences of :func:`window_residuals`, on a window with turned
+    frames (a rotation vector near zero, one of 0.3 rad), points the stereo match did not see (no disparity row) and
+    observations in the fixed frame (no pose columns)."""
+    from kartpilot.odometry.window_ba import window_jacobian, window_residuals
+
+    rng = np.random.default_rng(5)
+    truth = np.array([pose_from_rotvec(np.array([0.0, w, 0.01 * f]), np.array([0.1 * f, 0.0, 1.0 * f]))
+                      for f, w in enumerate([0.0, 1e-7, 0.02, 0.3])])
+    points = np.column_stack([rng.uniform(-10, 10, 40), rng.uniform(-3, 1.5, 40), rng.uniform(6, 40, 40)])
+    obs = _observe(truth, points, rng, 0.3)
+    obs.disparities_px[::3] = np.nan
+    cam_world = np.array([invert_pose(p) for p in truth])
+    from scipy.spatial.transform import Rotation
+
+    params = np.concatenate([np.column_stack([Rotation.from_matrix(cam_world[1:, :3, :3]).as_rotvec(),
+                                              cam_world[1:, :3, 3]]).ravel(), points.ravel()])
+    args = (cam_world[0], len(truth), len(points), obs, RIG.camera.matrix, RIG.baseline_m)
+    closed = window_jacobian(params, *args).toarray()
+    step = 1e-6 * np.maximum(1.0, np.abs(params))
+    numeric = np.column_stack([(window_residuals(params + h, *args) - window_residuals(params - h, *args)) / (2 * h[j])
+                               for j, h in enumerate(np.diag(step))])
+    print(f"largest difference {np.abs(closed - numeric).max():.2e} of entries up to {np.abs(numeric).max():.1f}")
+    np.testing.assert_allclose(closed, numeric, rtol=1e-5, atol=1e-3)
+    assert np.count_nonzero(closed) <= 27 * len(obs.frame)
