@@ -151,3 +151,42 @@ def test_the_event_course_holds_all_six_on_one_loop():
     for fault in ("did not start on green", "did not go on at green", "did not go on after the pedestrian",
                   "did not pass the car", "did not end wholly inside the bay"):
         assert any(f.startswith(fault) for f in faults), fault
+
+
+def test_the_verdict_is_sure_only_once_every_mark_is_behind_the_kart():
+    """A drive ends a second after ``decided``: never before a mark's check is settled (a stop that is still to
+    come, a light still red, a lane not yet regained), never for a bay or a limit that holds to the end; and the
+    verdict a drive ended there gets is the one the whole drive gets."""
+    def first_decided(name, seed, trajectory, dt=0.1):
+        plan = scenario(name, seed)
+        referee = ScenarioReferee(plan)
+        t = 0.0
+        while t < plan.duration_s:
+            front, speed = trajectory(t, plan.marks)
+            referee.step(t, front, speed, dt)
+            if referee.decided(t, front):
+                return t, front, plan.marks
+            t += dt
+        return None
+
+    def stop_and_go(t, m):
+        return (29.3, 0.0) if t < m["red_until_s"] else (29.3 + 4.0 * (t - m["red_until_s"]), 4.0)
+
+    t, front, marks = first_decided("red-light", 2, stop_and_go)
+    assert t >= marks["red_until_s"] and front >= marks["line_s"] + 2.0
+    assert run("red-light", 2, stop_and_go)["passed"]
+    assert first_decided("red-light", 2, lambda t, m: (29.3, 0.0)) is None  # stays at the line: never sure
+    t, front, marks = first_decided("start-on-green", 3,
+                                    lambda t, m: (6.5 + 3.0 * max(t - m["start_green_at_s"], 0.0), 3.0))
+    assert t >= marks["start_green_at_s"] and front >= 8.5
+    assert first_decided("pedestrian", 1, lambda t, m: (136.0 + 2.0 * t, 2.0))[1] >= 149.0
+    assert first_decided("speed-limit", 1, lambda t, m: (6.5 + 2.6 * t, 2.6)) is None  # the limit holds to the end
+    assert first_decided("parking", 1, lambda t, m: (5.0 + 3.0 * t, 3.0)) is None  # ends when parked
+
+    plan = scenario("overtake", 4)
+    car = plan.marks["car_s"]
+    referee = ScenarioReferee(plan)
+    for k in range(150):  # out on the other lane, past the car, back in lane by back_by_s
+        front = 165.0 + 0.4 * k
+        referee.step(k * 0.1, front, 4.0, 0.1, "", 3.0 if front < car + 12.0 else 0.1)
+        assert referee.decided(k * 0.1, front) == (front >= plan.marks["back_by_s"])

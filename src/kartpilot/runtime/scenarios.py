@@ -40,8 +40,10 @@ def run_scenario(name: str | Scenario, seed: int | None = None, stack: StackConf
     """Drive one scenario: a built-in one by name on ``seed``, or a :class:`Scenario` (from a file; ``seed``, if
     given, replaces its simulator's seed); its result in the session result's ``scenarios`` form (``name``,
     ``seed``, ``passed``, ``faults``). The kart's measured speed (its 0x440 report) and steering angle are the
-    simulator's. ``max_time_s`` ends the drive earlier than the scenario's own time (a test's short drive: then
-    judged as far as it went).
+    simulator's. The drive ends at the scenario's time, a second after the kart has parked, or a second after
+    nothing it does can change the verdict any more (:meth:`ScenarioReferee.decided`: past every mark, the car
+    passed and the lane regained). ``max_time_s`` ends it earlier than the scenario's own time (a test's short
+    drive: then judged as far as it went).
 
     ``outputs`` (none by default): ``record_dir`` records the drive as every drive is (frames, commands, the
     ``lanes`` and ``behaviour`` topics, and the ``kart`` topic of what the pipeline was told the kart measured),
@@ -80,8 +82,8 @@ def run_scenario(name: str | Scenario, seed: int | None = None, stack: StackConf
                 video.write(frames)
             bar.update(min(round(sim.time_s), bar.total) - bar.n)
 
-        try:  # the drive ends at the scenario's time, or a second after the kart has parked
-            source: FrameSource = _Until(sim, lambda: judge.parked_s >= 1.0)
+        try:  # the drive ends at the scenario's time, or a second after the kart has parked or the verdict is sure
+            source: FrameSource = _Until(sim, lambda: judge.parked_s >= 1.0 or judge.decided_s >= 1.0)
             run_loop(InjectedSource(source, list(injections)) if injections else source, told, sim,
                      [sink for sink in (writer, view) if sink is not None], on_step=step)
         finally:
@@ -126,8 +128,8 @@ def _plan(name: str | Scenario, seed: int | None) -> Scenario:
 
 class _Judge:
     """Each step, where the kart is for the scenario's referee: its front along the route (laps counted), its
-    footprint along and across the route, what it touches (the car's box, a barrier), and how long it has stood
-    parked."""
+    footprint along and across the route, what it touches (the car's box, a barrier), how long it has stood
+    parked, and how long the referee's verdict has been sure (:meth:`ScenarioReferee.decided`)."""
 
     def __init__(self, sim: Simulator, referee: ScenarioReferee, policy: LanePolicy, plan: Scenario,
                  track: Track) -> None:
@@ -138,6 +140,7 @@ class _Judge:
         self.front_m = sim.vehicle.wheelbase_m + sim.vehicle.front_overhang_m
         self.length_m = sim.track.route.length_m
         self.front_s_m, self.parked_s = math.nan, 0.0
+        self.decided_s = 0.0  # how long the referee's verdict has been sure
         self._lap_m, self._last_s_m = 0.0, math.nan
         self.states: list[list[Any]] = []  # each change of the rules' state or limit: [time, state, limit km/h]
 
@@ -158,6 +161,8 @@ class _Judge:
             limit = self.policy.behaviour.limit_kmh
             if not self.states or self.states[-1][1:] != [behaviour.state, limit]:
                 self.states.append([round(sim.time_s, 2), behaviour.state, limit])
+        if self.referee.decided(sim.time_s, self.front_s_m):
+            self.decided_s += sim.dt_s
         parked = behaviour is not None and behaviour.state == "parked"
         self.parked_s = self.parked_s + sim.dt_s if parked and abs(sim.state.vx_mps) < 0.05 else 0.0
 

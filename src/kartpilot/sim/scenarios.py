@@ -233,6 +233,25 @@ class ScenarioReferee:
             if walking and near and speed_mps > 0.1:
                 self._fault(f"moved at the crossing while the pedestrian was on the road ({time_s:.1f} s)")
 
+    def decided(self, time_s: float, front_s_m: float) -> bool:
+        """Whether nothing the kart does from now on can change the verdict on the scenario's marks: it has moved
+        off after the start's green, is past the line after the red, past the last sign's stretch, past the zebra,
+        back in its lane where the car was passed. Never for a bay (the drive ends when the kart has parked), for
+        a limit that holds to the drive's end, or for a scenario without marks. A fault already counted stays."""
+        marks = self.scenario.marks
+        if not marks.keys() & {"start_green_at_s", "line_s", "sign_s", "zebra_s", "car_s"} or "bay_s" in marks:
+            return False
+        settled = [
+            "start_green_at_s" not in marks or (time_s >= marks["start_green_at_s"]
+                                                and front_s_m - self._start_front >= 2.0),
+            "line_s" not in marks or (time_s >= marks["red_until_s"] and front_s_m >= marks["line_s"] + 2.0),
+            "sign_s" not in marks or front_s_m >= marks.get("limit_until_s", math.inf),
+            "zebra_s" not in marks or front_s_m >= marks["zebra_s"] + 3.0,
+            "car_s" not in marks or (not math.isnan(self._back_offset_m)
+                                     and front_s_m >= marks["car_s"] + PROP_SIZES_M["car"][1] / 2 + 2.0),
+        ]
+        return all(settled)
+
     def _fault(self, text: str) -> None:
         kind = text.split(" (")[0].split(" at ")[0]
         if not any(f.startswith(kind) for f in self.faults):
