@@ -246,7 +246,8 @@ def test_a_light_says_how_near_the_kart_can_come_with_it_still_in_view():
 def test_a_tree_s_trunk_under_its_crown_is_no_person_and_a_person_before_a_tree_is_one():
     """A trunk is as tall, thin and still as a person waiting beside a crossing (the kart waited for one for good in
     a rendered pedestrian scene): foliage above it and one colour from top to foot. A person before the same crown
-    (head, coat, legs) is still one, and so is a dark column with sky above it."""
+    (head, coat, legs) is still one, and so is a dark column with sky above it. The trunk's foot, where it meets the
+    grass or the sun falls on it, is not asked to be of the bark's colour (sweep event overtake 10532)."""
     hsv_of = lambda im: cv2.cvtColor(im, cv2.COLOR_BGR2HSV)  # noqa: E731
     config = ObstacleConfig()
 
@@ -263,7 +264,9 @@ def test_a_tree_s_trunk_under_its_crown_is_no_person_and_a_person_before_a_tree_
     trunk = frame([(71, 190, (25, 35, 55))], crown=True)
     person = frame([(71, 86, (90, 120, 170)), (87, 135, (120, 40, 30)), (136, 190, (30, 30, 30))], crown=True)
     pole = frame([(71, 190, (25, 35, 55))], crown=False)
+    sunlit_foot = frame([(71, 170, (25, 35, 55)), (171, 190, (60, 110, 90))], crown=True)  # grass, sun at its foot
     assert a_tree_trunk(trunk, hsv_of(trunk), box, config)
+    assert a_tree_trunk(sunlit_foot, hsv_of(sunlit_foot), box, config)
     assert not a_tree_trunk(person, hsv_of(person), box, config)
     assert not a_tree_trunk(pole, hsv_of(pole), box, config)
     with pytest.raises(ConfigError, match="trunk_foliage_share"):
@@ -842,6 +845,19 @@ def test_a_person_s_shape_at_a_car_s_side_on_its_bottom_row_is_the_car_s_edge():
     assert part_of_car((372.0, 132.0, 384.0, 185.0), (384.0, 102.0, 478.0, 187.0))  # and its left
     assert not part_of_car((410.0, 120.0, 424.0, 200.0), car)  # before it: the foot 17 px lower
     assert not part_of_car((560.0, 130.0, 572.0, 183.0), car)  # a car's width to its right
+
+
+def test_a_barrier_s_end_with_a_pole_behind_it_is_no_person():
+    """Sweep event parking 10533: the bay's far barrier seen end on beyond the near one, with a lamp post behind it,
+    was a person 17 m ahead (the shape's foot on the barrier's bottom row, its middle over it), and the kart yielded
+    4 s. A person standing before the barrier is lower in the image; one beside it, a barrier's width off, is not
+    its end. The event's own frames: tests/sim/test_phantoms.py."""
+    from kartpilot.perception.detect import part_of_barrier
+
+    far_end = (476.0, 154.0, 501.0, 183.0)
+    assert part_of_barrier((474.0, 124.0, 492.0, 185.0), far_end)
+    assert not part_of_barrier((480.0, 110.0, 494.0, 196.0), far_end)  # before it: the foot 13 px lower
+    assert not part_of_barrier((530.0, 120.0, 544.0, 183.0), far_end)  # a barrier's width to its right
 
 
 def test_a_car_seen_before_holds_the_shapes_in_its_width_and_depth_where_it_stands_now():
