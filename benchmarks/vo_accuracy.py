@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import hashlib
 import json
 import os
 import platform
@@ -97,14 +98,37 @@ def _mono(frames: Iterator[FrameSet | int], camera: PinholeCamera, camera_name: 
     return run_vo(frames, vo, name)
 
 
+ROOT = Path(__file__).resolve().parents[1]
+SIMULATOR_SOURCES = ("src/kartpilot/sim", "src/kartpilot/core/vehicle.py", "src/kartpilot/core/camera.py")
+"""What draws a simulated recording: a cached one is reused only while none of it has changed."""
+
+
+def simulator_hash() -> str:
+    """A hash of every file under :data:`SIMULATOR_SOURCES` (its path and contents; not bytecode)."""
+    digest = hashlib.sha256()
+    for source in SIMULATOR_SOURCES:
+        path = ROOT / source
+        for file in sorted(path.rglob("*") if path.is_dir() else [path]):
+            if file.is_file() and "__pycache__" not in file.parts:
+                digest.update(str(file.relative_to(ROOT)).encode() + b"\0" + file.read_bytes())
+    return digest.hexdigest()[:16]
+
+
 def record_once(folder: Path, config: SimConfig, speed_mps: float) -> Path:
-    """Record a centre-line drive once (kept in the cache for later runs; ``benchmarks/honest_camera.py`` shares
-    the cache)."""
+    """Record a centre-line drive once (kept in the cache for later runs; ``benchmarks/honest_camera.py`` and
+    ``benchmarks/camera_ablation.py`` share the cache). A cached recording drawn by another simulator (a changed
+    renderer, texture, track or camera: :func:`simulator_hash`, kept beside it) is refused, not reused: a table
+    once took two of its rows from recordings an earlier renderer drew."""
+    drawn_by = folder.with_name(folder.name + ".simulator")
     if not (folder / "manifest.json").is_file():
         print(f"recording {folder.name} ...")
         run_simulation(config, "centerline", driver_config=CenterlineDriverConfig(speed_mps=speed_mps),
                        outputs=SessionOutputs(record_dir=folder))
+        drawn_by.write_text(simulator_hash() + "\n")
         return folder
+    if not drawn_by.is_file() or drawn_by.read_text().strip() != simulator_hash():
+        raise SystemExit(f"{folder} was drawn by another simulator than this checkout's (or one that did not say): "
+                         "delete it to record it again")
     held = RecordingReader(folder).manifest.get("metadata", {}).get("sim", {})
     wanted = json.loads(json.dumps(config_to_dict(config)))
     effects = held.get("effects", {})  # a recording older than a field holds that field's default then
