@@ -41,8 +41,9 @@ def run_scenario(name: str | Scenario, seed: int | None = None, stack: StackConf
     given, replaces its simulator's seed); its result in the session result's ``scenarios`` form (``name``,
     ``seed``, ``passed``, ``faults``). The kart's measured speed (its 0x440 report) and steering angle are the
     simulator's. The drive ends at the scenario's time, a second after the kart has parked, or a second after
-    nothing it does can change the verdict any more (:meth:`ScenarioReferee.decided`: past every mark, the car
-    passed and the lane regained). ``max_time_s`` ends it earlier than the scenario's own time (a test's short
+    nothing it does can change the verdict on the scenario's rules any more (:meth:`ScenarioReferee.decided`: past
+    every mark, the car passed and the lane regained; the track's own referee, for leaving the track, watches until
+    then). ``max_time_s`` ends it earlier than the scenario's own time (a test's short
     drive: then judged as far as it went).
 
     ``outputs`` (none by default): ``record_dir`` records the drive as every drive is (frames, commands, the
