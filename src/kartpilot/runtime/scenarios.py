@@ -37,14 +37,11 @@ def run_scenario(name: str | Scenario, seed: int | None = None, stack: StackConf
                  camera_rate_hz: float = 15.0, max_time_s: float | None = None,
                  outputs: SessionOutputs | None = None, vehicle: str = "sdc-kart",
                  injections: Sequence[Injection] = ()) -> dict[str, Any]:
-    """Drive one scenario: a built-in one by name on ``seed``, or a :class:`Scenario` (from a file; ``seed``, if
-    given, replaces its simulator's seed); its result in the session result's ``scenarios`` form (``name``,
-    ``seed``, ``passed``, ``faults``). The kart's measured speed (its 0x440 report) and steering angle are the
-    simulator's. The drive ends at the scenario's time, a second after the kart has parked, or a second after
-    nothing it does can change the verdict on the scenario's rules any more (:meth:`ScenarioReferee.decided`: past
-    every mark, the car passed and the lane regained; the track's own referee, for leaving the track, watches until
-    then). ``max_time_s`` ends it earlier than the scenario's own time (a test's short
-    drive: then judged as far as it went).
+    """Drive one scenario: a built-in one by name on ``seed``, or a :class:`Scenario` (from a file; ``seed`` replaces
+    its seed); its result in the session result's ``scenarios`` form (``name``, ``seed``, ``passed``, ``faults``).
+    The kart's measured speed and steering angle are the simulator's. The drive ends at the scenario's time, or a
+    second after the kart has parked or the verdict on the rules is sure (:meth:`ScenarioReferee.decided`);
+    ``max_time_s`` ends it earlier (a test's short drive: then judged as far as it went).
 
     ``outputs`` (none by default): ``record_dir`` records the drive as every drive is (frames, commands, the
     ``lanes`` and ``behaviour`` topics, and the ``kart`` topic of what the pipeline was told the kart measured),
