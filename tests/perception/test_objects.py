@@ -874,3 +874,15 @@ def test_a_car_seen_before_holds_the_shapes_in_its_width_and_depth_where_it_stan
     assert nearer.holds(side)
     assert not nearer.holds(replace(side, distance_m=9.0))  # 3 m before the car: a person
     assert not nearer.holds(replace(side, lateral_m=0.7 + ground.half_width_m + 1.0))  # beside it
+
+
+def test_a_shape_cut_by_the_image_s_top_is_a_person_only_if_a_person_could_be_that_tall():
+    """Sweep event overtake 40009: a trunk cut by the image's top, 13 m ahead, stood 3.7 m tall where it was seen and
+    was taken for a person (a clipped head only says the height seen is the least the person is). The height seen must
+    be a person's already, and no more than the tallest one's."""
+    from kartpilot.perception.obstacles import Upright, _person_fit
+
+    config = ObstacleConfig()
+    for height_m, person in ((1.7, True), (2.1, True), (1.2, False), (2.4, False), (3.7, False)):
+        seen = _person_fit(Upright((0.0, 0.0, 10.0, 100.0), 8.0, -0.2, 0.2, height_m, True), config)
+        assert (seen is not None) == person, height_m
