@@ -165,18 +165,21 @@ def test_the_verdict_is_sure_only_once_every_mark_is_behind_the_kart():
             front, speed = trajectory(t, plan.marks)
             referee.step(t, front, speed, dt)
             if referee.decided(t, front):
-                return t, front, plan.marks
+                return t, front, plan.marks, referee.result(front)
             t += dt
         return None
 
     def stop_and_go(t, m):
         return (29.3, 0.0) if t < m["red_until_s"] else (29.3 + 4.0 * (t - m["red_until_s"]), 4.0)
 
-    t, front, marks = first_decided("red-light", 2, stop_and_go)
+    t, front, marks, verdict = first_decided("red-light", 2, stop_and_go)
     assert t >= marks["red_until_s"] and front >= marks["line_s"] + 2.0
-    assert run("red-light", 2, stop_and_go)["passed"]
+    assert verdict == run("red-light", 2, stop_and_go) and verdict["passed"]
+    early = first_decided("red-light", 2, lambda t, m: (30.4, 0.0) if t < m["red_until_s"] else (
+        30.4 + 4.0 * (t - m["red_until_s"]), 4.0))  # stopped past the line: the fault is already counted
+    assert early is not None and not early[3]["passed"]
     assert first_decided("red-light", 2, lambda t, m: (29.3, 0.0)) is None  # stays at the line: never sure
-    t, front, marks = first_decided("start-on-green", 3,
+    t, front, marks, _ = first_decided("start-on-green", 3,
                                     lambda t, m: (6.5 + 3.0 * max(t - m["start_green_at_s"], 0.0), 3.0))
     assert t >= marks["start_green_at_s"] and front >= 8.5
     assert first_decided("pedestrian", 1, lambda t, m: (136.0 + 2.0 * t, 2.0))[1] >= 149.0
