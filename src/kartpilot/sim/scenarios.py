@@ -239,18 +239,33 @@ class ScenarioReferee:
         back in its lane where the car was passed. Never for a bay (the drive ends when the kart has parked), for
         a limit that holds to the drive's end, or for a scenario without marks. A fault already counted stays."""
         marks = self.scenario.marks
-        if not marks.keys() & {"start_green_at_s", "line_s", "sign_s", "zebra_s", "car_s"} or "bay_s" in marks:
+        if (not marks.keys() & {"start_green_at_s", "line_s", "sign_s", "zebra_s", "car_s"} or "bay_s" in marks
+                or math.isnan(front_s_m)):
             return False
+        short = self._short_of(front_s_m)
         settled = [
-            "start_green_at_s" not in marks or (time_s >= marks["start_green_at_s"]
-                                                and front_s_m - self._start_front >= 2.0),
-            "line_s" not in marks or (time_s >= marks["red_until_s"] and front_s_m >= marks["line_s"] + 2.0),
+            "start_green_at_s" not in marks or (time_s >= marks["start_green_at_s"] and not short["start_green_at_s"]),
+            "line_s" not in marks or (time_s >= marks["red_until_s"] and not short["line_s"]),
             "sign_s" not in marks or front_s_m >= marks.get("limit_until_s", math.inf),
-            "zebra_s" not in marks or front_s_m >= marks["zebra_s"] + 3.0,
-            "car_s" not in marks or (not math.isnan(self._back_offset_m)
-                                     and front_s_m >= marks["car_s"] + PROP_SIZES_M["car"][1] / 2 + 2.0),
+            "zebra_s" not in marks or not short["zebra_s"],
+            "car_s" not in marks or (not math.isnan(self._back_offset_m) and not short["car_s"]),
         ]
         return all(settled)
+
+    def _short_of(self, front_s_m: float) -> dict[str, bool]:
+        """For each mark the kart must drive on past (where the scenario has it), whether its front is still short
+        of where the event counts it as gone on: 2 m from where it started, 2 m past the stop line, 3 m past the
+        zebra, 2 m past the car's back. The verdict's "did not ..." faults and :meth:`decided` both ask here."""
+        marks, out = self.scenario.marks, {}
+        if "start_green_at_s" in marks:
+            out["start_green_at_s"] = front_s_m - self._start_front < 2.0
+        if "line_s" in marks:
+            out["line_s"] = front_s_m < marks["line_s"] + 2.0
+        if "zebra_s" in marks:
+            out["zebra_s"] = front_s_m < marks["zebra_s"] + 3.0
+        if "car_s" in marks:
+            out["car_s"] = front_s_m < marks["car_s"] + PROP_SIZES_M["car"][1] / 2 + 2.0
+        return out
 
     def _fault(self, text: str) -> None:
         kind = text.split(" (")[0].split(" at ")[0]
@@ -260,6 +275,7 @@ class ScenarioReferee:
     def result(self, front_s_m: float) -> dict[str, Any]:
         s, marks = self.scenario, self.scenario.marks
         faults = list(self.faults)
+        short = self._short_of(front_s_m)
         if "sign_s" in marks and self._over_s > self.tolerance_s:
             faults.append(f"over the limit by up to {self._worst_kmh:.1f} km/h for {self._over_s:.1f} s")
         if "line_s" in marks:
@@ -267,14 +283,14 @@ class ScenarioReferee:
                 faults.append("did not stop at the red light")
             elif not 0.2 <= self._stopped_gap <= 1.5:
                 faults.append(f"stopped {self._stopped_gap:.2f} m before the line (0.2 to 1.5 m wanted)")
-            if front_s_m < marks["line_s"] + 2.0:
+            if short["line_s"]:
                 faults.append("did not go on at green")
-        if "start_green_at_s" in marks and front_s_m - self._start_front < 2.0:
+        if "start_green_at_s" in marks and short["start_green_at_s"]:
             faults.append("did not start on green")
-        if "zebra_s" in marks and front_s_m < marks["zebra_s"] + 3.0:
+        if "zebra_s" in marks and short["zebra_s"]:
             faults.append("did not go on after the pedestrian had crossed")
         if "car_s" in marks:
-            if front_s_m < marks["car_s"] + PROP_SIZES_M["car"][1] / 2 + 2.0:
+            if short["car_s"]:
                 faults.append("did not pass the car")
             elif math.isnan(self._back_offset_m):
                 faults.append("did not get back to the lane in time")
