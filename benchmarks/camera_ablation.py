@@ -26,7 +26,7 @@ import cv2
 from common import write_json
 from kartpilot.eval.vo_clips import score_stereo_source
 from kartpilot.record.recording import RecordingStereoSource
-from kartpilot.sim.simulator import CameraEffectsConfig, SimConfig, perfect_camera
+from kartpilot.sim.simulator import CameraEffectsConfig, SimConfig, perfect_camera, real_camera
 from vo_accuracy import record_once
 from vo_table import put_at_marker
 
@@ -46,7 +46,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
 
 
 def effects_of(variant: str) -> CameraEffectsConfig:
-    return perfect_camera() if variant == "perfect" else replace(CameraEffectsConfig(), **VARIANTS[variant])
+    return perfect_camera() if variant == "perfect" else replace(real_camera("rc-kart"), **VARIANTS[variant])
 
 
 def row(cache: Path, seed: int, variant: str, seconds: float) -> dict[str, Any]:

@@ -36,6 +36,7 @@ import numpy as np
 from common import write_json
 from kartpilot.core.camera import PinholeCamera
 from kartpilot.core.config import config_to_dict
+from kartpilot.core.files import write_text_atomic
 from kartpilot.core.trajectory import Trajectory
 from kartpilot.core.types import FrameSet
 from kartpilot.core.vehicle import VehicleParams, get_vehicle
@@ -124,7 +125,7 @@ def record_once(folder: Path, config: SimConfig, speed_mps: float) -> Path:
         print(f"recording {folder.name} ...")
         run_simulation(config, "centerline", driver_config=CenterlineDriverConfig(speed_mps=speed_mps),
                        outputs=SessionOutputs(record_dir=folder))
-        drawn_by.write_text(simulator_hash() + "\n")
+        write_text_atomic(drawn_by, simulator_hash() + "\n")
         return folder
     if not drawn_by.is_file() or drawn_by.read_text().strip() != simulator_hash():
         raise SystemExit(f"{folder} was drawn by another simulator than this checkout's (or one that did not say): "
